@@ -1,0 +1,144 @@
+// Configuration of one simulation: every key of the TOML file, in SI units.
+// docs/config.md documents each key; load_config() validates each one at the door.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace cvt {
+
+// Exit code for bad input (EX_CONFIG of sysexits.h).
+inline constexpr int kExitConfig = 78;
+
+// A bad configuration value: names the key, the value and the reason.
+class ConfigError : public std::runtime_error {
+ public:
+  ConfigError(std::string key, std::string value, std::string reason)
+      : std::runtime_error("configuration error: " + key + " = " + value + ": " + reason),
+        key_(std::move(key)), value_(std::move(value)), reason_(std::move(reason)) {}
+  const std::string& key() const { return key_; }
+  const std::string& value() const { return value_; }
+  const std::string& reason() const { return reason_; }
+
+ private:
+  std::string key_, value_, reason_;
+};
+
+enum class FrictionLaw { nonsmooth, smooth, none };
+
+struct Config {
+  struct Geometry {
+    double centre_distance = 0.160;  // a [m]
+    double ratio = 1.0;              // target geometric ratio R2/R1 of the initial state [-]
+  } geometry;
+  struct Chain {
+    int links = 84;
+    double pitch = 8.0e-3;           // joint-to-joint distance in the straight chain [m]
+    int plates_per_link = 12;
+    double plate_mass = 1.6e-3;      // [kg]
+    double plate_stiffness = 1.0e8;  // k_pl [N/m]
+    double plate_damping = 20.0;     // c_pl [N s/m]
+    double plate_spread = 0.024;     // axial width over which the plates of a link sit [m]
+    double link_inertia = 2.5e-7;    // J_link [kg m^2]
+    double pack_stiffness = 1.0e7;   // axial spring pack <-> pins [N/m]
+    double pack_damping = 40.0;      // [N s/m]
+  } chain;
+  struct Pin {
+    double length = 0.036;   // [m]
+    double ea = 2.7e6;       // [N]
+    double ei = 2.9;         // [N m^2]
+    double mass = 3.7e-3;    // per half [kg]
+    double damping_time = 5.0e-7;  // stiffness-proportional damping coefficient beta [s]
+  } pin;
+  struct Rocker {
+    int stations = 4;
+    double radius = 4.0e-3;        // R_r [m]
+    double half_distance = 2.6e-3; // d_h [m]
+    double stiffness = 7.9e10;     // Hertz c per station [N/m^1.5]
+    double damping = 50.0;         // b per station [N s/m]
+  } rocker;
+  struct PulleyContact {
+    double end_radius = 0.02;   // R_end [m]
+    double stiffness = 2.2e10;  // [N/m^1.5]
+    double damping = 50.0;      // [N s/m]
+  } pulley_contact;
+  struct Friction {
+    FrictionLaw law = FrictionLaw::nonsmooth;
+    double f0 = 0.09;
+    double v0 = 1.0e-3;  // [m/s]
+  } friction;
+  struct Sheave {
+    double cone_angle = 11.0;     // beta [deg]
+    double outer_radius = 0.085;  // [m]
+    double hub_radius = 0.028;    // [m]
+  } sheave;
+  struct Shaft {
+    double mass = 5.0;             // shaft + pulley set [kg]
+    double polar_inertia = 0.02;   // [kg m^2]
+    double tilt_inertia = 0.01;    // [kg m^2]
+    double sheave_mass = 2.0;      // moving sheave, axial [kg]
+  } shaft;
+  struct Bearing {
+    double half_span = 0.05;         // l_b [m]
+    double k1 = 2.0e8;               // [N/m]
+    double k3 = 1.0e16;              // [N/m^3]
+    double radial_damping = 3.0e3;   // [N s/m]
+    double axial_stiffness = 1.0e8;  // [N/m]
+    double axial_damping = 2.0e3;    // [N s/m]
+  } bearing;
+  struct Drive {
+    double speed = 209.4;      // omega_in [rad/s]
+    double stiffness = 2.0e4;  // k_t [N m/rad]
+    double damping = 2.0;      // [N m s/rad]
+  } drive;
+  struct Load {
+    double torque = 150.0;            // M0 [N m]
+    double inertia = 0.05;            // J_load [kg m^2]
+    double speed_coefficient = 0.0;   // c_omega [N m s/rad]
+    double stiffness = 2.0e4;         // torsion spring pulley <-> load [N m/rad]
+    double damping = 2.0;             // [N m s/rad]
+  } load;
+  struct Clamping {
+    double driving = 25.0e3;  // F1 [N]
+    double driven = 30.0e3;   // F2 [N]
+    double sheave_damping = 2.0e3;  // moving sheave on its shaft [N s/m]
+  } clamping;
+  struct Controller {
+    bool enabled = false;
+    double target_ratio = 1.0;  // speed ratio omega_in/omega_out to hold
+    double kp = 0.0;            // [N]
+    double ki = 0.0;            // [N/s]
+  } controller;
+  struct Ramp {
+    double time = 2.0e-3;  // t_ramp [s]; 0 applies loads at once
+  } ramp;
+  struct Damping {
+    double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
+  } damping;
+  struct Integrator {
+    std::string method = "rk4";
+    double step = 1.0e-8;  // [s]
+  } integrator;
+  struct Run {
+    double t_end = 5.0e-3;            // [s]
+    double sample_interval = 1.0e-5;  // [s]
+    double snapshot_interval = 1.0e-4; // [s]; 0 turns snapshots off
+    int tracked_pin = 0;
+    int tracked_link = 0;
+  } run;
+
+  // The fully resolved configuration as TOML text (what /parameters/config stores).
+  std::string resolved_toml;
+};
+
+// Parses TOML text, applies the overrides ("section.key=value") and validates every key.
+// Throws ConfigError. `origin` names the source in messages.
+Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides = {},
+                    const std::string& origin = "<string>");
+// Reads the file and calls parse_config. A missing file is a ConfigError too.
+Config load_config(const std::string& path, const std::vector<std::string>& overrides = {});
+
+const char* to_string(FrictionLaw law);
+
+}  // namespace cvt

@@ -1,0 +1,78 @@
+// Mutable data of a run (MuJoCo's mjData): sized once from the Model, nothing is
+// allocated inside a step. Kernels read the stage input (t, q, v) and the link
+// kinematics, and write only the per-pin slots of their own module.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "engine/model.hpp"
+
+namespace cvt {
+
+// Generalized forces a kernel produced for joint j (docs/model.md 4.0, ordered gather):
+// coordinates of joint j, those of half a_{j+1}, torques on links j-1 and j (to be
+// multiplied by g_i), the two shafts, and the dissipated power.
+struct alignas(64) JointSlot {
+  std::array<double, kJointSize> f;   // a_j, b_j, s_j
+  std::array<double, half::kSize> f_next_a;  // a_{j+1}
+  double tau_prev, tau_own;           // on link j-1 and link j
+  std::array<double, 2 * kShaftSize> shaft;
+  double p_diss;                      // dissipated power [W], >= 0
+  void clear() {
+    f.fill(0.0);
+    f_next_a.fill(0.0);
+    tau_prev = tau_own = 0.0;
+    shaft.fill(0.0);
+    p_diss = 0.0;
+  }
+};
+
+// Per-link kinematics of the current stage (docs/model.md 3.1), structure of arrays.
+struct LinkKinematics {
+  std::vector<double> ex, ey;     // unit link direction e_i
+  std::vector<double> inv_len;    // 1/|Delta_i|
+  std::vector<double> psi_dot;    // link angular velocity
+  std::vector<double> dx, dy, ddx, ddy;  // Delta_i and its rate
+};
+
+// Contact statuses, frozen during a step (docs/model.md 4.4).
+struct ContactStatus {
+  std::vector<std::uint8_t> rocker;  // [joint][station]
+  std::vector<std::uint8_t> pulley;  // [joint][half 2][end 2][pulley 2]
+  static int pulley_index(int j, int h, int e, int k) { return ((j * 2 + h) * 2 + e) * 2 + k; }
+};
+
+// Output of other_forces (shafts, drive, load, clamping): small, one slot.
+struct OtherForces {
+  std::array<double, 2 * kShaftSize + 1> f;  // shafts 0, 1, then the load angle
+  double p_in = 0, p_out = 0, p_diss = 0, p_clamp = 0, ctrl_rate = 0;
+  double input_torque = 0, output_torque = 0, load_torque = 0;
+  double clamp[2] = {0, 0};
+  double support_force[2][2] = {{0, 0}, {0, 0}};  // [shaft][bearing] magnitude [N]
+};
+
+struct Workspace {
+  explicit Workspace(const Model& m);
+
+  // Stage input.
+  double t = 0;
+  const double* q = nullptr;
+  const double* v = nullptr;
+  const double* aux = nullptr;
+
+  LinkKinematics kin;
+  ContactStatus status;
+  std::vector<JointSlot> chain_slots, pulley_slots, inertia_slots;
+  OtherForces other;
+  std::vector<double> capacitance_inv;  // 1/C_i of the Woodbury solve (3.2)
+
+  // Gather and solve.
+  Eigen::VectorXd force;       // generalized forces F (n)
+  std::vector<double> link_tau;  // summed torques per link
+  Eigen::VectorXd accel;       // q'' (n)
+  double p_diss = 0;           // total dissipated power of the stage
+};
+
+}  // namespace cvt

@@ -1,0 +1,323 @@
+// docs/model.md 4.1 (beams), 4.2 (plates, pack), 4.3 (rocker joints).
+#include "modules/chain_forces.hpp"
+
+#include <cmath>
+
+#include "modules/beam.hpp"
+#include "modules/contact_laws.hpp"
+
+namespace cvt {
+namespace {
+
+// 4.1: bending stiffness of one plane in (w1, s1, w2, s2), times EI/L^3.
+inline void bend_stiffness_times(double L, const double u[4], double out[4]) {
+  out[0] = 12 * u[0] + 6 * L * u[1] - 12 * u[2] + 6 * L * u[3];
+  out[1] = 6 * L * u[0] + 4 * L * L * u[1] - 6 * L * u[2] + 2 * L * L * u[3];
+  out[2] = -12 * u[0] - 6 * L * u[1] + 12 * u[2] - 6 * L * u[3];
+  out[3] = 6 * L * u[0] + 2 * L * L * u[1] - 6 * L * u[2] + 4 * L * L * u[3];
+}
+
+// 4.1: beam forces of one half; returns the dissipated power.
+double beam(const Model& m, const double* q, const double* v, double* f) {
+  const double L = m.L0, EA = m.cfg.pin.ea, k_b = m.cfg.pin.ei / (L * L * L);
+  const double beta = m.beam_beta;
+  double p = 0;
+  const double eps = q[half::kEnd + half::kZ] - q[half::kZ] - L;
+  const double eps_dot = v[half::kEnd + half::kZ] - v[half::kZ];
+  const double Nax = EA / L * (eps + beta * eps_dot);
+  f[half::kZ] += Nax;
+  f[half::kEnd + half::kZ] -= Nax;
+  p += beta * EA / L * eps_dot * eps_dot;
+  for (int pl = 0; pl < 2; ++pl) {
+    const auto d = plane_dofs(pl);
+    double u[4], ud[4], ku[4], kud[4];
+    for (int i = 0; i < 4; ++i) {
+      u[i] = q[d[i]];
+      ud[i] = v[d[i]];
+    }
+    bend_stiffness_times(L, u, ku);
+    bend_stiffness_times(L, ud, kud);
+    for (int i = 0; i < 4; ++i) {
+      f[d[i]] -= k_b * (ku[i] + beta * kud[i]);
+      p += beta * k_b * ud[i] * kud[i];
+    }
+  }
+  return p;
+}
+
+double beam_energy(const Model& m, const double* q) {
+  const double L = m.L0, EA = m.cfg.pin.ea, k_b = m.cfg.pin.ei / (L * L * L);
+  const double eps = q[half::kEnd + half::kZ] - q[half::kZ] - L;
+  double E = 0.5 * EA / L * eps * eps;
+  for (int pl = 0; pl < 2; ++pl) {
+    const auto d = plane_dofs(pl);
+    double u[4], ku[4];
+    for (int i = 0; i < 4; ++i) u[i] = q[d[i]];
+    bend_stiffness_times(L, u, ku);
+    for (int i = 0; i < 4; ++i) E += 0.5 * k_b * u[i] * ku[i];
+  }
+  return E;
+}
+
+// 4.2: where plate k of link j meets a half: parameter xi = 1/2 + (s + zeta - z_mid)/L0.
+struct PlatePoint {
+  HermiteWeights h;
+  double x, y;    // lateral position
+  double vx, vy;  // its rate (including the rate of xi)
+  double dx_dxi, dy_dxi;
+};
+
+inline PlatePoint plate_point(const Model& m, const double* hq, const double* hv, double Z, double Zdot) {
+  const double zm = 0.5 * (hq[half::kZ] + hq[half::kEnd + half::kZ]);
+  const double zmd = 0.5 * (hv[half::kZ] + hv[half::kEnd + half::kZ]);
+  const double xi = 0.5 + (Z - zm) / m.L0;
+  const double xid = (Zdot - zmd) / m.L0;
+  PlatePoint p;
+  p.h = hermite(xi, m.L0);
+  p.x = lateral(hq, p.h, 0);
+  p.y = lateral(hq, p.h, 1);
+  p.dx_dxi = lateral_dxi(hq, p.h, 0);
+  p.dy_dxi = lateral_dxi(hq, p.h, 1);
+  p.vx = lateral(hv, p.h, 0) + p.dx_dxi * xid;
+  p.vy = lateral(hv, p.h, 1) + p.dy_dxi * xid;
+  return p;
+}
+
+// Distributes a lateral force (fx, fy) at a plate point: Hermite weights on the lateral
+// coordinates, and through xi onto s (+1/L0) and the half's end z (-1/(2 L0) each).
+inline void plate_point_force(const Model& m, const PlatePoint& p, double fx, double fy, double* hf, double* fs) {
+  add_lateral(hf, p.h, 0, fx);
+  add_lateral(hf, p.h, 1, fy);
+  const double fxi = fx * p.dx_dxi + fy * p.dy_dxi;
+  *fs += fxi / m.L0;
+  hf[half::kZ] -= 0.5 * fxi / m.L0;
+  hf[half::kEnd + half::kZ] -= 0.5 * fxi / m.L0;
+}
+
+struct PlateEval {
+  PlatePoint b, a;
+  double ux, uy, stretch, rate;
+};
+
+inline PlateEval plate_eval(const Model& m, const double* qb, const double* vb, const double* qa,
+                            const double* va, double s, double sd, double zeta) {
+  PlateEval e;
+  e.b = plate_point(m, qb, vb, s + zeta, sd);
+  e.a = plate_point(m, qa, va, s + zeta, sd);
+  const double dx = e.a.x - e.b.x, dy = e.a.y - e.b.y;
+  const double d = std::sqrt(dx * dx + dy * dy);
+  e.ux = dx / d;
+  e.uy = dy / d;
+  e.stretch = d - m.plate_rest;
+  e.rate = e.ux * (e.a.vx - e.b.vx) + e.uy * (e.a.vy - e.b.vy);
+  return e;
+}
+
+// 4.3: rocker geometry at one station.
+struct RockerEval {
+  HermiteWeights h;
+  double xi;
+  double pax, pay, pbx, pby;  // half centre lines at the station
+  double mx, my;              // unit normal from b to a
+  double pen, pen_rate;       // penetration Delta and its rate
+};
+
+inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const double* qa, const double* va,
+                              const double* qb, const double* vb, int lp, int lc, double xi) {
+  RockerEval r;
+  r.xi = xi;
+  r.h = hermite(xi, m.L0);
+  r.pax = lateral(qa, r.h, 0);
+  r.pay = lateral(qa, r.h, 1);
+  r.pbx = lateral(qb, r.h, 0);
+  r.pby = lateral(qb, r.h, 1);
+  const double kap = m.kappa;
+  // C_a = P_a - kappa e_prev, C_b = P_b + kappa e_own.
+  const double cax = r.pax - kap * k.ex[lp], cay = r.pay - kap * k.ey[lp];
+  const double cbx = r.pbx + kap * k.ex[lc], cby = r.pby + kap * k.ey[lc];
+  const double Dx = cax - cbx, Dy = cay - cby;
+  const double dist = std::sqrt(Dx * Dx + Dy * Dy);
+  r.mx = Dx / dist;
+  r.my = Dy / dist;
+  r.pen = 2 * m.cfg.rocker.radius - dist;
+  // e_dot = psi_dot n, n = (-ey, ex).
+  const double cadx = lateral(va, r.h, 0) + kap * k.psi_dot[lp] * k.ey[lp];
+  const double cady = lateral(va, r.h, 1) - kap * k.psi_dot[lp] * k.ex[lp];
+  const double cbdx = lateral(vb, r.h, 0) - kap * k.psi_dot[lc] * k.ey[lc];
+  const double cbdy = lateral(vb, r.h, 1) + kap * k.psi_dot[lc] * k.ex[lc];
+  r.pen_rate = -(r.mx * (cadx - cbdx) + r.my * (cady - cbdy));
+  return r;
+}
+
+}  // namespace
+
+void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
+  const Config& c = m.cfg;
+  const LinkKinematics& kin = ws.kin;
+  const double kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
+  const double crk = c.rocker.stiffness, brk = c.rocker.damping * m.damp;
+  const double ks = c.chain.pack_stiffness, cs = c.chain.pack_damping * m.damp;
+  const FrictionLaw law = c.friction.law;
+  const double f0 = c.friction.f0, v0 = c.friction.v0;
+  const int nst = c.rocker.stations;
+  for (int j = begin; j < end; ++j) {
+    JointSlot& s = ws.chain_slots[j];
+    s.clear();
+    const double* qa = ws.q + m.half_a(j);
+    const double* va = ws.v + m.half_a(j);
+    const double* qb = ws.q + m.half_b(j);
+    const double* vb = ws.v + m.half_b(j);
+    double* fa = s.f.data() + kJointA;
+    double* fb = s.f.data() + kJointB;
+    double* fs = s.f.data() + kJointS;
+    double* fn = s.f_next_a.data();
+    // 4.1 beams.
+    s.p_diss += beam(m, qa, va, fa);
+    s.p_diss += beam(m, qb, vb, fb);
+
+    // 4.3 rocker joint j: a_j turns with link j-1, b_j with link j.
+    const int lp = m.wrap(j - 1), lc = j;
+    for (int st = 0; st < nst; ++st) {
+      if (!ws.status.rocker[j * nst + st]) continue;
+      const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st]);
+      const double Nel = hertz_force(crk, r.pen);
+      const double N = Nel + (r.pen > 0 ? brk * r.pen_rate : 0.0);
+      s.p_diss += (N - Nel) * r.pen_rate;
+      // Normal: F_a = N m, F_b = -N m; link torques -N kappa (m . n).
+      add_lateral(fa, r.h, 0, N * r.mx);
+      add_lateral(fa, r.h, 1, N * r.my);
+      add_lateral(fb, r.h, 0, -N * r.mx);
+      add_lateral(fb, r.h, 1, -N * r.my);
+      s.tau_prev += -N * m.kappa * (r.mx * -kin.ey[lp] + r.my * kin.ex[lp]);
+      s.tau_own += -N * m.kappa * (r.mx * -kin.ey[lc] + r.my * kin.ex[lc]);
+      if (Nel <= 0 || law == FrictionLaw::none) continue;
+      // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
+      const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
+      const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
+      const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
+      const double xi = r.xi;
+      const double vax = lateral(va, r.h, 0) - kin.psi_dot[lp] * ray;
+      const double vay = lateral(va, r.h, 1) + kin.psi_dot[lp] * rax;
+      const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
+      const double vbx = lateral(vb, r.h, 0) - kin.psi_dot[lc] * rby;
+      const double vby = lateral(vb, r.h, 1) + kin.psi_dot[lc] * rbx;
+      const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
+      double wx = vax - vbx, wy = vay - vby;
+      const double wz = vaz - vbz;
+      const double wn = wx * r.mx + wy * r.my;
+      wx -= wn * r.mx;
+      wy -= wn * r.my;
+      const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
+      const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+      const double Rx = -mu * wx, Ry = -mu * wy, Rz = -mu * wz;  // on a
+      s.p_diss += mu * speed * speed;
+      add_lateral(fa, r.h, 0, Rx);
+      add_lateral(fa, r.h, 1, Ry);
+      fa[half::kZ] += (1 - xi) * Rz;
+      fa[half::kEnd + half::kZ] += xi * Rz;
+      add_lateral(fb, r.h, 0, -Rx);
+      add_lateral(fb, r.h, 1, -Ry);
+      fb[half::kZ] -= (1 - xi) * Rz;
+      fb[half::kEnd + half::kZ] -= xi * Rz;
+      s.tau_prev += rax * Ry - ray * Rx;
+      s.tau_own -= rbx * Ry - rby * Rx;
+    }
+
+    // 4.2 plates of link j between b_j and a_{j+1}.
+    const double* qn = ws.q + m.half_a(j + 1);
+    const double* vn = ws.v + m.half_a(j + 1);
+    const double sq = ws.q[m.pack(j)], sv = ws.v[m.pack(j)];
+    for (double zeta : m.plate_zeta) {
+      const PlateEval e = plate_eval(m, qb, vb, qn, vn, sq, sv, zeta);
+      if (e.stretch <= 0) continue;
+      const double T = kpl * e.stretch + cpl * e.rate;
+      s.p_diss += cpl * e.rate * e.rate;
+      plate_point_force(m, e.a, -T * e.ux, -T * e.uy, fn, fs);
+      plate_point_force(m, e.b, T * e.ux, T * e.uy, fb, fs);
+    }
+    // 4.2 pack: s held to the mean axial position of its two halves.
+    const double zmean = 0.25 * (qb[half::kZ] + qb[half::kEnd + half::kZ] + qn[half::kZ] + qn[half::kEnd + half::kZ]);
+    const double zmd = 0.25 * (vb[half::kZ] + vb[half::kEnd + half::kZ] + vn[half::kZ] + vn[half::kEnd + half::kZ]);
+    const double Fp = ks * (sq - zmean) + cs * (sv - zmd);
+    s.p_diss += cs * (sv - zmd) * (sv - zmd);
+    *fs -= Fp;
+    fb[half::kZ] += 0.25 * Fp;
+    fb[half::kEnd + half::kZ] += 0.25 * Fp;
+    fn[half::kZ] += 0.25 * Fp;
+    fn[half::kEnd + half::kZ] += 0.25 * Fp;
+  }
+}
+
+double chain_energy(const Model& m, const double* q) {
+  const Config& c = m.cfg;
+  // Link directions from positions only (velocity-free kinematics).
+  std::vector<double> ex(m.links), ey(m.links);
+  for (int i = 0; i < m.links; ++i) {
+    const double* b = q + m.half_b(i);
+    const double* a = q + m.half_a(i + 1);
+    const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
+    const double l = std::sqrt(dx * dx + dy * dy);
+    ex[i] = dx / l;
+    ey[i] = dy / l;
+  }
+  double E = 0;
+  for (int j = 0; j < m.links; ++j) {
+    const double* qa = q + m.half_a(j);
+    const double* qb = q + m.half_b(j);
+    const double* qn = q + m.half_a(j + 1);
+    E += beam_energy(m, qa) + beam_energy(m, qb);
+    const int lp = m.wrap(j - 1);
+    for (double xi : m.station_xi) {
+      const HermiteWeights h = hermite(xi, m.L0);
+      const double cax = lateral(qa, h, 0) - m.kappa * ex[lp], cay = lateral(qa, h, 1) - m.kappa * ey[lp];
+      const double cbx = lateral(qb, h, 0) + m.kappa * ex[j], cby = lateral(qb, h, 1) + m.kappa * ey[j];
+      const double pen = 2 * c.rocker.radius - std::hypot(cax - cbx, cay - cby);
+      E += hertz_energy(c.rocker.stiffness, pen);
+    }
+    const double sq = q[m.pack(j)];
+    for (double zeta : m.plate_zeta) {
+      const PlateEval e = plate_eval(m, qb, qb, qn, qn, sq, 0.0, zeta);
+      if (e.stretch > 0) E += 0.5 * c.chain.plate_stiffness * e.stretch * e.stretch;
+    }
+    const double zmean = 0.25 * (qb[half::kZ] + qb[half::kEnd + half::kZ] + qn[half::kZ] + qn[half::kEnd + half::kZ]);
+    E += 0.5 * c.chain.pack_stiffness * (sq - zmean) * (sq - zmean);
+  }
+  return E;
+}
+
+double link_tension(const Model& m, const Workspace& ws, int j) {
+  const double* qb = ws.q + m.half_b(j);
+  const double* vb = ws.v + m.half_b(j);
+  const double* qn = ws.q + m.half_a(j + 1);
+  const double* vn = ws.v + m.half_a(j + 1);
+  double T = 0;
+  for (double zeta : m.plate_zeta) {
+    const PlateEval e = plate_eval(m, qb, vb, qn, vn, ws.q[m.pack(j)], ws.v[m.pack(j)], zeta);
+    if (e.stretch > 0)
+      T += m.cfg.chain.plate_stiffness * e.stretch + m.cfg.chain.plate_damping * m.damp * e.rate;
+  }
+  return T;
+}
+
+double half_axial_force(const Model& m, const double* q, const double* v, int o) {
+  const double eps = q[o + half::kEnd + half::kZ] - q[o + half::kZ] - m.L0;
+  const double rate = v[o + half::kEnd + half::kZ] - v[o + half::kZ];
+  return m.cfg.pin.ea / m.L0 * (eps + m.beam_beta * rate);
+}
+
+void update_rocker_status(const Model& m, Workspace& ws) {
+  const int nst = m.cfg.rocker.stations;
+  const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
+  for (int j = 0; j < m.links; ++j) {
+    const double* qa = ws.q + m.half_a(j);
+    const double* va = ws.v + m.half_a(j);
+    const double* qb = ws.q + m.half_b(j);
+    const double* vb = ws.v + m.half_b(j);
+    for (int st = 0; st < nst; ++st) {
+      const RockerEval r = rocker_eval(m, ws.kin, qa, va, qb, vb, m.wrap(j - 1), j, m.station_xi[st]);
+      ws.status.rocker[j * nst + st] = r.pen > 0 && hertz_force(crk, r.pen) + brk * r.pen_rate > 0;
+    }
+  }
+}
+
+}  // namespace cvt

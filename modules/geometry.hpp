@@ -1,0 +1,32 @@
+// Initial chain geometry (docs/model.md 5): the chain as a kinematic chain of links,
+// placed on the belt path of two pitch circles with straight spans so that every rocker
+// pair just touches and every plate sits at its rest length.
+#pragma once
+
+#include <Eigen/Dense>
+#include <vector>
+
+namespace cvt {
+
+struct ChainPathParams {
+  double centre_distance, ratio;  // a, R2/R1
+  int links;
+  double plate_rest;    // l0 = p + d_h
+  double kappa;         // d_h/2 - R_r
+  double rocker_radius; // R_r
+  double r_min, r_max;  // admissible joint radii on the pulleys
+};
+
+struct ChainPlacement {
+  double R1 = 0, R2 = 0;                  // joint-centre radii on the two arcs
+  std::vector<Eigen::Vector2d> pa, pb;    // half centre lines (xy) of every joint
+  std::vector<int> region;                // 0: arc of pulley 0, 1: arc of pulley 1, 2: span
+  std::vector<Eigen::Vector2d> span_dir;  // travel direction (spans only)
+  double closure_residual = 0;            // |c_N - c_0| after the walk [m]
+  int iterations = 0;
+};
+
+// Places the chain; throws ConfigError when the chain cannot wrap the pulleys.
+ChainPlacement place_chain(const ChainPathParams& p);
+
+}  // namespace cvt

@@ -1,0 +1,30 @@
+// Inertia (docs/model.md 3): A(q) = A0 + J_link sum_i g_i g_i^T with g_i = d psi_i / dq.
+#pragma once
+
+#include <Eigen/Dense>
+
+#include "engine/state.hpp"
+
+namespace cvt {
+
+// 3.1: e_i, |Delta_i|, psi_dot_i of links [begin, end).
+void link_kinematics(const Model& m, Workspace& ws, int begin, int end);
+
+// 3.2 "inertia decomposition": the diagonal capacitance of the Woodbury identity for links
+// [begin, end), and the velocity terms -J g_i (qdot^T H_i qdot) as link torques (3.3).
+// Depends on q and qdot only, not on the forces.
+void inertia_decomposition(const Model& m, Workspace& ws, int begin, int end);
+
+// 3.2 "accelerations": solves A(q) qdd = F for the gathered ws.force into ws.accel.
+void accelerations(const Model& m, Workspace& ws);
+
+// Adds tau_i g_i to F for every link (the ordered gather of link torques).
+void add_link_torques(const Model& m, const LinkKinematics& kin, const double* tau, double* F);
+
+// T = 1/2 qdot^T A(q) qdot.
+double kinetic_energy(const Model& m, const double* q, const double* v);
+
+// The dense A(q) (tests and modal analysis).
+Eigen::MatrixXd dense_inertia(const Model& m, const double* q);
+
+}  // namespace cvt

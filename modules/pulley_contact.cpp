@@ -1,0 +1,212 @@
+// docs/model.md 4.5.
+#include "modules/pulley_contact.hpp"
+
+#include <cmath>
+
+#include "modules/beam.hpp"
+#include "modules/contact_laws.hpp"
+
+namespace cvt {
+namespace {
+
+// Geometry of one pin end against the face of pulley k on side sigma (4.5.1-4.5.3).
+struct EndGeometry {
+  double cx, cy, cz;      // sphere centre (global)
+  double dx, dy, dz;      // c - O - u
+  double pen;             // Delta
+  double gdx, gdy, gdz;   // dDelta/dc (= -dDelta/du)
+  double gtx, gty;        // dDelta/dtheta_x, dDelta/dtheta_y
+  double gw;              // dDelta/dw (moving sheave), 0 on the fixed face
+};
+
+inline EndGeometry end_geometry(const Model& m, const double* hq, int e, int k, const double* sh) {
+  const double sigma = e == 0 ? -1.0 : 1.0;
+  const double R = m.cfg.pulley_contact.end_radius;
+  const double* p = hq + e * half::kEnd;
+  EndGeometry g;
+  g.cx = p[half::kX] - sigma * R * p[half::kSx];
+  g.cy = p[half::kY] - sigma * R * p[half::kSy];
+  g.cz = p[half::kZ] - sigma * R;
+  const Pulley& pu = m.pulley[k];
+  g.dx = g.cx - pu.centre.x() - sh[kUx];
+  g.dy = g.cy - pu.centre.y() - sh[kUy];
+  g.dz = g.cz - sh[kUz];
+  const double tx = sh[kTx], ty = sh[kTy];
+  // Shaft frame, small tilt: l = d - theta x d.
+  const double lx = g.dx - ty * g.dz, ly = g.dy + tx * g.dz, lz = g.dz - tx * g.dy + ty * g.dx;
+  const double r = std::sqrt(lx * lx + ly * ly);
+  const bool moving = (e == 0 ? -1 : 1) == pu.moving_side;
+  const double w = moving ? sh[kW] : 0.0;
+  const double Zs = pu.face_z[e];
+  g.pen = R + sigma * (lz - Zs - w) * m.cos_beta - r * m.sin_beta;
+  const double glx = -m.sin_beta * lx / r, gly = -m.sin_beta * ly / r, glz = sigma * m.cos_beta;
+  g.gdx = glx + ty * glz;
+  g.gdy = gly - tx * glz;
+  g.gdz = -ty * glx + tx * gly + glz;
+  g.gtx = gly * g.dz - glz * g.dy;
+  g.gty = -glx * g.dz + glz * g.dx;
+  g.gw = moving ? -sigma * m.cos_beta : 0.0;
+  return g;
+}
+
+inline bool near_pulley(const Model& m, const double* hq, int k) {
+  const double x = mid(hq, 0) - m.pulley[k].centre.x(), y = mid(hq, 1) - m.pulley[k].centre.y();
+  const double rmax = m.cfg.sheave.outer_radius;
+  return x * x + y * y < rmax * rmax;
+}
+
+}  // namespace
+
+void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report) {
+  const Config& c = m.cfg;
+  const double cn = c.pulley_contact.stiffness, bn = c.pulley_contact.damping * m.damp;
+  const double R = c.pulley_contact.end_radius;
+  const FrictionLaw law = c.friction.law;
+  const double f0 = c.friction.f0, v0 = c.friction.v0;
+  s.clear();
+  for (int h = 0; h < 2; ++h) {
+    const int o = h == 0 ? m.half_a(j) : m.half_b(j);
+    const double* hq = ws.q + o;
+    const double* hv = ws.v + o;
+    double* hf = s.f.data() + (h == 0 ? kJointA : kJointB);
+    const int link = h == 0 ? m.wrap(j - 1) : j;  // a_j turns with link j-1, b_j with link j
+    double& tau = h == 0 ? s.tau_prev : s.tau_own;
+    for (int k = 0; k < 2; ++k) {
+      if (!near_pulley(m, hq, k)) continue;
+      const double* sh = ws.q + m.shaft(k);
+      const double* shv = ws.v + m.shaft(k);
+      double* sf = s.shaft.data() + kShaftSize * k;
+      for (int e = 0; e < 2; ++e) {
+        if (!ws.status.pulley[ContactStatus::pulley_index(j, h, e, k)]) continue;
+        const EndGeometry g = end_geometry(m, hq, e, k, sh);
+        const double sigma = e == 0 ? -1.0 : 1.0;
+        const double* pv = hv + e * half::kEnd;
+        // c_dot and the rate of penetration.
+        const double cvx = pv[half::kX] - sigma * R * pv[half::kSx];
+        const double cvy = pv[half::kY] - sigma * R * pv[half::kSy];
+        const double cvz = pv[half::kZ];
+        const double rate = g.gdx * (cvx - shv[kUx]) + g.gdy * (cvy - shv[kUy]) + g.gdz * (cvz - shv[kUz]) +
+                            g.gtx * shv[kTx] + g.gty * shv[kTy] + g.gw * shv[kW];
+        const double Nel = hertz_force(cn, g.pen);
+        const double N = Nel + (g.pen > 0 ? bn * rate : 0.0);
+        s.p_diss += (N - Nel) * rate;
+        // Normal: Q = -N grad(Delta).
+        double* pf = hf + e * half::kEnd;
+        double Fx = -N * g.gdx, Fy = -N * g.gdy, Fz = -N * g.gdz;
+        // Friction (4.5.4) at the contact point P = c + R_end n.
+        double Rx = 0, Ry = 0, Rz = 0, Rmag = 0;
+        const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
+        const double nx = g.gdx / gnorm, ny = g.gdy / gnorm, nz = g.gdz / gnorm;
+        const double ox = R * nx, oy = R * ny;  // P - c
+        const double rsx = g.dx + ox, rsy = g.dy + oy, rsz = g.dz + R * nz;  // P - O - u
+        if (Nel > 0 && law != FrictionLaw::none) {
+          const double psid = ws.kin.psi_dot[link];
+          const double vpx = cvx - psid * oy, vpy = cvy + psid * ox, vpz = cvz;
+          const double wx = shv[kTx], wy = shv[kTy], wz = shv[kPhi];
+          const double vsx = shv[kUx] + wy * rsz - wz * rsy;
+          const double vsy = shv[kUy] + wz * rsx - wx * rsz;
+          const double vsz = shv[kUz] + wx * rsy - wy * rsx + (g.gw != 0 ? shv[kW] : 0.0);
+          double ux = vpx - vsx, uy = vpy - vsy, uz = vpz - vsz;
+          const double un = ux * nx + uy * ny + uz * nz;
+          ux -= un * nx;
+          uy -= un * ny;
+          uz -= un * nz;
+          const double speed = std::sqrt(ux * ux + uy * uy + uz * uz);
+          const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+          Rx = -mu * ux;
+          Ry = -mu * uy;
+          Rz = -mu * uz;
+          Rmag = mu * speed;
+          s.p_diss += mu * speed * speed;
+          tau += ox * Ry - oy * Rx;
+        }
+        // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).
+        pf[half::kX] += Fx + Rx;
+        pf[half::kY] += Fy + Ry;
+        pf[half::kZ] += Fz + Rz;
+        pf[half::kSx] += -sigma * R * (Fx + Rx);
+        pf[half::kSy] += -sigma * R * (Fy + Ry);
+        // Shaft: the normal force through the gradient, friction through the sheave point.
+        sf[kUx] += -Fx - Rx;
+        sf[kUy] += -Fy - Ry;
+        sf[kUz] += -Fz - Rz;
+        sf[kTx] += -N * g.gtx - (rsy * Rz - rsz * Ry);
+        sf[kTy] += -N * g.gty - (rsz * Rx - rsx * Rz);
+        sf[kPhi] += -(rsx * Ry - rsy * Rx);
+        sf[kW] += -N * g.gw - (g.gw != 0 ? Rz : 0.0);
+        if (report) {
+          EndContact& ec = report->end[h][e];
+          ec.normal = N;
+          ec.friction = Rmag;
+          ec.penetration = g.pen;
+          ec.pulley = k;
+        }
+        (void)Fz;
+      }
+    }
+  }
+}
+
+void pulley_contact(const Model& m, Workspace& ws, int begin, int end) {
+  for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr);
+}
+
+double pulley_energy(const Model& m, const double* q) {
+  double E = 0;
+  for (int j = 0; j < m.links; ++j)
+    for (int h = 0; h < 2; ++h) {
+      const double* hq = q + (h == 0 ? m.half_a(j) : m.half_b(j));
+      for (int k = 0; k < 2; ++k) {
+        if (!near_pulley(m, hq, k)) continue;
+        for (int e = 0; e < 2; ++e)
+          E += hertz_energy(m.cfg.pulley_contact.stiffness, end_geometry(m, hq, e, k, q + m.shaft(k)).pen);
+      }
+    }
+  return E;
+}
+
+void update_pulley_status(const Model& m, Workspace& ws) {
+  const double cn = m.cfg.pulley_contact.stiffness, bn = m.cfg.pulley_contact.damping * m.damp;
+  const double R = m.cfg.pulley_contact.end_radius;
+  for (int j = 0; j < m.links; ++j)
+    for (int h = 0; h < 2; ++h) {
+      const int o = h == 0 ? m.half_a(j) : m.half_b(j);
+      for (int k = 0; k < 2; ++k)
+        for (int e = 0; e < 2; ++e) {
+          std::uint8_t& st = ws.status.pulley[ContactStatus::pulley_index(j, h, e, k)];
+          st = 0;
+          if (!near_pulley(m, ws.q + o, k)) continue;
+          const double* shv = ws.v + m.shaft(k);
+          const EndGeometry g = end_geometry(m, ws.q + o, e, k, ws.q + m.shaft(k));
+          if (g.pen <= 0) continue;
+          const double sigma = e == 0 ? -1.0 : 1.0;
+          const double* pv = ws.v + o + e * half::kEnd;
+          const double rate = g.gdx * (pv[half::kX] - sigma * R * pv[half::kSx] - shv[kUx]) +
+                              g.gdy * (pv[half::kY] - sigma * R * pv[half::kSy] - shv[kUy]) +
+                              g.gdz * (pv[half::kZ] - shv[kUz]) + g.gtx * shv[kTx] + g.gty * shv[kTy] +
+                              g.gw * shv[kW];
+          st = hertz_force(cn, g.pen) + bn * rate > 0;
+        }
+    }
+}
+
+double wrapped_radius(const Model& m, const Workspace& ws, int k) {
+  double sum = 0;
+  int count = 0;
+  const double* sh = ws.q + m.shaft(k);
+  for (int j = 0; j < m.links; ++j) {
+    bool touching = false;
+    for (int h = 0; h < 2; ++h)
+      for (int e = 0; e < 2; ++e) touching |= ws.status.pulley[ContactStatus::pulley_index(j, h, e, k)] != 0;
+    if (!touching) continue;
+    const double* a = ws.q + m.half_a(j);
+    const double* b = ws.q + m.half_b(j);
+    const double x = 0.5 * (mid(a, 0) + mid(b, 0)) - m.pulley[k].centre.x() - sh[kUx];
+    const double y = 0.5 * (mid(a, 1) + mid(b, 1)) - m.pulley[k].centre.y() - sh[kUy];
+    sum += std::sqrt(x * x + y * y);
+    ++count;
+  }
+  return count ? sum / count : 0.0;
+}
+
+}  // namespace cvt

@@ -1,0 +1,44 @@
+// Shared helpers of the test suite.
+#pragma once
+
+#include <random>
+#include <string>
+#include <vector>
+
+#include "engine/config.hpp"
+#include "engine/model.hpp"
+
+namespace cvt::test {
+
+inline std::string config_path(const std::string& name) {
+  return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
+}
+
+inline Model model(const std::string& name, const std::vector<std::string>& overrides = {}) {
+  return build_model(load_config(config_path(name), overrides));
+}
+
+// The initial state with positions perturbed at random (lengths by +-dx, slopes and
+// angles by +-da), velocities by +-dv.
+inline Eigen::VectorXd perturbed_state(const Model& m, unsigned seed, double dx, double da, double dv) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Eigen::VectorXd y = m.y0;
+  for (int j = 0; j < m.links; ++j)
+    for (int i = 0; i < kJointSize; ++i) {
+      const int r = i % half::kEnd;
+      const bool slope = i < 2 * half::kSize && (r == half::kSx || r == half::kSy);
+      y[m.joint(j) + i] += (slope ? da : dx) * u(rng);
+      y[m.ndof + m.joint(j) + i] += dv * u(rng);
+    }
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const bool angle = i == kTx || i == kTy || i == kPhi;
+      y[m.shaft(k) + i] += (angle ? da : dx) * u(rng);
+      y[m.ndof + m.shaft(k) + i] += dv * u(rng);
+    }
+  y[m.load_index()] += da * u(rng);
+  return y;
+}
+
+}  // namespace cvt::test
