@@ -116,13 +116,13 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(bearing, axial_damping, real, "N s/m", nonneg),
 
       CVT_KEY(drive, speed, real, "rad/s", nonneg),
-      CVT_KEY(drive, stiffness, real, "N m/rad", positive),
+      CVT_KEY(drive, stiffness, real, "N m/rad", nonneg),
       CVT_KEY(drive, damping, real, "N m s/rad", nonneg),
 
       CVT_KEY(load, torque, real, "N m", nonneg),
       CVT_KEY(load, inertia, real, "kg m^2", positive),
       CVT_KEY(load, speed_coefficient, real, "N m s/rad", nonneg),
-      CVT_KEY(load, stiffness, real, "N m/rad", positive),
+      CVT_KEY(load, stiffness, real, "N m/rad", nonneg),
       CVT_KEY(load, damping, real, "N m s/rad", nonneg),
 
       CVT_KEY(clamping, driving, real, "N", positive),

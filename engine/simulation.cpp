@@ -1,0 +1,288 @@
+#include "engine/simulation.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <set>
+#include <unistd.h>
+
+#include "engine/h5_writer.hpp"
+#include "engine/rhs.hpp"
+#include "modules/beam.hpp"
+#include "modules/chain_forces.hpp"
+#include "modules/pulley_contact.hpp"
+
+namespace cvt {
+
+Simulation::Simulation(const Model& m)
+    : m_(m), ws_(m), diag_(m), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
+  update_contact_status(m_, ws_, t_, y_.data());
+  const Energies e = energies(m_, t_, y_.data());
+  energy0_ = e.kinetic + e.elastic;
+}
+
+void Simulation::step(double h) {
+  rk_.step([this](double t, const double* y, double* dy) { rhs_serial(m_, ws_, t, y, dy); }, t_, h, y_);
+  ++steps_;
+  t_ = steps_ * h;  // fixed step: no accumulated rounding in t
+  update_contact_status(m_, ws_, t_, y_.data());
+}
+
+void Simulation::check_finite() const {
+  for (int i = 0; i < m_.nstate; ++i)
+    if (!std::isfinite(y_[i])) {
+      char buf[512];
+      std::snprintf(buf, sizeof buf,
+                    "numerical blow-up at t = %.9g s (step %ld): state component %d is not finite; "
+                    "the step %.3g s is likely above the stable RK4 step of this model",
+                    t_, steps_, i, m_.cfg.integrator.step);
+      throw BlowUpError(buf);
+    }
+}
+
+Sample Simulation::sample() {
+  Sample s;
+  s.t = t_;
+  diag_.status = ws_.status;
+  rhs_serial(m_, diag_, t_, y_.data(), dy_.data());
+  const double* q = y_.data();
+  const double* v = q + m_.ndof;
+  const double* aux = q + 2 * m_.ndof;
+  const int p1 = m_.shaft(0) + kPhi, p2 = m_.shaft(1) + kPhi;
+  s.input_speed = v[p1];
+  s.output_speed = v[p2];
+  s.load_speed = v[m_.load_index()];
+  s.input_torque = diag_.other.input_torque;
+  s.output_torque = diag_.other.output_torque;
+  s.load_torque = diag_.other.load_torque;
+  s.speed_ratio = v[p2] != 0 ? v[p1] / v[p2] : 0.0;
+  const double r1 = wrapped_radius(m_, diag_, 0), r2 = wrapped_radius(m_, diag_, 1);
+  s.geometric_ratio = r1 > 0 ? r2 / r1 : 0.0;
+  const double pin = s.input_torque * s.input_speed;
+  s.efficiency = pin != 0 ? s.output_torque * s.output_speed / pin : 0.0;
+  for (int k = 0; k < 2; ++k) {
+    s.clamp[k] = diag_.other.clamp[k];
+    s.sheave_position[k] = q[m_.shaft(k) + kW];
+    for (int b = 0; b < 2; ++b) s.support_force[2 * k + b] = diag_.other.support_force[k][b];
+  }
+  const int jp = m_.cfg.run.tracked_pin;
+  s.pin_axial_force[0] = half_axial_force(m_, q, v, m_.half_a(jp));
+  s.pin_axial_force[1] = half_axial_force(m_, q, v, m_.half_b(jp));
+  PinContactReport rep;
+  JointSlot scratch;
+  pulley_contact_joint(m_, diag_, jp, scratch, &rep);
+  for (int h = 0; h < 2; ++h)
+    for (int e = 0; e < 2; ++e) {
+      s.pin_end_normal[2 * h + e] = rep.end[h][e].normal;
+      s.pin_end_friction[2 * h + e] = rep.end[h][e].friction;
+    }
+  s.link_tension = link_tension(m_, diag_, m_.cfg.run.tracked_link);
+  const Energies e = energies(m_, t_, q);
+  s.energy_kinetic = e.kinetic;
+  s.energy_elastic = e.elastic;
+  s.work_input = aux[kWorkIn];
+  s.work_output = aux[kWorkOut];
+  s.work_dissipated = aux[kWorkDiss];
+  s.work_clamping = aux[kWorkClamp];
+  s.energy_residual = (e.kinetic + e.elastic) - energy0_ - s.work_input - s.work_clamping + s.work_output +
+                      s.work_dissipated;
+  return s;
+}
+
+void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& tensions) {
+  const int N = m_.links;
+  positions.resize(3 * N);
+  tensions.resize(N);
+  set_stage_input(m_, diag_, t_, y_.data());
+  const double* q = y_.data();
+  for (int j = 0; j < N; ++j) {
+    const double* a = q + m_.half_a(j);
+    const double* b = q + m_.half_b(j);
+    positions[3 * j + 0] = 0.5 * (mid(a, 0) + mid(b, 0));
+    positions[3 * j + 1] = 0.5 * (mid(a, 1) + mid(b, 1));
+    positions[3 * j + 2] = 0.25 * (a[half::kZ] + a[half::kEnd + half::kZ] + b[half::kZ] + b[half::kEnd + half::kZ]);
+    tensions[j] = link_tension(m_, diag_, j);
+  }
+}
+
+namespace {
+
+// The HDF5 layout of docs/output.md.
+class Recorder {
+ public:
+  Recorder(H5File& f, const Model& m) : f_(f), N_(m.links) {}
+
+  void scalar(const std::string& name, const std::string& unit, double t, double value) {
+    series(name, unit, {}).append(value);
+    time(name).append(t);
+  }
+  void vector(const std::string& name, const std::string& unit, double t, const double* v, hsize_t k) {
+    series(name, unit, {k}).append(v);
+    time(name).append(t);
+  }
+  void record(const Sample& s) {
+    scalar("input_speed", "rad/s", s.t, s.input_speed);
+    scalar("output_speed", "rad/s", s.t, s.output_speed);
+    scalar("load_speed", "rad/s", s.t, s.load_speed);
+    scalar("input_torque", "N m", s.t, s.input_torque);
+    scalar("output_torque", "N m", s.t, s.output_torque);
+    scalar("load_torque", "N m", s.t, s.load_torque);
+    scalar("speed_ratio", "1", s.t, s.speed_ratio);
+    scalar("geometric_ratio", "1", s.t, s.geometric_ratio);
+    scalar("slip", "1", s.t, s.geometric_ratio != 0 ? 1.0 - s.speed_ratio / s.geometric_ratio : 0.0);
+    scalar("efficiency", "1", s.t, s.efficiency);
+    scalar("clamping_force_driving", "N", s.t, s.clamp[0]);
+    scalar("clamping_force_driven", "N", s.t, s.clamp[1]);
+    vector("sheave_position", "m", s.t, s.sheave_position, 2);
+    vector("support_force", "N", s.t, s.support_force, 4);
+    vector("pin_axial_force", "N", s.t, s.pin_axial_force, 2);
+    vector("pin_end_normal_force", "N", s.t, s.pin_end_normal, 4);
+    vector("pin_end_friction_force", "N", s.t, s.pin_end_friction, 4);
+    scalar("link_tension", "N", s.t, s.link_tension);
+    scalar("energy_kinetic", "J", s.t, s.energy_kinetic);
+    scalar("energy_elastic", "J", s.t, s.energy_elastic);
+    scalar("work_input", "J", s.t, s.work_input);
+    scalar("work_output", "J", s.t, s.work_output);
+    scalar("work_dissipated", "J", s.t, s.work_dissipated);
+    scalar("work_clamping", "J", s.t, s.work_clamping);
+    scalar("energy_residual", "J", s.t, s.energy_residual);
+  }
+  void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension) {
+    auto& p = f_.series("/particles/chain/position/value", {hsize_t(N_), 3}, 16);
+    if (!snap_init_) {
+      f_.set_string_attribute("/particles/chain/position/value", "unit", "m");
+      f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16);
+      f_.set_string_attribute("/particles/chain/link_tension/value", "unit", "N");
+      snap_init_ = true;
+    }
+    p.append(pos.data());
+    f_.series("/particles/chain/position/time", {}, 256).append(t);
+    f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16).append(tension.data());
+    f_.series("/particles/chain/link_tension/time", {}, 256).append(t);
+  }
+
+ private:
+  H5Series& series(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
+    const std::string path = "/observables/" + name + "/value";
+    H5Series& s = f_.series(path, shape);
+    if (!units_done_.count(name)) {
+      f_.set_string_attribute(path, "unit", unit);
+      units_done_.insert(name);
+    }
+    return s;
+  }
+  H5Series& time(const std::string& name) {
+    const std::string path = "/observables/" + name + "/time";
+    H5Series& s = f_.series(path, {});
+    if (!units_done_.count(name + "/time")) {
+      f_.set_string_attribute(path, "unit", "s");
+      units_done_.insert(name + "/time");
+    }
+    return s;
+  }
+  H5File& f_;
+  int N_;
+  bool snap_init_ = false;
+  std::set<std::string> units_done_;
+};
+
+long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
+
+}  // namespace
+
+RunSummary run_simulation(const Model& m, const RunOptions& opt) {
+  const Config& c = m.cfg;
+  const double h = c.integrator.step;
+  const long total = std::max(1L, std::lround(c.run.t_end / h));
+  const long every_sample = steps_for(c.run.sample_interval, h);
+  const long every_snapshot = steps_for(c.run.snapshot_interval, h);
+
+  // Write to a temporary name and rename at the end: a failed run never leaves a file
+  // that looks complete.
+  const std::string tmp = opt.out_path + ".partial";
+  H5File file = H5File::create(tmp);
+  file.write_string("/parameters/config", c.resolved_toml);
+  file.write_string("/parameters/version", CVT_VERSION);
+  file.set_string_attribute("/parameters", "geometry",
+                            "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
+                                std::to_string(m.pulley[1].running_radius) +
+                                " m, closure residual = " + std::to_string(m.closure_residual) + " m");
+  Recorder rec(file, m);
+  Simulation sim(m);
+  std::vector<Sample> samples;
+  std::vector<double> pos, ten;
+
+  const bool tty = isatty(fileno(stderr));
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  auto last_progress = t0, last_flush = t0;
+  auto record = [&]() {
+    samples.push_back(sim.sample());
+    rec.record(samples.back());
+  };
+  record();
+  if (every_snapshot) {
+    sim.snapshot(pos, ten);
+    rec.snapshot(0.0, pos, ten);
+  }
+  double step_wall = 0;
+  for (long n = 1; n <= total; ++n) {
+    sim.step(h);
+    if (n % every_sample == 0 || n == total) {
+      sim.check_finite();
+      record();
+      const auto now = Clock::now();
+      if (now - last_flush > std::chrono::seconds(10)) {
+        file.flush();
+        last_flush = now;
+      }
+      if (opt.progress && now - last_progress > std::chrono::seconds(3)) {
+        const double el = std::chrono::duration<double>(now - t0).count();
+        const double eta = el / n * (total - n);
+        std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s",
+                     tty ? "\r" : "", n, total, sim.time(), 100.0 * n / total, sim.time() / el * 3600, eta,
+                     tty ? "   " : "\n");
+        last_progress = now;
+      }
+    }
+    if (every_snapshot && n % every_snapshot == 0) {
+      sim.snapshot(pos, ten);
+      rec.snapshot(sim.time(), pos, ten);
+    }
+  }
+  step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
+  if (opt.progress && tty) std::fprintf(stderr, "\n");
+  file.close();
+  std::filesystem::rename(tmp, opt.out_path);
+
+  RunSummary r;
+  r.steps = total;
+  r.model_time = sim.time();
+  r.wall_s = step_wall;
+  r.us_per_step = 1e6 * step_wall / total;
+  r.model_s_per_hour = sim.time() / step_wall * 3600.0;
+  // Means over the last 20 % of the samples; efficiency as the ratio of mean powers.
+  const size_t from = samples.size() - std::max<size_t>(1, samples.size() / 5);
+  double pin = 0, pout = 0;
+  size_t cnt = 0;
+  for (size_t i = from; i < samples.size(); ++i, ++cnt) {
+    const Sample& s = samples[i];
+    r.speed_ratio += s.speed_ratio;
+    r.geometric_ratio += s.geometric_ratio;
+    r.input_torque += s.input_torque;
+    r.output_torque += s.output_torque;
+    pin += s.input_torque * s.input_speed;
+    pout += s.output_torque * s.output_speed;
+  }
+  r.speed_ratio /= cnt;
+  r.geometric_ratio /= cnt;
+  r.input_torque /= cnt;
+  r.output_torque /= cnt;
+  r.efficiency = pin != 0 ? pout / pin : 0.0;
+  r.energy_residual = samples.back().energy_residual;
+  r.work_input = samples.back().work_input;
+  return r;
+}
+
+}  // namespace cvt

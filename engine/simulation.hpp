@@ -1,0 +1,91 @@
+// The simulation driver (MuJoCo's mj_step loop): RK4 steps, contact statuses after each
+// step, channels sampled every sample_interval, snapshots, HDF5 output, end-of-run summary.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/integrator.hpp"
+#include "engine/model.hpp"
+#include "engine/state.hpp"
+
+namespace cvt {
+
+// Exit codes of the CLI (docs/cli.md).
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitFailure = 1;
+inline constexpr int kExitBlowUp = 70;
+
+// Numerical blow-up: non-finite state or absurd penetration.
+class BlowUpError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// One sample of the channels (docs/model.md 6).
+struct Sample {
+  double t = 0;
+  double input_speed = 0, output_speed = 0, load_speed = 0;
+  double input_torque = 0, output_torque = 0, load_torque = 0;
+  double speed_ratio = 0, geometric_ratio = 0, efficiency = 0;
+  double clamp[2] = {0, 0};
+  double sheave_position[2] = {0, 0};
+  double support_force[4] = {0, 0, 0, 0};
+  double pin_axial_force[2] = {0, 0};
+  double pin_end_normal[4] = {0, 0, 0, 0};
+  double pin_end_friction[4] = {0, 0, 0, 0};
+  double link_tension = 0;
+  double energy_kinetic = 0, energy_elastic = 0;
+  double work_input = 0, work_output = 0, work_dissipated = 0, work_clamping = 0, energy_residual = 0;
+};
+
+class Simulation {
+ public:
+  explicit Simulation(const Model& m);
+
+  const Model& model() const { return m_; }
+  double time() const { return t_; }
+  long steps() const { return steps_; }
+  const Eigen::VectorXd& state() const { return y_; }
+  Eigen::VectorXd& mutable_state() { return y_; }
+  Workspace& workspace() { return ws_; }
+
+  // One RK4 step of size h, then the contact statuses for the next step.
+  void step(double h);
+  // Channels of the current state.
+  Sample sample();
+  // Joint centres [N][3] and link tensions [N] of the current state.
+  void snapshot(std::vector<double>& positions, std::vector<double>& tensions);
+  // Throws BlowUpError naming time, step and the likely cause when the state is not finite.
+  void check_finite() const;
+
+ private:
+  const Model& m_;
+  Workspace ws_;     // the integrator's
+  Workspace diag_;   // sampling
+  Rk4 rk_;
+  Eigen::VectorXd y_, dy_;
+  double t_ = 0;
+  long steps_ = 0;
+  double energy0_ = 0;
+};
+
+struct RunSummary {
+  long steps = 0;
+  double model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
+  // Means over the last 20 % of the run.
+  double speed_ratio = 0, geometric_ratio = 0, input_torque = 0, output_torque = 0, efficiency = 0;
+  double energy_residual = 0, work_input = 0;
+};
+
+struct RunOptions {
+  std::string out_path = "results.h5";
+  bool progress = true;
+};
+
+// Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.
+RunSummary run_simulation(const Model& m, const RunOptions& opt);
+
+}  // namespace cvt
