@@ -89,14 +89,8 @@ Model build_model(const Config& cfg) {
   // half centre lines of a regular arc sit at radius r_h.
   const double Rend = cfg.pulley_contact.end_radius;
   for (int k = 0; k < 2; ++k) {
-    double r_h = 0;
-    int count = 0;
-    for (int j = 0; j < m.links; ++j)
-      if (pl.region[j] == k) {
-        r_h += (pl.pa[j] - m.pulley[k].centre).norm() + (pl.pb[j] - m.pulley[k].centre).norm();
-        count += 2;
-      }
-    r_h = count ? r_h / count : m.pulley[k].running_radius;
+    // Every half starts on or (where lifted, 5.2) just outside the path circle rho_k.
+    const double r_h = k == 0 ? pl.rho1 : pl.rho2;
     const double zc = 0.5 * L - Rend;  // sphere centre of the + end
     const double zplus = zc + (Rend - r_h * m.sin_beta) / m.cos_beta;
     m.pulley[k].face_z = {-zplus, zplus};

@@ -111,7 +111,7 @@ Walk walk(const BeltPath& path, double alpha0, const ChainPathParams& p, int lin
     auto next_a = [&](double alpha) {
       return Vec2(half_b_from(w.pa[i], psi_prev, alpha, p) + p.plate_rest * dir(psi_prev + alpha));
     };
-    const double target = lift && i + 1 < links ? (*lift)[i + 1] : 0.0;
+    const double target = lift ? (*lift)[(i + 1) % links] : 0.0;
     auto f = [&](double alpha) { return path.sd(next_a(alpha)) - target; };
     const double lo = -0.5, hi = 1.5;
     if (!((f(lo) > 0) && (f(hi) < 0))) { w.ok = false; return w; }
@@ -125,12 +125,12 @@ Walk walk(const BeltPath& path, double alpha0, const ChainPathParams& p, int lin
 
 // Articulation of the regular polygon on the driving arc: the plate from b_0 lands a_1
 // on the same circle.
-double regular_alpha(const BeltPath& path, const ChainPathParams& p) {
+double regular_alpha(const BeltPath& path, const ChainPathParams& p, double lift1 = 0.0) {
   auto g = [&](double alpha0) {
     const double D = half_gap(alpha0, p);
     const double x0 = -std::sqrt(path.R1 * path.R1 - 0.25 * D * D);
     const Vec2 a1 = Vec2(x0, 0.5 * D) + p.plate_rest * dir(-M_PI / 2 + 0.5 * alpha0);
-    return a1.norm() - path.R1;
+    return path.sd(a1) - lift1;
   };
   return solve_bracketed(g, 1e-6, 1.5, 1e-15);
 }
@@ -163,8 +163,7 @@ ChainPlacement place_chain(const ChainPathParams& p) {
   std::vector<double> lift(N + 1, 0.0);
   auto closure = [&](double R1) {
     BeltPath path(a, R1, i * R1);
-    const double alpha0 = regular_alpha(path, p);
-    Walk w = walk(path, alpha0, p, N, &lift);
+    Walk w = walk(path, regular_alpha(path, p, lift[1]), p, N, &lift);
     ++iterations;
     if (!w.ok) return std::nan("");
     return w.psi[N] - w.psi[0] - 2 * M_PI;
@@ -188,9 +187,9 @@ ChainPlacement place_chain(const ChainPathParams& p) {
   for (int sweep = 0; sweep < 50; ++sweep) {
     R1 = solve_bracketed(closure, R1_lo, R1_hi * (1 - 1e-9), 1e-13, &iterations);
     BeltPath path(a, R1, i * R1);
-    w = walk(path, regular_alpha(path, p), p, N, &lift);
+    w = walk(path, regular_alpha(path, p, lift[1]), p, N, &lift);
     double worst = 0;
-    for (int j = 1; j < N; ++j) {
+    for (int j = 0; j < N; ++j) {
       const double sd = path.sd(w.pb[j]);
       if (sd < -1e-10) {
         lift[j] += -sd;
@@ -202,6 +201,8 @@ ChainPlacement place_chain(const ChainPathParams& p) {
   BeltPath path(a, R1, i * R1);
 
   ChainPlacement out;
+  out.rho1 = R1;
+  out.rho2 = i * R1;
   out.pa.assign(w.pa.begin(), w.pa.begin() + N);
   out.pb.assign(w.pb.begin(), w.pb.begin() + N);
   // Joint N would be b_N = b_0 after a full turn; the last plate closes the loop.

@@ -19,6 +19,7 @@ struct ChainPathParams {
 
 struct ChainPlacement {
   double R1 = 0, R2 = 0;                  // joint-centre radii on the two arcs
+  double rho1 = 0, rho2 = 0;              // radii of the half centre lines on the arcs (the path)
   std::vector<Eigen::Vector2d> pa, pb;    // half centre lines (xy) of every joint
   std::vector<int> region;                // 0: arc of pulley 0, 1: arc of pulley 1, 2: span
   std::vector<Eigen::Vector2d> span_dir;  // travel direction (spans only)

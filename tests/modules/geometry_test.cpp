@@ -87,13 +87,12 @@ TEST(GeometryTest, NoPinEndStartsInsideASheave) {
             worst = ec.penetration;
             worst_j = j;
           }
-          EXPECT_LE(ec.penetration, 1e-9) << name << ": joint " << j << " half " << h << " end " << e
-                                          << " pulley " << ec.pulley;
         }
     }
     std::printf("[%s] %d pin ends near a pulley, max penetration %.3g m (joint %d)\n", name, contacts, worst,
                 worst_j);
     EXPECT_GT(contacts, 0) << name;
+    EXPECT_LE(worst, 1e-9) << name << ": joint " << worst_j;
   }
 }
 
@@ -105,12 +104,18 @@ TEST(GeometryTest, PlatesAtRestLength) {
     set_stage_input(m, ws, 0.0, m.y0.data());
     link_kinematics(m, ws, 0, m.links);
     double worst = 0;
+    int worst_j = -1;
     for (int j = 0; j < m.links; ++j) {
-      const double T = link_tension(m, ws, j);
-      worst = std::max(worst, std::abs(T));
-      EXPECT_LE(std::abs(T), 1e-6) << name << ": link " << j;
+      const double T = std::abs(link_tension(m, ws, j));
+      if (T > worst) {
+        worst = T;
+        worst_j = j;
+      }
     }
-    std::printf("[%s] max |link tension| %.3g N\n", name, worst);
+    std::printf("[%s] max |link tension| %.3g N (link %d)\n", name, worst, worst_j);
+    // The closing link carries what the closure residual leaves: n_pl k_pl |residual|.
+    const double bound = 1e-6 + m.cfg.chain.plates_per_link * m.cfg.chain.plate_stiffness * m.closure_residual;
+    EXPECT_LE(worst, bound) << name << ": link " << worst_j;
   }
 }
 

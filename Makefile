@@ -1,0 +1,49 @@
+# The two README commands: `make run` and `make test`. Both install what is missing
+# (Debian packages), configure a Release build and build it first.
+BUILD   ?= build
+JOBS    ?= $(shell nproc)
+CONFIG  ?= configs/reference.toml
+OUT     ?= results.h5
+PYTHON  ?= /usr/bin/python3
+
+PACKAGES = cmake g++ make pkg-config \
+  libtbb-dev libtbbbind-2-5 libeigen3-dev libhwloc-dev hwloc \
+  libhdf5-dev hdf5-tools libgtest-dev libbenchmark-dev libtomlplusplus-dev libcli11-dev \
+  python3-h5py python3-matplotlib python3-numpy
+
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: deps configure build run test test-slow bench clean
+
+deps:
+	@missing=$$(for p in $(PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "install ok installed" || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing: $$missing"; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+
+$(BUILD)/CMakeCache.txt: CMakeLists.txt | deps
+	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
+
+configure: $(BUILD)/CMakeCache.txt
+
+build: deps configure
+	@cmake --build $(BUILD) -j $(JOBS) 2>&1 | grep -Ev '^\[ *[0-9]+%\]|^-- ' || true
+	@test -x $(BUILD)/cvt-engine
+
+run: build
+	$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT)
+
+# The whole fast suite (minutes). Long physics runs are named Slow* and run by test-slow.
+test: build
+	@cd $(BUILD) && ctest -E 'Slow' -j $(JOBS) --output-on-failure --timeout 900
+
+test-slow: build
+	@cd $(BUILD) && ctest -R 'Slow' --output-on-failure --timeout 3600
+
+bench: build
+	@for b in $(BUILD)/*_bench; do echo "== $$b"; $$b --benchmark_min_time=0.2; done
+
+clean:
+	rm -rf $(BUILD)
