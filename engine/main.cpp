@@ -10,12 +10,13 @@
 
 namespace {
 
-int cmd_run(const std::string& config_path, std::vector<std::string> overrides, double t_end, double step,
-            const std::string& out, bool quiet) {
+int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
+            const std::string& step, const std::string& out, bool quiet) {
   using namespace cvt;
-  // Command-line shortcuts are overrides too: validated, and recorded in the resolved TOML.
-  if (t_end > 0 || t_end < 0) overrides.push_back("run.t_end=" + CLI::detail::to_string(t_end));
-  if (step > 0 || step < 0) overrides.push_back("integrator.step=" + CLI::detail::to_string(step));
+  // Command-line shortcuts are overrides too, passed as typed: validated like any key and
+  // recorded in the resolved TOML.
+  if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
+  if (!step.empty()) overrides.push_back("integrator.step=" + step);
   const Config cfg = load_config(config_path, overrides);
   const Model model = build_model(cfg);
   std::printf("cvt-engine %s: %s\n", CVT_VERSION, config_path.c_str());
@@ -55,7 +56,7 @@ int main(int argc, char** argv) {
   auto* run = app.add_subcommand("run", "simulate a configuration and write the results to HDF5");
   std::string config, out = "results.h5";
   std::vector<std::string> overrides;
-  double t_end = 0, step = 0;
+  std::string t_end, step;
   bool quiet = false;
   run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml)")->required();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");

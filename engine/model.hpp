@@ -26,7 +26,7 @@ inline constexpr int kJointA = 0, kJointB = 10, kJointS = 20;
 inline constexpr int kShaftSize = 7;
 inline constexpr int kUx = 0, kUy = 1, kUz = 2, kTx = 3, kTy = 4, kPhi = 5, kW = 6;
 // Auxiliary integrated quantities appended to the first-order state (docs/model.md 6).
-enum Aux : int { kWorkIn = 0, kWorkOut, kWorkDiss, kWorkClamp, kCtrlIntegral, kAuxSize };
+enum Aux : int { kWorkIn = 0, kWorkOut, kWorkDiss, kWorkClamp, kCtrlIntegral, kWorkSwitch, kAuxSize };
 
 struct Pulley {
   Eigen::Vector2d centre;       // shaft axis in the xy plane [m]

@@ -84,15 +84,16 @@ void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double
 
 void update_contact_status(const Model& m, Workspace& ws, double t, const double* y) {
   set_stage_input(m, ws, t, y);
+  ws.switch_work = 0;
   link_kinematics(m, ws, 0, m.links);
   update_rocker_status(m, ws);
   update_pulley_status(m, ws);
 }
 
-Energies energies(const Model& m, double t, const double* y) {
+Energies energies(const Model& m, double t, const double* y, const ContactStatus* status) {
   Energies e;
   e.kinetic = kinetic_energy(m, y, y + m.ndof);
-  e.elastic = chain_energy(m, y) + pulley_energy(m, y) + other_energy(m, t, y);
+  e.elastic = chain_energy(m, y, status) + pulley_energy(m, y, status) + other_energy(m, t, y);
   return e;
 }
 

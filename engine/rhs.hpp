@@ -24,6 +24,7 @@ void update_contact_status(const Model& m, Workspace& ws, double t, const double
 struct Energies {
   double kinetic = 0, elastic = 0;
 };
-Energies energies(const Model& m, double t, const double* y);
+// With `status`, the contact energy counts only the pairs active in the next step.
+Energies energies(const Model& m, double t, const double* y, const ContactStatus* status = nullptr);
 
 }  // namespace cvt

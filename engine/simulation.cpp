@@ -18,15 +18,18 @@ namespace cvt {
 Simulation::Simulation(const Model& m)
     : m_(m), ws_(m), diag_(m), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
   update_contact_status(m_, ws_, t_, y_.data());
-  const Energies e = energies(m_, t_, y_.data());
+  const Energies e = energies(m_, t_, y_.data(), &ws_.status);
   energy0_ = e.kinetic + e.elastic;
 }
 
-void Simulation::step(double h) {
+void Simulation::step(double h, bool update_status) {
   rk_.step([this](double t, const double* y, double* dy) { rhs_serial(m_, ws_, t, y, dy); }, t_, h, y_);
   ++steps_;
-  t_ = steps_ * h;  // fixed step: no accumulated rounding in t
-  update_contact_status(m_, ws_, t_, y_.data());
+  t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
+  if (update_status) {
+    update_contact_status(m_, ws_, t_, y_.data());
+    y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
+  }
 }
 
 void Simulation::check_finite() const {
@@ -78,15 +81,16 @@ Sample Simulation::sample() {
       s.pin_end_friction[2 * h + e] = rep.end[h][e].friction;
     }
   s.link_tension = link_tension(m_, diag_, m_.cfg.run.tracked_link);
-  const Energies e = energies(m_, t_, q);
+  const Energies e = energies(m_, t_, q, &ws_.status);
   s.energy_kinetic = e.kinetic;
   s.energy_elastic = e.elastic;
   s.work_input = aux[kWorkIn];
   s.work_output = aux[kWorkOut];
   s.work_dissipated = aux[kWorkDiss];
   s.work_clamping = aux[kWorkClamp];
-  s.energy_residual = (e.kinetic + e.elastic) - energy0_ - s.work_input - s.work_clamping + s.work_output +
-                      s.work_dissipated;
+  s.work_contact_switching = aux[kWorkSwitch];
+  s.energy_residual = (e.kinetic + e.elastic) - energy0_ - s.work_input - s.work_clamping -
+                      s.work_contact_switching + s.work_output + s.work_dissipated;
   return s;
 }
 
@@ -146,6 +150,7 @@ class Recorder {
     scalar("work_output", "J", s.t, s.work_output);
     scalar("work_dissipated", "J", s.t, s.work_dissipated);
     scalar("work_clamping", "J", s.t, s.work_clamping);
+    scalar("work_contact_switching", "J", s.t, s.work_contact_switching);
     scalar("energy_residual", "J", s.t, s.energy_residual);
   }
   void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension) {

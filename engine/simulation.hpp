@@ -39,6 +39,7 @@ struct Sample {
   double link_tension = 0;
   double energy_kinetic = 0, energy_elastic = 0;
   double work_input = 0, work_output = 0, work_dissipated = 0, work_clamping = 0, energy_residual = 0;
+  double work_contact_switching = 0;  // energy added by contact status switches (4.4)
 };
 
 class Simulation {
@@ -50,10 +51,12 @@ class Simulation {
   long steps() const { return steps_; }
   const Eigen::VectorXd& state() const { return y_; }
   Eigen::VectorXd& mutable_state() { return y_; }
+  // Continues from (t, steps): for restarts from a saved state.
+  void set_clock(double t, long steps) { t_ = t0_ = t; steps_ = steps0_ = steps; }
   Workspace& workspace() { return ws_; }
 
-  // One RK4 step of size h, then the contact statuses for the next step.
-  void step(double h);
+  // One RK4 step of size h, then (unless frozen) the contact statuses for the next step.
+  void step(double h, bool update_status = true);
   // Channels of the current state.
   Sample sample();
   // Joint centres [N][3] and link tensions [N] of the current state.
@@ -67,8 +70,8 @@ class Simulation {
   Workspace diag_;   // sampling
   Rk4 rk_;
   Eigen::VectorXd y_, dy_;
-  double t_ = 0;
-  long steps_ = 0;
+  double t_ = 0, t0_ = 0;
+  long steps_ = 0, steps0_ = 0;
   double energy0_ = 0;
 };
 

@@ -73,6 +73,10 @@ struct Workspace {
   std::vector<double> link_tau;  // summed torques per link
   Eigen::VectorXd accel;       // q'' (n)
   double p_diss = 0;           // total dissipated power of the stage
+  // Contact energy added by the status updates since the last read (docs/model.md 4.4):
+  // a pair switched on while penetrating brings its Hertz energy in, one switched off
+  // takes it out.
+  double switch_work = 0;
 };
 
 }  // namespace cvt

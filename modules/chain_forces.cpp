@@ -248,7 +248,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
   }
 }
 
-double chain_energy(const Model& m, const double* q) {
+double chain_energy(const Model& m, const double* q, const ContactStatus* status) {
   const Config& c = m.cfg;
   // Link directions from positions only (velocity-free kinematics).
   std::vector<double> ex(m.links), ey(m.links);
@@ -267,8 +267,9 @@ double chain_energy(const Model& m, const double* q) {
     const double* qn = q + m.half_a(j + 1);
     E += beam_energy(m, qa) + beam_energy(m, qb);
     const int lp = m.wrap(j - 1);
-    for (double xi : m.station_xi) {
-      const HermiteWeights h = hermite(xi, m.L0);
+    for (int st = 0; st < c.rocker.stations; ++st) {
+      if (status && !status->rocker[j * c.rocker.stations + st]) continue;
+      const HermiteWeights h = hermite(m.station_xi[st], m.L0);
       const double cax = lateral(qa, h, 0) - m.kappa * ex[lp], cay = lateral(qa, h, 1) - m.kappa * ey[lp];
       const double cbx = lateral(qb, h, 0) + m.kappa * ex[j], cby = lateral(qb, h, 1) + m.kappa * ey[j];
       const double pen = 2 * c.rocker.radius - std::hypot(cax - cbx, cay - cby);
@@ -315,7 +316,10 @@ void update_rocker_status(const Model& m, Workspace& ws) {
     const double* vb = ws.v + m.half_b(j);
     for (int st = 0; st < nst; ++st) {
       const RockerEval r = rocker_eval(m, ws.kin, qa, va, qb, vb, m.wrap(j - 1), j, m.station_xi[st]);
-      ws.status.rocker[j * nst + st] = r.pen > 0 && hertz_force(crk, r.pen) + brk * r.pen_rate > 0;
+      std::uint8_t& status = ws.status.rocker[j * nst + st];
+      const std::uint8_t now = r.pen > 0 && hertz_force(crk, r.pen) + brk * r.pen_rate > 0;
+      if (now != status) ws.switch_work += (now ? 1.0 : -1.0) * hertz_energy(crk, r.pen);
+      status = now;
     }
   }
 }

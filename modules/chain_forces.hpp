@@ -9,8 +9,9 @@ namespace cvt {
 
 void chain_forces(const Model& m, Workspace& ws, int begin, int end);
 
-// Potential energy of the chain's elastic elements (beams, plates, packs, rocker Hertz).
-double chain_energy(const Model& m, const double* q);
+// Potential energy of the chain's elastic elements (beams, plates, packs, rocker Hertz;
+// with `status`, only the active rocker pairs count).
+double chain_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);
 
 // Per-link plate tension sum (k (d - l0) + c ddot over stretched plates) [N].
 double link_tension(const Model& m, const Workspace& ws, int link);

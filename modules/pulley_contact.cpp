@@ -97,11 +97,15 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
         double Rx = 0, Ry = 0, Rz = 0, Rmag = 0;
         const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
         const double nx = g.gdx / gnorm, ny = g.gdy / gnorm, nz = g.gdz / gnorm;
-        const double ox = R * nx, oy = R * ny;  // P - c
+        const double ox = R * nx, oy = R * ny, oz = R * nz;  // P - c
         const double rsx = g.dx + ox, rsy = g.dy + oy, rsz = g.dz + R * nz;  // P - O - u
         if (Nel > 0 && law != FrictionLaw::none) {
           const double psid = ws.kin.psi_dot[link];
-          const double vpx = cvx - psid * oy, vpy = cvy + psid * ox, vpz = cvz;
+          // The cap turns with the end slopes, omega = (-sy', sx', 0): omega x (P - c).
+          const double sxd = pv[half::kSx], syd = pv[half::kSy];
+          const double vpx = cvx - psid * oy + sxd * oz;
+          const double vpy = cvy + psid * ox + syd * oz;
+          const double vpz = cvz - sxd * ox - syd * oy;
           const double wx = shv[kTx], wy = shv[kTy], wz = shv[kPhi];
           const double vsx = shv[kUx] + wy * rsz - wz * rsy;
           const double vsy = shv[kUy] + wz * rsx - wx * rsz;
@@ -124,8 +128,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
         pf[half::kX] += Fx + Rx;
         pf[half::kY] += Fy + Ry;
         pf[half::kZ] += Fz + Rz;
-        pf[half::kSx] += -sigma * R * (Fx + Rx);
-        pf[half::kSy] += -sigma * R * (Fy + Ry);
+        pf[half::kSx] += -sigma * R * (Fx + Rx) + Rx * oz - Rz * ox;
+        pf[half::kSy] += -sigma * R * (Fy + Ry) + Ry * oz - Rz * oy;
         // Shaft: the normal force through the gradient, friction through the sheave point.
         sf[kUx] += -Fx - Rx;
         sf[kUy] += -Fy - Ry;
@@ -151,15 +155,17 @@ void pulley_contact(const Model& m, Workspace& ws, int begin, int end) {
   for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr);
 }
 
-double pulley_energy(const Model& m, const double* q) {
+double pulley_energy(const Model& m, const double* q, const ContactStatus* status) {
   double E = 0;
   for (int j = 0; j < m.links; ++j)
     for (int h = 0; h < 2; ++h) {
       const double* hq = q + (h == 0 ? m.half_a(j) : m.half_b(j));
       for (int k = 0; k < 2; ++k) {
         if (!near_pulley(m, hq, k)) continue;
-        for (int e = 0; e < 2; ++e)
+        for (int e = 0; e < 2; ++e) {
+          if (status && !status->pulley[ContactStatus::pulley_index(j, h, e, k)]) continue;
           E += hertz_energy(m.cfg.pulley_contact.stiffness, end_geometry(m, hq, e, k, q + m.shaft(k)).pen);
+        }
       }
     }
   return E;
@@ -174,11 +180,12 @@ void update_pulley_status(const Model& m, Workspace& ws) {
       for (int k = 0; k < 2; ++k)
         for (int e = 0; e < 2; ++e) {
           std::uint8_t& st = ws.status.pulley[ContactStatus::pulley_index(j, h, e, k)];
+          const std::uint8_t was = st;
           st = 0;
           if (!near_pulley(m, ws.q + o, k)) continue;
           const double* shv = ws.v + m.shaft(k);
           const EndGeometry g = end_geometry(m, ws.q + o, e, k, ws.q + m.shaft(k));
-          if (g.pen <= 0) continue;
+          if (g.pen <= 0) continue;  // no energy in or out: Hertz energy is 0 here
           const double sigma = e == 0 ? -1.0 : 1.0;
           const double* pv = ws.v + o + e * half::kEnd;
           const double rate = g.gdx * (pv[half::kX] - sigma * R * pv[half::kSx] - shv[kUx]) +
@@ -186,6 +193,7 @@ void update_pulley_status(const Model& m, Workspace& ws) {
                               g.gdz * (pv[half::kZ] - shv[kUz]) + g.gtx * shv[kTx] + g.gty * shv[kTy] +
                               g.gw * shv[kW];
           st = hertz_force(cn, g.pen) + bn * rate > 0;
+          if (st != was) ws.switch_work += (st ? 1.0 : -1.0) * hertz_energy(cn, g.pen);
         }
     }
 }

@@ -22,7 +22,8 @@ void pulley_contact(const Model& m, Workspace& ws, int begin, int end);
 // One joint; fills `report` when given.
 void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report);
 
-double pulley_energy(const Model& m, const double* q);
+// Hertz energy of the pin ends (with `status`, only the active pairs).
+double pulley_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);
 void update_pulley_status(const Model& m, Workspace& ws);
 
 // Mean radius of the joint centres in contact with pulley k (the running radius of the

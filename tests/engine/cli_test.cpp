@@ -1,0 +1,195 @@
+// The cvt-engine command line, run as a real process: bad input exits with status 78
+// (EX_CONFIG), names the key, the value and the reason on stderr, and leaves no output file
+// behind; a good run exits 0, prints its summary and renames FILE.partial to FILE.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace cvt {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) {
+    if (c == '\'') out += "'\\''";
+    else out += c;
+  }
+  return out + "'";
+}
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string source_config(const std::string& name) {
+  return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
+}
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    std::random_device rd;
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("cvt_cli_test_" + std::string(info->name()) + "_" + std::to_string(::getpid()) + "_" +
+            std::to_string(counter++) + "_" + std::to_string(rd()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  // Runs `cvt-engine ARGS` with the temp directory as working directory; stdout and stderr
+  // go to files there.
+  RunResult run(const std::vector<std::string>& args) {
+    std::string cmd = "cd ";
+    cmd += shell_quote(dir_.string());
+    cmd += " && exec ";
+    cmd += shell_quote(CVT_ENGINE_EXE);
+    for (const auto& a : args) {
+      cmd += ' ';
+      cmd += shell_quote(a);
+    }
+    cmd += " >";
+    cmd += shell_quote((dir_ / "stdout.txt").string());
+    cmd += " 2>";
+    cmd += shell_quote((dir_ / "stderr.txt").string());
+    const int status = std::system(cmd.c_str());
+    RunResult r;
+    if (status != -1 && WIFEXITED(status)) r.exit_code = WEXITSTATUS(status);
+    r.out = read_text(dir_ / "stdout.txt");
+    r.err = read_text(dir_ / "stderr.txt");
+    return r;
+  }
+
+  // Bad input: status 78, stderr names key, value and reason, no FILE nor FILE.partial.
+  void expect_config_error(std::vector<std::string> args, const std::string& key, const std::string& value,
+                           const std::string& reason) {
+    const std::string out = "out.h5";
+    args.push_back("--quiet");
+    args.push_back("--out");
+    args.push_back(out);
+    std::string shown;
+    for (const auto& a : args) shown += " " + a;
+    SCOPED_TRACE("cvt-engine" + shown);
+    const RunResult r = run(args);
+    EXPECT_EQ(r.exit_code, 78) << "stderr: " << r.err << "\nstdout: " << r.out;
+    EXPECT_NE(r.err.find("configuration error"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(key), std::string::npos) << "key '" << key << "' not named: " << r.err;
+    if (!value.empty()) {
+      EXPECT_NE(r.err.find(value), std::string::npos) << "value '" << value << "' not named: " << r.err;
+    }
+    EXPECT_NE(r.err.find(reason), std::string::npos) << "reason '" << reason << "' not given: " << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / out)) << "output file left behind";
+    EXPECT_FALSE(fs::exists(dir_ / (out + ".partial"))) << "partial output file left behind";
+    EXPECT_FALSE(fs::exists(dir_ / "results.h5")) << "default output file written";
+  }
+
+  fs::path dir_;
+};
+
+const std::string kMini = source_config("mini");
+const std::string kReference = source_config("reference");
+
+TEST_F(CliTest, UnknownKey) {
+  expect_config_error({"run", kMini, "--set", "chain.linkz=3"}, "chain.linkz", "3", "unknown key");
+}
+
+TEST_F(CliTest, UnknownKeySuggestsKnownKey) {
+  const RunResult r = run({"run", kMini, "--quiet", "--out", "out.h5", "--set", "chain.linkz=3"});
+  EXPECT_EQ(r.exit_code, 78);
+  EXPECT_NE(r.err.find("chain.links"), std::string::npos) << r.err;
+}
+
+TEST_F(CliTest, WrongTypeFromSet) {
+  expect_config_error({"run", kMini, "--set", "chain.links=abc"}, "chain.links", "abc", "wrong type");
+}
+
+TEST_F(CliTest, WrongTypeInFile) {
+  const fs::path cfg = dir_ / "bad_links.toml";
+  {
+    std::ofstream f(cfg);
+    f << "[chain]\nlinks = 3.5\n";
+  }
+  expect_config_error({"run", cfg.string()}, "chain.links", "3.5", "wrong type");
+  const std::string err = read_text(dir_ / "stderr.txt");
+  EXPECT_NE(err.find("integer"), std::string::npos) << err;
+  EXPECT_NE(err.find("line 2"), std::string::npos) << err;
+}
+
+TEST_F(CliTest, NegativePitch) {
+  expect_config_error({"run", kMini, "--set", "chain.pitch=-0.008"}, "chain.pitch", "-0.008", "must be positive");
+}
+
+TEST_F(CliTest, ZeroAxialRigidity) {
+  expect_config_error({"run", kMini, "--set", "pin.ea=0"}, "pin.ea", "0", "must be positive");
+}
+
+TEST_F(CliTest, ChainTooShort) {
+  expect_config_error({"run", kReference, "--set", "chain.links=40"}, "chain.links", "40", "too short");
+}
+
+TEST_F(CliTest, ChainTooLong) {
+  expect_config_error({"run", kReference, "--set", "chain.links=200"}, "chain.links", "200", "too long");
+}
+
+TEST_F(CliTest, ImpossibleRatio) {
+  expect_config_error({"run", kMini, "--set", "geometry.ratio=10"}, "geometry.ratio", "10", "impossible ratio");
+}
+
+TEST_F(CliTest, BadFrictionLaw) {
+  expect_config_error({"run", kMini, "--set", "friction.law=dry"}, "friction.law", "dry", "unknown friction law");
+}
+
+TEST_F(CliTest, ZeroStep) {
+  // --t-end keeps the run short should --step 0 be ignored instead of rejected.
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--step", "0"}, "integrator.step", "0", "must be positive");
+}
+
+TEST_F(CliTest, NegativeStep) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--step", "-1e-8"}, "integrator.step", "-1e-",
+                      "must be positive");
+}
+
+TEST_F(CliTest, MissingConfigFile) {
+  const std::string missing = (dir_ / "no_such_config.toml").string();
+  expect_config_error({"run", missing}, "<file>", missing, "cannot open file");
+}
+
+TEST_F(CliTest, MalformedSet) {
+  expect_config_error({"run", kMini, "--set", "chain.links40"}, "chain.links40", "", "malformed override");
+}
+
+TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
+  const std::string out = "good.h5";
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--quiet", "--out", out});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  for (const char* word : {"steps", "us", "model seconds per wall hour", "speed ratio", "efficiency"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << "'" << word << "' missing from stdout:\n" << r.out;
+  EXPECT_TRUE(fs::exists(dir_ / out));
+  EXPECT_GT(fs::file_size(dir_ / out), 0u);
+  EXPECT_FALSE(fs::exists(dir_ / (out + ".partial")));
+}
+
+}  // namespace
+}  // namespace cvt

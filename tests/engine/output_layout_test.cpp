@@ -1,0 +1,299 @@
+// The HDF5 layout written by `cvt-engine run` (docs/output.md): one real run of
+// configs/mini.toml, then the file is inspected with the HDF5 C API.
+#include <gtest/gtest.h>
+#include <hdf5.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace cvt {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) {
+    if (c == '\'') out += "'\\''";
+    else out += c;
+  }
+  return out + "'";
+}
+
+constexpr int kLinks = 30;       // configs/mini.toml
+constexpr hsize_t kSamples = 31; // t = 0, 1e-6, ..., 3e-5
+constexpr hsize_t kSnapshots = 4;  // t = 0, 1e-5, 2e-5, 3e-5
+
+// Closes an HDF5 id of any kind on scope exit.
+struct Id {
+  hid_t id = H5I_INVALID_HID;
+  Id() = default;
+  explicit Id(hid_t i) : id(i) {}
+  Id(const Id&) = delete;
+  Id& operator=(const Id&) = delete;
+  ~Id() {
+    if (id < 0) return;
+    switch (H5Iget_type(id)) {
+      case H5I_FILE: H5Fclose(id); break;
+      case H5I_GROUP: H5Gclose(id); break;
+      case H5I_DATASET: H5Dclose(id); break;
+      case H5I_DATASPACE: H5Sclose(id); break;
+      case H5I_DATATYPE: H5Tclose(id); break;
+      case H5I_ATTR: H5Aclose(id); break;
+      case H5I_GENPROP_LST: H5Pclose(id); break;
+      default: break;
+    }
+  }
+  operator hid_t() const { return id; }
+  bool ok() const { return id >= 0; }
+};
+
+struct DatasetInfo {
+  std::vector<hsize_t> dims, maxdims;
+  bool chunked = false, deflate = false;
+};
+
+class OutputLayoutTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+    std::random_device rd;
+    dir_ = new fs::path(fs::temp_directory_path() /
+                        ("cvt_output_layout_test_" + std::to_string(::getpid()) + "_" + std::to_string(rd())));
+    fs::create_directories(*dir_);
+    file_ = new fs::path(*dir_ / "layout.h5");
+    const std::string cfg = std::string(CVT_SOURCE_DIR) + "/configs/mini.toml";
+    const std::string cmd = "cd " + shell_quote(dir_->string()) + " && " + shell_quote(CVT_ENGINE_EXE) + " run " +
+                            shell_quote(cfg) +
+                            " --t-end 3e-5 --set run.sample_interval=1e-6 --set run.snapshot_interval=1e-5 --quiet"
+                            " --out " + shell_quote(file_->string()) + " >" +
+                            shell_quote((*dir_ / "stdout.txt").string()) + " 2>" +
+                            shell_quote((*dir_ / "stderr.txt").string());
+    const int status = std::system(cmd.c_str());
+    exit_code_ = status != -1 && WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  }
+  static void TearDownTestSuite() {
+    std::error_code ec;
+    fs::remove_all(*dir_, ec);
+    delete dir_;
+    delete file_;
+  }
+
+  void SetUp() override {
+    ASSERT_EQ(exit_code_, 0) << "cvt-engine run failed; see " << (*dir_ / "stderr.txt");
+    ASSERT_TRUE(fs::exists(*file_));
+    f_.id = H5Fopen(file_->c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_TRUE(f_.ok()) << "cannot open " << *file_;
+  }
+
+  bool exists(const std::string& path) const {
+    // Check each component: H5Lexists fails on a missing intermediate group.
+    std::string partial;
+    size_t pos = 1;
+    while (pos <= path.size()) {
+      const size_t next = path.find('/', pos);
+      partial = path.substr(0, next);
+      if (H5Lexists(f_, partial.c_str(), H5P_DEFAULT) <= 0) return false;
+      if (next == std::string::npos) break;
+      pos = next + 1;
+    }
+    return true;
+  }
+
+  DatasetInfo info(const std::string& path) const {
+    DatasetInfo r;
+    Id d(H5Dopen2(f_, path.c_str(), H5P_DEFAULT));
+    if (!d.ok()) {
+      ADD_FAILURE() << "cannot open dataset " << path;
+      return r;
+    }
+    Id sp(H5Dget_space(d));
+    const int rank = H5Sget_simple_extent_ndims(sp);
+    r.dims.resize(rank);
+    r.maxdims.resize(rank);
+    H5Sget_simple_extent_dims(sp, r.dims.data(), r.maxdims.data());
+    Id dcpl(H5Dget_create_plist(d));
+    r.chunked = H5Pget_layout(dcpl) == H5D_CHUNKED;
+    unsigned flags = 0, cd[8];
+    size_t ncd = 8;
+    char name[64];
+    unsigned fc = 0;
+    r.deflate = H5Pget_filter_by_id2(dcpl, H5Z_FILTER_DEFLATE, &flags, &ncd, cd, sizeof name, name, &fc) >= 0;
+    return r;
+  }
+
+  std::vector<double> read_doubles(const std::string& path) const {
+    Id d(H5Dopen2(f_, path.c_str(), H5P_DEFAULT));
+    if (!d.ok()) {
+      ADD_FAILURE() << "cannot open dataset " << path;
+      return {};
+    }
+    Id sp(H5Dget_space(d));
+    const hssize_t n = H5Sget_simple_extent_npoints(sp);
+    std::vector<double> v(n > 0 ? n : 0);
+    if (n > 0 && H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) < 0)
+      ADD_FAILURE() << "cannot read " << path;
+    return v;
+  }
+
+  // Reads a scalar string (variable- or fixed-length) from an attribute or a dataset.
+  static std::string read_string(hid_t obj, hid_t type, bool attribute) {
+    if (H5Tget_class(type) != H5T_STRING) {
+      ADD_FAILURE() << "not a string type";
+      return {};
+    }
+    if (H5Tis_variable_str(type) > 0) {
+      Id mem(H5Tcopy(H5T_C_S1));
+      H5Tset_size(mem, H5T_VARIABLE);
+      H5Tset_cset(mem, H5Tget_cset(type));
+      char* buf = nullptr;
+      const herr_t rc = attribute ? H5Aread(obj, mem, &buf) : H5Dread(obj, mem, H5S_ALL, H5S_ALL, H5P_DEFAULT, &buf);
+      if (rc < 0 || !buf) {
+        ADD_FAILURE() << "cannot read string";
+        return {};
+      }
+      std::string s(buf);
+      H5free_memory(buf);
+      return s;
+    }
+    const size_t size = H5Tget_size(type);
+    std::string s(size, '\0');
+    Id mem(H5Tcopy(type));
+    const herr_t rc = attribute ? H5Aread(obj, mem, s.data()) : H5Dread(obj, mem, H5S_ALL, H5S_ALL, H5P_DEFAULT, s.data());
+    if (rc < 0) ADD_FAILURE() << "cannot read string";
+    s.resize(std::strlen(s.c_str()));
+    return s;
+  }
+
+  std::string string_attribute(const std::string& object, const std::string& name) const {
+    if (H5Aexists_by_name(f_, object.c_str(), name.c_str(), H5P_DEFAULT) <= 0) {
+      ADD_FAILURE() << object << " has no attribute '" << name << "'";
+      return {};
+    }
+    Id a(H5Aopen_by_name(f_, object.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT));
+    Id t(H5Aget_type(a));
+    if (H5Tget_class(t) != H5T_STRING) {
+      ADD_FAILURE() << object << "@" << name << " is not a string";
+      return {};
+    }
+    return read_string(a, t, true);
+  }
+
+  std::string string_dataset(const std::string& path) const {
+    Id d(H5Dopen2(f_, path.c_str(), H5P_DEFAULT));
+    if (!d.ok()) {
+      ADD_FAILURE() << "cannot open dataset " << path;
+      return {};
+    }
+    Id t(H5Dget_type(d));
+    if (H5Tget_class(t) != H5T_STRING) {
+      ADD_FAILURE() << path << " is not a string";
+      return {};
+    }
+    return read_string(d, t, false);
+  }
+
+  // Time series: 1-D extendible, chunked, deflated, increasing from 0.
+  void check_time(const std::string& path, hsize_t expected_rows, double interval) const {
+    SCOPED_TRACE(path);
+    ASSERT_TRUE(exists(path));
+    const DatasetInfo ti = info(path);
+    ASSERT_EQ(ti.dims.size(), 1u);
+    EXPECT_EQ(ti.dims[0], expected_rows);
+    EXPECT_EQ(ti.maxdims[0], H5S_UNLIMITED);
+    EXPECT_TRUE(ti.chunked);
+    EXPECT_TRUE(ti.deflate);
+    const std::vector<double> t = read_doubles(path);
+    ASSERT_EQ(t.size(), expected_rows);
+    EXPECT_EQ(t[0], 0.0);
+    for (size_t i = 0; i < t.size(); ++i) {
+      EXPECT_TRUE(std::isfinite(t[i])) << i;
+      EXPECT_NEAR(t[i], i * interval, 1e-12) << i;
+      if (i > 0) {
+        EXPECT_GT(t[i], t[i - 1]) << i;
+      }
+    }
+  }
+
+  // Value series [rows] + row_shape: extendible, chunked, deflated, finite, with a unit.
+  void check_value(const std::string& path, hsize_t rows, const std::vector<hsize_t>& row_shape) const {
+    SCOPED_TRACE(path);
+    ASSERT_TRUE(exists(path));
+    const DatasetInfo vi = info(path);
+    ASSERT_EQ(vi.dims.size(), 1 + row_shape.size());
+    EXPECT_EQ(vi.dims[0], rows);
+    for (size_t k = 0; k < row_shape.size(); ++k) EXPECT_EQ(vi.dims[k + 1], row_shape[k]) << "dimension " << k + 1;
+    EXPECT_EQ(vi.maxdims[0], H5S_UNLIMITED);
+    EXPECT_TRUE(vi.chunked);
+    EXPECT_TRUE(vi.deflate);
+    EXPECT_FALSE(string_attribute(path, "unit").empty());
+    const std::vector<double> v = read_doubles(path);
+    hsize_t n = rows;
+    for (hsize_t d : row_shape) n *= d;
+    ASSERT_EQ(v.size(), n);
+    for (size_t i = 0; i < v.size(); ++i) ASSERT_TRUE(std::isfinite(v[i])) << "element " << i << " = " << v[i];
+  }
+
+  static fs::path* dir_;
+  static fs::path* file_;
+  static int exit_code_;
+  Id f_;
+};
+
+fs::path* OutputLayoutTest::dir_ = nullptr;
+fs::path* OutputLayoutTest::file_ = nullptr;
+int OutputLayoutTest::exit_code_ = -1;
+
+TEST_F(OutputLayoutTest, RunRenamedPartialFile) {
+  EXPECT_FALSE(fs::exists(file_->string() + ".partial"));
+}
+
+TEST_F(OutputLayoutTest, Observables) {
+  const std::vector<std::string> scalars = {
+      "input_speed",     "output_speed",  "input_torque",    "output_torque",  "speed_ratio",
+      "geometric_ratio", "efficiency",    "clamping_force_driving", "clamping_force_driven", "link_tension",
+      "energy_kinetic",  "energy_elastic", "work_input",     "work_output",    "work_dissipated",
+      "energy_residual"};
+  for (const auto& name : scalars) {
+    const std::string base = "/observables/" + name;
+    check_time(base + "/time", kSamples, 1e-6);
+    check_value(base + "/value", kSamples, {});
+  }
+  check_time("/observables/pin_axial_force/time", kSamples, 1e-6);
+  check_value("/observables/pin_axial_force/value", kSamples, {2});
+}
+
+TEST_F(OutputLayoutTest, ChainSnapshots) {
+  check_time("/particles/chain/position/time", kSnapshots, 1e-5);
+  check_value("/particles/chain/position/value", kSnapshots, {kLinks, 3});
+  check_time("/particles/chain/link_tension/time", kSnapshots, 1e-5);
+  check_value("/particles/chain/link_tension/value", kSnapshots, {kLinks});
+}
+
+TEST_F(OutputLayoutTest, Parameters) {
+  ASSERT_TRUE(exists("/parameters/config"));
+  const std::string cfg = string_dataset("/parameters/config");
+  EXPECT_NE(cfg.find("[chain]"), std::string::npos) << cfg;
+  EXPECT_NE(cfg.find("links = 30"), std::string::npos) << cfg;
+  EXPECT_NE(cfg.find("sample_interval = 1e-6"), std::string::npos) << cfg;
+  ASSERT_TRUE(exists("/parameters/version"));
+  EXPECT_FALSE(string_dataset("/parameters/version").empty());
+}
+
+TEST_F(OutputLayoutTest, H5dumpReadsHeader) {
+  if (!fs::exists("/usr/bin/h5dump")) GTEST_SKIP() << "no /usr/bin/h5dump";
+  const std::string cmd = "/usr/bin/h5dump -H " + shell_quote(file_->string()) + " >" +
+                          shell_quote((*dir_ / "h5dump.txt").string()) + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  ASSERT_TRUE(status != -1 && WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+}
+
+}  // namespace
+}  // namespace cvt
