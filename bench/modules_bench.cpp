@@ -1,0 +1,121 @@
+// Per-module cost of one right-hand-side evaluation of the reference model (serial), one
+// RHS and one RK4 step: the first performance record (README "Performance").
+#include <benchmark/benchmark.h>
+
+#include "engine/config.hpp"
+#include "engine/model.hpp"
+#include "engine/rhs.hpp"
+#include "engine/simulation.hpp"
+#include "modules/chain_forces.hpp"
+#include "modules/inertia.hpp"
+#include "modules/other_forces.hpp"
+#include "modules/pulley_contact.hpp"
+
+namespace {
+
+using namespace cvt;
+
+// The reference model after 0.3 ms of its run, so that contacts are established.
+struct Fixture {
+  Model m;
+  Eigen::VectorXd y;
+  ContactStatus status;
+  explicit Fixture(const std::string& name)
+      : m(build_model(load_config(std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml"))) {
+    Simulation sim(m);
+    for (int n = 0; n < 30000; ++n) sim.step(m.cfg.integrator.step);
+    y = sim.state();
+    status = sim.workspace().status;
+  }
+};
+
+Fixture& reference() {
+  static Fixture f("reference");
+  return f;
+}
+
+Workspace prepared(const Fixture& f) {
+  Workspace ws(f.m);
+  ws.status = f.status;
+  set_stage_input(f.m, ws, 3e-4, f.y.data());
+  link_kinematics(f.m, ws, 0, f.m.links);
+  return ws;
+}
+
+void BM_ChainForces(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  for (auto _ : st) chain_forces(f.m, ws, 0, f.m.links);
+  benchmark::DoNotOptimize(ws.chain_slots.data());
+}
+void BM_PulleyContact(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  for (auto _ : st) pulley_contact(f.m, ws, 0, f.m.links);
+  benchmark::DoNotOptimize(ws.pulley_slots.data());
+}
+void BM_OtherForces(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  for (auto _ : st) other_forces(f.m, ws);
+  benchmark::DoNotOptimize(ws.other.f.data());
+}
+void BM_InertiaDecomposition(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  for (auto _ : st) {
+    link_kinematics(f.m, ws, 0, f.m.links);
+    inertia_decomposition(f.m, ws, 0, f.m.links);
+  }
+  benchmark::DoNotOptimize(ws.capacitance_inv.data());
+}
+void BM_GatherAndAccelerations(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  chain_forces(f.m, ws, 0, f.m.links);
+  pulley_contact(f.m, ws, 0, f.m.links);
+  other_forces(f.m, ws);
+  inertia_decomposition(f.m, ws, 0, f.m.links);
+  for (auto _ : st) {
+    gather_forces(f.m, ws);
+    accelerations(f.m, ws);
+  }
+  benchmark::DoNotOptimize(ws.accel.data());
+}
+void BM_Rhs(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws(f.m);
+  ws.status = f.status;
+  Eigen::VectorXd dy(f.m.nstate);
+  for (auto _ : st) rhs_serial(f.m, ws, 3e-4, f.y.data(), dy.data());
+  benchmark::DoNotOptimize(dy.data());
+}
+void BM_ContactStatus(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws(f.m);
+  for (auto _ : st) update_contact_status(f.m, ws, 3e-4, f.y.data());
+  benchmark::DoNotOptimize(ws.status.pulley.data());
+}
+void BM_Rk4Step(benchmark::State& st) {
+  auto& f = reference();
+  Simulation sim(f.m);
+  sim.mutable_state() = f.y;
+  sim.workspace().status = f.status;
+  sim.set_clock(3e-4, 30000);
+  for (auto _ : st) sim.step(f.m.cfg.integrator.step);
+  st.counters["model_s_per_hour"] = benchmark::Counter(f.m.cfg.integrator.step * 3600.0 * st.iterations(),
+                                                       benchmark::Counter::kIsRate);
+}
+
+BENCHMARK(BM_ChainForces)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PulleyContact)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_OtherForces)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_InertiaDecomposition)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_GatherAndAccelerations)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_Rhs)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ContactStatus)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_Rk4Step)->Unit(benchmark::kMicrosecond);
+
+}  // namespace
+
+BENCHMARK_MAIN();
