@@ -74,7 +74,7 @@ struct Config {
     double hub_radius = 0.028;    // [m]
   } sheave;
   struct Shaft {
-    double mass = 5.0;             // shaft + pulley set [kg]
+    double mass = 5.0;             // shaft + pulley set [kg]; axially + sheave_mass
     double polar_inertia = 0.02;   // [kg m^2]
     double tilt_inertia = 0.01;    // [kg m^2]
     double sheave_mass = 2.0;      // moving sheave, axial [kg]

@@ -7,7 +7,9 @@ namespace cvt {
 
 class Rk4 {
  public:
-  explicit Rk4(int size) : k1_(size), k2_(size), k3_(size), k4_(size), tmp_(size) {}
+  explicit Rk4(int size)
+      : k1_(Eigen::VectorXd::Zero(size)), k2_(Eigen::VectorXd::Zero(size)), k3_(Eigen::VectorXd::Zero(size)),
+        k4_(Eigen::VectorXd::Zero(size)), tmp_(Eigen::VectorXd::Zero(size)) {}
   // Advances y from t to t + h. f(t, y_ptr, dy_ptr).
   template <class F>
   void step(F&& f, double t, double h, Eigen::VectorXd& y) {

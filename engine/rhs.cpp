@@ -67,6 +67,7 @@ void write_derivative(const Model& m, const Workspace& ws, double* dy) {
   da[kWorkDiss] = ws.p_diss;
   da[kWorkClamp] = ws.other.p_clamp;
   da[kCtrlIntegral] = ws.other.ctrl_rate;
+  da[kWorkSwitch] = 0.0;  // incremented between steps, not integrated (docs/model.md 4.4)
 }
 
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy) {

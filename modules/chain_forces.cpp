@@ -235,16 +235,20 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       plate_point_force(m, e.a, -T * e.ux, -T * e.uy, fn, fs);
       plate_point_force(m, e.b, T * e.ux, T * e.uy, fb, fs);
     }
-    // 4.2 pack: s held to the mean axial position of its two halves.
-    const double zmean = 0.25 * (qb[half::kZ] + qb[half::kEnd + half::kZ] + qn[half::kZ] + qn[half::kEnd + half::kZ]);
-    const double zmd = 0.25 * (vb[half::kZ] + vb[half::kEnd + half::kZ] + vn[half::kZ] + vn[half::kEnd + half::kZ]);
-    const double Fp = ks * (sq - zmean) + cs * (sv - zmd);
-    s.p_diss += cs * (sv - zmd) * (sv - zmd);
-    *fs -= Fp;
-    fb[half::kZ] += 0.25 * Fp;
-    fb[half::kEnd + half::kZ] += 0.25 * Fp;
-    fn[half::kZ] += 0.25 * Fp;
-    fn[half::kEnd + half::kZ] += 0.25 * Fp;
+    // 4.2 pack: s held to the axial mid-position of each of its two halves, so that no
+    // half slides out through its plates.
+    for (int h = 0; h < 2; ++h) {
+      const double* hq = h == 0 ? qb : qn;
+      const double* hv = h == 0 ? vb : vn;
+      double* hf = h == 0 ? fb : fn;
+      const double rel = sq - 0.5 * (hq[half::kZ] + hq[half::kEnd + half::kZ]);
+      const double rate = sv - 0.5 * (hv[half::kZ] + hv[half::kEnd + half::kZ]);
+      const double Fp = ks * rel + cs * rate;
+      s.p_diss += cs * rate * rate;
+      *fs -= Fp;
+      hf[half::kZ] += 0.5 * Fp;
+      hf[half::kEnd + half::kZ] += 0.5 * Fp;
+    }
   }
 }
 
@@ -280,8 +284,10 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
       const PlateEval e = plate_eval(m, qb, qb, qn, qn, sq, 0.0, zeta);
       if (e.stretch > 0) E += 0.5 * c.chain.plate_stiffness * e.stretch * e.stretch;
     }
-    const double zmean = 0.25 * (qb[half::kZ] + qb[half::kEnd + half::kZ] + qn[half::kZ] + qn[half::kEnd + half::kZ]);
-    E += 0.5 * c.chain.pack_stiffness * (sq - zmean) * (sq - zmean);
+    for (const double* hq : {qb, qn}) {
+      const double rel = sq - 0.5 * (hq[half::kZ] + hq[half::kEnd + half::kZ]);
+      E += 0.5 * c.chain.pack_stiffness * rel * rel;
+    }
   }
   return E;
 }

@@ -14,8 +14,8 @@ using Vec2 = Eigen::Vector2d;
 
 Vec2 dir(double psi) { return {std::cos(psi), std::sin(psi)}; }
 
-// The closed belt path of joint centres: boundary of the convex hull of the two pitch
-// circles (docs/model.md 5.1), as a signed distance (> 0 outside) and a region label.
+// The closed belt path of the half centre lines: boundary of the convex hull of the two
+// path circles (docs/model.md 5.1), as a signed distance (> 0 outside) and a region label.
 struct BeltPath {
   double a, R1, R2, th_up, th_lo;
   Vec2 u_up, u_lo;
