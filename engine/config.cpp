@@ -90,6 +90,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(rocker, half_distance, real, "m", positive),
       CVT_KEY(rocker, stiffness, real, "N/m^1.5", positive),
       CVT_KEY(rocker, damping, real, "N s/m", nonneg),
+      CVT_KEY(rocker, keeper_stiffness, real, "N/m", nonneg),
 
       CVT_KEY(pulley_contact, end_radius, real, "m", positive),
       CVT_KEY(pulley_contact, stiffness, real, "N/m^1.5", positive),

@@ -57,6 +57,9 @@ struct Config {
     double half_distance = 2.6e-3; // d_h [m]
     double stiffness = 7.9e10;     // Hertz c per station [N/m^1.5]
     double damping = 50.0;         // b per station [N s/m]
+    // Rolling keeper: spring on the offset of the two halves across the bisector, which
+    // is zero for rolling without slip (docs/model.md 4.3). 0 turns it off.
+    double keeper_stiffness = 1.0e7;  // [N/m]
   } rocker;
   struct PulleyContact {
     double end_radius = 0.02;   // R_end [m]

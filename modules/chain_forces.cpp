@@ -157,6 +157,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
   const double kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
   const double crk = c.rocker.stiffness, brk = c.rocker.damping * m.damp;
   const double ks = c.chain.pack_stiffness, cs = c.chain.pack_damping * m.damp;
+  const double kkeep = c.rocker.keeper_stiffness;
   const FrictionLaw law = c.friction.law;
   const double f0 = c.friction.f0, v0 = c.friction.v0;
   const int nst = c.rocker.stations;
@@ -223,6 +224,27 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       s.tau_own -= rbx * Ry - rby * Rx;
     }
 
+    // 4.3 rolling keeper: s = nbar . (mid(a_j) - mid(b_j)), nbar normal to the bisector of
+    // e_{j-1} and e_j; ds/dpsi_{j-1} = ds/dpsi_j = -(1/2) ebar . (mid(a) - mid(b)).
+    if (kkeep > 0) {
+      double bx = kin.ex[lp] + kin.ex[lc], by = kin.ey[lp] + kin.ey[lc];
+      const double bl = std::sqrt(bx * bx + by * by);
+      bx /= bl;
+      by /= bl;
+      const double dx = mid(qa, 0) - mid(qb, 0), dy = mid(qa, 1) - mid(qb, 1);
+      const double shear = -by * dx + bx * dy;
+      const double along = bx * dx + by * dy;
+      const double F = kkeep * shear;  // -dE/ds = -F
+      for (int e = 0; e < 2; ++e) {
+        fa[e * half::kEnd + half::kX] -= 0.5 * F * -by;
+        fa[e * half::kEnd + half::kY] -= 0.5 * F * bx;
+        fb[e * half::kEnd + half::kX] += 0.5 * F * -by;
+        fb[e * half::kEnd + half::kY] += 0.5 * F * bx;
+      }
+      s.tau_prev -= F * (-0.5 * along);
+      s.tau_own -= F * (-0.5 * along);
+    }
+
     // 4.2 plates of link j between b_j and a_{j+1}.
     const double* qn = ws.q + m.half_a(j + 1);
     const double* vn = ws.v + m.half_a(j + 1);
@@ -278,6 +300,12 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
       const double cbx = lateral(qb, h, 0) + m.kappa * ex[j], cby = lateral(qb, h, 1) + m.kappa * ey[j];
       const double pen = 2 * c.rocker.radius - std::hypot(cax - cbx, cay - cby);
       E += hertz_energy(c.rocker.stiffness, pen);
+    }
+    if (c.rocker.keeper_stiffness > 0) {
+      double bx = ex[lp] + ex[j], by = ey[lp] + ey[j];
+      const double bl = std::sqrt(bx * bx + by * by);
+      const double shear = (-by * (mid(qa, 0) - mid(qb, 0)) + bx * (mid(qa, 1) - mid(qb, 1))) / bl;
+      E += 0.5 * c.rocker.keeper_stiffness * shear * shear;
     }
     const double sq = q[m.pack(j)];
     for (double zeta : m.plate_zeta) {
