@@ -46,10 +46,14 @@ Means run_and_average(const Model& m, double t_end, double from) {
   return r;
 }
 
-// In the slow target (make test-slow): it runs 8e5 steps, and it currently FAILS: the mini
-// chain degrades after about 4 ms (issue 2 notes).
+// The drive and load torsion springs are damped near critical here (5 % in the shipped
+// configs, where the load-side mode rings with a period of about 10 ms), so that 5-8 ms
+// is a steady state and its means compare with the load.
+// Slow target (make test-slow), 8e5 steps. It currently FAILS on the torque: ratio and
+// strand tensions are right, but the mean output torque is -1.8 N m for a 10 N m load
+// (issue 2 notes).
 TEST(SlowCvtBehaviourTest, LightLoadIsTransmittedNearTheGeometricRatio) {
-  const Model m = test::model("mini", {"ramp.time=1e-3"});
+  const Model m = test::model("mini", {"ramp.time=1e-3", "drive.damping=30", "load.damping=30"});
   const Means r = run_and_average(m, 8e-3, 5e-3);
   std::printf("mean over 5-8 ms: speed ratio %.5f, geometric ratio %.5f, output torque %.3f N m (load %.3f), "
               "link tension %.0f..%.0f N\n",
