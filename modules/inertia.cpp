@@ -165,10 +165,7 @@ double kinetic_energy(const Model& m, const double* q, const double* v) {
 Eigen::MatrixXd dense_inertia(const Model& m, const double* q) {
   const int n = m.ndof;
   Eigen::MatrixXd A = Eigen::MatrixXd::Zero(n, n);
-  Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
-  Eigen::VectorXd zero = Eigen::VectorXd::Zero(n);
-  // A0 column by column through the kinetic energy's quadratic form (polarization) would
-  // be slow; assemble the blocks directly instead.
+  // A0 (3.1), block by block.
   for (int j = 0; j < m.links; ++j) {
     for (int h = 0; h < 2; ++h) {
       const int o = m.joint(j) + (h == 0 ? kJointA : kJointB);
@@ -210,8 +207,6 @@ Eigen::MatrixXd dense_inertia(const Model& m, const double* q) {
     }
     A += c.chain.link_inertia * g * g.transpose();
   }
-  (void)e;
-  (void)zero;
   return A;
 }
 

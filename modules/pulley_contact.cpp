@@ -49,6 +49,16 @@ inline EndGeometry end_geometry(const Model& m, const double* hq, int e, int k, 
   return g;
 }
 
+// dDelta/dt from the pin end's and the shaft's velocities (4.5.3).
+inline double penetration_rate(const Model& m, const EndGeometry& g, const double* hv, int e, const double* shv) {
+  const double sigma = e == 0 ? -1.0 : 1.0;
+  const double R = m.cfg.pulley_contact.end_radius;
+  const double* pv = hv + e * half::kEnd;
+  return g.gdx * (pv[half::kX] - sigma * R * pv[half::kSx] - shv[kUx]) +
+         g.gdy * (pv[half::kY] - sigma * R * pv[half::kSy] - shv[kUy]) + g.gdz * (pv[half::kZ] - shv[kUz]) +
+         g.gtx * shv[kTx] + g.gty * shv[kTy] + g.gw * shv[kW];
+}
+
 inline bool near_pulley(const Model& m, const double* hq, int k) {
   const double x = mid(hq, 0) - m.pulley[k].centre.x(), y = mid(hq, 1) - m.pulley[k].centre.y();
   const double rmax = m.cfg.sheave.outer_radius;
@@ -85,8 +95,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
         const double cvx = pv[half::kX] - sigma * R * pv[half::kSx];
         const double cvy = pv[half::kY] - sigma * R * pv[half::kSy];
         const double cvz = pv[half::kZ];
-        const double rate = g.gdx * (cvx - shv[kUx]) + g.gdy * (cvy - shv[kUy]) + g.gdz * (cvz - shv[kUz]) +
-                            g.gtx * shv[kTx] + g.gty * shv[kTy] + g.gw * shv[kW];
+        const double rate = penetration_rate(m, g, hv, e, shv);
         const double Nel = hertz_force(cn, g.pen);
         const double N = Nel + (g.pen > 0 ? bn * rate : 0.0);
         s.p_diss += (N - Nel) * rate;
@@ -145,7 +154,6 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           ec.penetration = g.pen;
           ec.pulley = k;
         }
-        (void)Fz;
       }
     }
   }
@@ -173,7 +181,6 @@ double pulley_energy(const Model& m, const double* q, const ContactStatus* statu
 
 void update_pulley_status(const Model& m, Workspace& ws) {
   const double cn = m.cfg.pulley_contact.stiffness, bn = m.cfg.pulley_contact.damping * m.damp;
-  const double R = m.cfg.pulley_contact.end_radius;
   for (int j = 0; j < m.links; ++j)
     for (int h = 0; h < 2; ++h) {
       const int o = h == 0 ? m.half_a(j) : m.half_b(j);
@@ -186,12 +193,7 @@ void update_pulley_status(const Model& m, Workspace& ws) {
           const double* shv = ws.v + m.shaft(k);
           const EndGeometry g = end_geometry(m, ws.q + o, e, k, ws.q + m.shaft(k));
           if (g.pen <= 0) continue;  // no energy in or out: Hertz energy is 0 here
-          const double sigma = e == 0 ? -1.0 : 1.0;
-          const double* pv = ws.v + o + e * half::kEnd;
-          const double rate = g.gdx * (pv[half::kX] - sigma * R * pv[half::kSx] - shv[kUx]) +
-                              g.gdy * (pv[half::kY] - sigma * R * pv[half::kSy] - shv[kUy]) +
-                              g.gdz * (pv[half::kZ] - shv[kUz]) + g.gtx * shv[kTx] + g.gty * shv[kTy] +
-                              g.gw * shv[kW];
+          const double rate = penetration_rate(m, g, ws.v + o, e, shv);
           st = hertz_force(cn, g.pen) + bn * rate > 0;
           if (st != was) ws.switch_work += (st ? 1.0 : -1.0) * hertz_energy(cn, g.pen);
         }

@@ -10,6 +10,16 @@
 
 namespace cvt::test {
 
+// Single-quotes a word for /bin/sh.
+inline std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) {
+    if (c == '\'') out += "'\\''";
+    else out += c;
+  }
+  return out + "'";
+}
+
 inline std::string config_path(const std::string& name) {
   return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
 }

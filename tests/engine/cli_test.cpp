@@ -13,19 +13,14 @@
 #include <string>
 #include <vector>
 
+#include "tests/test_util.hpp"
+
 namespace cvt {
 namespace {
 
 namespace fs = std::filesystem;
 
-std::string shell_quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) {
-    if (c == '\'') out += "'\\''";
-    else out += c;
-  }
-  return out + "'";
-}
+using test::shell_quote;
 
 std::string read_text(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

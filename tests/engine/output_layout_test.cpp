@@ -12,19 +12,14 @@
 #include <string>
 #include <vector>
 
+#include "tests/test_util.hpp"
+
 namespace cvt {
 namespace {
 
 namespace fs = std::filesystem;
 
-std::string shell_quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) {
-    if (c == '\'') out += "'\\''";
-    else out += c;
-  }
-  return out + "'";
-}
+using test::shell_quote;
 
 constexpr int kLinks = 30;       // configs/mini.toml
 constexpr hsize_t kSamples = 31; // t = 0, 1e-6, ..., 3e-5
