@@ -105,16 +105,10 @@ Model build_model(const Config& cfg) {
   const double w2 = speed / pl.R2;
   for (int j = 0; j < m.links; ++j) {
     const Eigen::Vector2d* P[2] = {&pl.pa[j], &pl.pb[j]};
+    const Eigen::Vector2d* U[2] = {&pl.unit_va[j], &pl.unit_vb[j]};
     const int base[2] = {m.half_a(j), m.half_b(j)};
     for (int h = 0; h < 2; ++h) {
-      Eigen::Vector2d vel;
-      const int r = pl.region[j];
-      if (r == 2) vel = speed * pl.span_dir[j];
-      else {
-        const double w = r == 0 ? w1 : w2;
-        const Eigen::Vector2d rel = *P[h] - m.pulley[r].centre;
-        vel = {-w * rel.y(), w * rel.x()};
-      }
+      const Eigen::Vector2d vel = speed * *U[h];
       for (int e = 0; e < 2; ++e) {
         const int o = base[h] + e * half::kEnd;
         q[o + half::kX] = P[h]->x();

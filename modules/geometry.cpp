@@ -229,6 +229,18 @@ ChainPlacement place_chain(const ChainPathParams& p) {
       }
     (k == 0 ? out.R1 : out.R2) = count ? sum / count : (k == 0 ? R1 : i * R1);
   }
+  const auto unit_velocity = [&](const Vec2& p) -> Vec2 {
+    const int r = path.region(p);
+    if (r == 2) return path.span_direction(p);
+    const Vec2 rel = p - Vec2(r == 0 ? 0.0 : a, 0.0);
+    return Vec2(-rel.y(), rel.x()) / (r == 0 ? out.R1 : out.R2);
+  };
+  out.unit_va.resize(N);
+  out.unit_vb.resize(N);
+  for (int j = 0; j < N; ++j) {
+    out.unit_va[j] = unit_velocity(out.pa[j]);
+    out.unit_vb[j] = unit_velocity(out.pb[j]);
+  }
   return out;
 }
 

@@ -23,6 +23,10 @@ struct ChainPlacement {
   std::vector<Eigen::Vector2d> pa, pb;    // half centre lines (xy) of every joint
   std::vector<int> region;                // 0: arc of pulley 0, 1: arc of pulley 1, 2: span
   std::vector<Eigen::Vector2d> span_dir;  // travel direction (spans only)
+  // Initial velocity of each half per unit chain speed (docs/model.md 5.4): rigid rotation
+  // with its pulley where the half lies in that pulley's sector of the path, the span
+  // direction elsewhere. Classified half by half, so the field is continuous along the path.
+  std::vector<Eigen::Vector2d> unit_va, unit_vb;
   double closure_residual = 0;            // |c_N - c_0| after the walk [m]
   int iterations = 0;
 };
