@@ -1,32 +1,70 @@
 // Fixed-step RK4 over a generic first-order system y' = f(t, y) (docs/model.md 7).
 #pragma once
 
+#include <type_traits>
+
 #include <Eigen/Dense>
 
 namespace cvt {
 
+// The integrator's update of one stage, handed to the right-hand side so that a parallel
+// schedule can run it over the same pin ranges as the forces (docs/model.md 7). With
+// d = dy[i]:  acc[i] = d (first stage) or acc[i] + w d;  then next[i] = base[i] + a d, or
+// in the last stage next[i] = base[i] + a acc[i]. Element by element, so the result does
+// not depend on how the range is split.
+struct StageOp {
+  const double* base = nullptr;
+  double* next = nullptr;
+  double a = 0;
+  double* acc = nullptr;
+  double w = 1;
+  bool first = false, last = false;
+  void apply(const double* dy, int begin, int end) const {
+    for (int i = begin; i < end; ++i) {
+      const double d = dy[i];
+      if (acc) acc[i] = first ? d : acc[i] + w * d;
+      if (next) next[i] = base[i] + a * (last ? acc[i] : d);
+    }
+  }
+};
+
+// Classical RK4. f is either f(t, y, dy) or f(t, y, dy, const StageOp*), the latter applying
+// the stage update itself (after dy is complete for the coordinates it updates). The two
+// give the same bits: y + h/6 (((k1 + 2 k2) + 2 k3) + k4) and y + (h/2) k in both.
 class Rk4 {
  public:
   explicit Rk4(int size)
-      : k1_(Eigen::VectorXd::Zero(size)), k2_(Eigen::VectorXd::Zero(size)), k3_(Eigen::VectorXd::Zero(size)),
-        k4_(Eigen::VectorXd::Zero(size)), tmp_(Eigen::VectorXd::Zero(size)) {}
-  // Advances y from t to t + h. f(t, y_ptr, dy_ptr).
+      : k_(Eigen::VectorXd::Zero(size)), acc_(Eigen::VectorXd::Zero(size)), s1_(Eigen::VectorXd::Zero(size)),
+        s2_(Eigen::VectorXd::Zero(size)) {}
+
   template <class F>
   void step(F&& f, double t, double h, Eigen::VectorXd& y) {
-    const Eigen::Index n = y.size();
-    f(t, y.data(), k1_.data());
-    for (Eigen::Index i = 0; i < n; ++i) tmp_[i] = y[i] + 0.5 * h * k1_[i];
-    f(t + 0.5 * h, tmp_.data(), k2_.data());
-    for (Eigen::Index i = 0; i < n; ++i) tmp_[i] = y[i] + 0.5 * h * k2_[i];
-    f(t + 0.5 * h, tmp_.data(), k3_.data());
-    for (Eigen::Index i = 0; i < n; ++i) tmp_[i] = y[i] + h * k3_[i];
-    f(t + h, tmp_.data(), k4_.data());
-    const double h6 = h / 6.0;
-    for (Eigen::Index i = 0; i < n; ++i) y[i] += h6 * (k1_[i] + 2.0 * k2_[i] + 2.0 * k3_[i] + k4_[i]);
+    StageOp op;
+    op.base = y.data();
+    op.acc = acc_.data();
+    const double hh = 0.5 * h;
+    // Stage inputs alternate between two buffers: no stage writes the vector it reads.
+    op.next = s1_.data(), op.a = hh, op.first = true, op.w = 1.0;
+    stage(f, t, y.data(), op);
+    op.next = s2_.data(), op.a = hh, op.first = false, op.w = 2.0;
+    stage(f, t + hh, s1_.data(), op);
+    op.next = s1_.data(), op.a = h;
+    stage(f, t + hh, s2_.data(), op);
+    op.next = y.data(), op.a = h / 6.0, op.w = 1.0, op.last = true;
+    stage(f, t + h, s1_.data(), op);
   }
 
  private:
-  Eigen::VectorXd k1_, k2_, k3_, k4_, tmp_;
+  template <class F>
+  void stage(F& f, double t, const double* in, const StageOp& op) {
+    if constexpr (std::is_invocable_v<F&, double, const double*, double*, const StageOp*>) {
+      f(t, in, k_.data(), &op);
+    } else {
+      f(t, in, k_.data());
+      op.apply(k_.data(), 0, static_cast<int>(k_.size()));
+    }
+  }
+  Eigen::VectorXd k_, acc_, s1_, s2_;
 };
 
 }  // namespace cvt

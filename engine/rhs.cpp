@@ -21,6 +21,7 @@ Workspace::Workspace(const Model& m) {
   capacitance_inv.assign(N, 0.0);
   force = Eigen::VectorXd::Zero(m.ndof);
   accel = Eigen::VectorXd::Zero(m.ndof);
+  accel_free = Eigen::VectorXd::Zero(m.ndof);
   link_tau.assign(N, 0.0);
 }
 
@@ -31,36 +32,78 @@ void set_stage_input(const Model& m, Workspace& ws, double t, const double* y) {
   ws.aux = y + 2 * m.ndof;
 }
 
-void gather_forces(const Model& m, Workspace& ws) {
+// Sum of one module's two contributions to coordinate i of joint j: its own slot, and,
+// for the coordinates of half a_j, the f_next_a of slot j-1. "0.0 +" first, so that the
+// result equals a zero-initialized buffer summed in any order (graph/paper_omp.cpp).
+static inline double module_sum(const std::vector<JointSlot>& s, int j, int jp, int i) {
+  const double own = 0.0 + s[j].f[i];
+  return i < half::kSize ? own + s[jp].f_next_a[i] : own;
+}
+static inline double module_tau(const std::vector<JointSlot>& s, int i, int in) {
+  return (0.0 + s[i].tau_own) + s[in].tau_prev;
+}
+
+void gather_joints(const Model& m, Workspace& ws, int begin, int end) {
   double* F = ws.force.data();
-  ws.force.setZero();
-  std::fill(ws.link_tau.begin(), ws.link_tau.end(), 0.0);
-  double p = ws.other.p_diss;
+  for (int j = begin; j < end; ++j) {
+    const int jp = m.wrap(j - 1), jn = m.wrap(j + 1);
+    double* fj = F + m.joint(j);
+    for (int i = 0; i < kJointSize; ++i)
+      fj[i] = (module_sum(ws.chain_slots, j, jp, i) + module_sum(ws.pulley_slots, j, jp, i)) +
+              module_sum(ws.inertia_slots, j, jp, i);
+    // Torque of link i acts through g_i: + on a_{i+1}, - on b_i (docs/model.md 3.2).
+    const auto tau = [&](int i, int in) {
+      return (module_tau(ws.chain_slots, i, in) + module_tau(ws.pulley_slots, i, in)) +
+             module_tau(ws.inertia_slots, i, in);
+    };
+    const double tp = tau(jp, j), to = tau(j, jn);
+    ws.link_tau[j] = to;
+    const LinkKinematics& k = ws.kin;
+    const double gxp = -0.5 * k.ey[jp] * k.inv_len[jp], gyp = 0.5 * k.ex[jp] * k.inv_len[jp];
+    const double gxo = -0.5 * k.ey[j] * k.inv_len[j], gyo = 0.5 * k.ex[j] * k.inv_len[j];
+    for (int e = 0; e < 2; ++e) {
+      fj[kJointA + e * half::kEnd + half::kX] += tp * gxp;
+      fj[kJointA + e * half::kEnd + half::kY] += tp * gyp;
+      fj[kJointB + e * half::kEnd + half::kX] -= to * gxo;
+      fj[kJointB + e * half::kEnd + half::kY] -= to * gyo;
+    }
+  }
+  a0_inverse_joints(m, F, ws.accel_free.data(), begin, end);
+}
+
+void gather_shafts(const Model& m, Workspace& ws) {
+  double* F = ws.force.data();
   const int N = m.links;
-  for (const auto* slots : {&ws.chain_slots, &ws.pulley_slots, &ws.inertia_slots}) {
+  double* fs = F + m.shaft(0);
+  for (int i = 0; i < 2 * kShaftSize + 1; ++i) fs[i] = 0.0;
+  double p = ws.other.p_diss;
+  for (const auto* slots : {&ws.chain_slots, &ws.pulley_slots, &ws.inertia_slots})
     for (int j = 0; j < N; ++j) {
       const JointSlot& s = (*slots)[j];
-      double* fj = F + m.joint(j);
-      for (int i = 0; i < kJointSize; ++i) fj[i] += s.f[i];
-      double* fa = F + m.half_a(j + 1);
-      for (int i = 0; i < half::kSize; ++i) fa[i] += s.f_next_a[i];
-      ws.link_tau[m.wrap(j - 1)] += s.tau_prev;
-      ws.link_tau[j] += s.tau_own;
-      double* fs = F + m.shaft(0);
       for (int i = 0; i < 2 * kShaftSize; ++i) fs[i] += s.shaft[i];
       p += s.p_diss;
     }
-  }
-  double* fo = F + m.shaft(0);
-  for (int i = 0; i < 2 * kShaftSize + 1; ++i) fo[i] += ws.other.f[i];
-  add_link_torques(m, ws.kin, ws.link_tau.data(), F);
+  for (int i = 0; i < 2 * kShaftSize + 1; ++i) fs[i] += ws.other.f[i];
   ws.p_diss = p;
+  a0_inverse_shafts(m, F, ws.accel.data());
 }
 
-void write_derivative(const Model& m, const Workspace& ws, double* dy) {
+void finish_joints(const Model& m, Workspace& ws, double* dy, const StageOp* op, int begin, int end) {
+  woodbury_joints(m, ws, ws.accel_free.data(), ws.accel.data(), begin, end);
   const int n = m.ndof;
-  for (int i = 0; i < n; ++i) dy[i] = ws.v[i];
-  for (int i = 0; i < n; ++i) dy[n + i] = ws.accel[i];
+  const int lo = m.joint(begin), hi = m.joint(begin) + kJointSize * (end - begin);
+  for (int i = lo; i < hi; ++i) dy[i] = ws.v[i];
+  for (int i = lo; i < hi; ++i) dy[n + i] = ws.accel[i];
+  if (op) {
+    op->apply(dy, lo, hi);
+    op->apply(dy, n + lo, n + hi);
+  }
+}
+
+void finish_shafts(const Model& m, Workspace& ws, double* dy, const StageOp* op) {
+  const int n = m.ndof, lo = m.shaft(0);
+  for (int i = lo; i < n; ++i) dy[i] = ws.v[i];
+  for (int i = lo; i < n; ++i) dy[n + i] = ws.accel[i];
   double* da = dy + 2 * n;
   da[kWorkIn] = ws.other.p_in;
   da[kWorkOut] = ws.other.p_out;
@@ -68,9 +111,18 @@ void write_derivative(const Model& m, const Workspace& ws, double* dy) {
   da[kWorkClamp] = ws.other.p_clamp;
   da[kCtrlIntegral] = ws.other.ctrl_rate;
   da[kWorkSwitch] = 0.0;  // incremented between steps, not integrated (docs/model.md 4.4)
+  if (op) {
+    op->apply(dy, lo, n);
+    op->apply(dy, n + lo, m.nstate);
+  }
 }
 
-void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy) {
+void gather_forces(const Model& m, Workspace& ws) {
+  gather_joints(m, ws, 0, m.links);
+  gather_shafts(m, ws);
+}
+
+void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op) {
   set_stage_input(m, ws, t, y);
   const int N = m.links;
   link_kinematics(m, ws, 0, N);
@@ -78,9 +130,10 @@ void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double
   pulley_contact(m, ws, 0, N);
   other_forces(m, ws);
   inertia_decomposition(m, ws, 0, N);
-  gather_forces(m, ws);
-  accelerations(m, ws);
-  write_derivative(m, ws, dy);
+  gather_joints(m, ws, 0, N);
+  gather_shafts(m, ws);
+  finish_joints(m, ws, dy, op, 0, N);
+  finish_shafts(m, ws, dy, op);
 }
 
 void update_contact_status(const Model& m, Workspace& ws, double t, const double* y) {

@@ -1,21 +1,36 @@
 // One evaluation of the first-order right-hand side y' = f(t, y), y = (q, qdot, aux)
-// (docs/model.md 3, 6). The module kernels are scheduled by graph/ (serial here); the
-// ordered gather and the accelerations are shared by every schedule.
+// (docs/model.md 3, 6, 7), cut into passes that every schedule (graph/) runs in its own
+// way: the module kernels over pin ranges, then the ordered gather and the structured
+// solve over pin ranges, then the shafts. Each pass writes only its own pins' data, and
+// every sum has a fixed order, so any split over threads or NUMA nodes gives the same bits.
 #pragma once
 
+#include "engine/integrator.hpp"
 #include "engine/state.hpp"
 
 namespace cvt {
 
 // Points the workspace at the stage input.
 void set_stage_input(const Model& m, Workspace& ws, double t, const double* y);
-// Sums the module slots in a fixed order into ws.force (bit-identical for any schedule).
-void gather_forces(const Model& m, Workspace& ws);
-// Writes dy = (qdot, qdd, aux rates) after accelerations().
-void write_derivative(const Model& m, const Workspace& ws, double* dy);
 
-// The serial schedule: modules one after the other (the baseline).
-void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy);
+// Pass 2 (after the module kernels): generalized forces of joints [begin, end) from the
+// module slots in a fixed order (docs/model.md 4.0), link torques through g_i, and
+// y = A0^-1 F for those joints. Reads the slots of joints begin-1 .. end.
+void gather_joints(const Model& m, Workspace& ws, int begin, int end);
+// Forces on the shafts and the load (sums over all pins in pin order), their A0^-1, and
+// the dissipated power. Runs beside gather_joints.
+void gather_shafts(const Model& m, Workspace& ws);
+// Pass 3: q'' of joints [begin, end) (Woodbury, 3.2), their part of dy, and `op` on it.
+void finish_joints(const Model& m, Workspace& ws, double* dy, const StageOp* op, int begin, int end);
+// The shafts', the load's and the work integrals' part of dy, and `op` on it.
+void finish_shafts(const Model& m, Workspace& ws, double* dy, const StageOp* op);
+
+// Whole-vector forms of the passes (tests, benchmarks, sampling).
+void gather_forces(const Model& m, Workspace& ws);
+
+// The serial schedule: module after module over all pins (the baseline).
+void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy,
+                const StageOp* op = nullptr);
 
 // Contact statuses for the next step from the state y (docs/model.md 4.4).
 void update_contact_status(const Model& m, Workspace& ws, double t, const double* y);

@@ -23,7 +23,8 @@ Simulation::Simulation(const Model& m)
 }
 
 void Simulation::step(double h, bool update_status) {
-  rk_.step([this](double t, const double* y, double* dy) { rhs_serial(m_, ws_, t, y, dy); }, t_, h, y_);
+  rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { rhs_serial(m_, ws_, t, y, dy, op); },
+            t_, h, y_);
   ++steps_;
   t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
   if (update_status) {

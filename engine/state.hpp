@@ -72,6 +72,7 @@ struct Workspace {
   Eigen::VectorXd force;       // generalized forces F (n)
   std::vector<double> link_tau;  // summed torques per link
   Eigen::VectorXd accel;       // q'' (n)
+  Eigen::VectorXd accel_free;  // A0^-1 F, between the two passes of the solve (3.2)
   double p_diss = 0;           // total dissipated power of the stage
   // Contact energy added by the status updates since the last read (docs/model.md 4.4):
   // a pair switched on while penetrating brings its Hertz energy in, one switched off

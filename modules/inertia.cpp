@@ -68,8 +68,8 @@ void add_link_torques(const Model& m, const LinkKinematics& kin, const double* t
 }
 
 // y = A0^-1 F, block by block (3.1).
-static void apply_a0_inverse(const Model& m, const double* F, double* y) {
-  for (int j = 0; j < m.links; ++j) {
+void a0_inverse_joints(const Model& m, const double* F, double* y, int begin, int end) {
+  for (int j = begin; j < end; ++j) {
     for (int h = 0; h < 2; ++h) {
       const int o = m.joint(j) + (h == 0 ? kJointA : kJointB);
       for (int p = 0; p < 2; ++p) {
@@ -85,6 +85,9 @@ static void apply_a0_inverse(const Model& m, const double* F, double* y) {
     }
     y[m.pack(j)] = F[m.pack(j)] / m.pack_mass;
   }
+}
+
+void a0_inverse_shafts(const Model& m, const double* F, double* y) {
   const Config& c = m.cfg;
   for (int k = 0; k < 2; ++k) {
     const int o = m.shaft(k);
@@ -100,29 +103,42 @@ static void apply_a0_inverse(const Model& m, const double* F, double* y) {
   y[m.load_index()] = F[m.load_index()] / c.load.inertia;
 }
 
-void accelerations(const Model& m, Workspace& ws) {
-  double* y = ws.accel.data();
-  apply_a0_inverse(m, ws.force.data(), y);
-  // Woodbury (3.2): qdd = y - A0^-1 G C^-1 G^T y. Links share no half, so each link's
-  // correction touches only its own two halves.
+// t_i = C_i^-1 g_i^T y for link i (3.2).
+static inline double woodbury_t(const Model& m, const Workspace& ws, const double* y, int i, double& gx, double& gy) {
+  link_g(ws.kin, i, gx, gy);
+  const double* a = y + m.half_a(i + 1);
+  const double* b = y + m.half_b(i);
+  const double gty = gx * (a[half::kX] + a[half::kEnd + half::kX] - b[half::kX] - b[half::kEnd + half::kX]) +
+                     gy * (a[half::kY] + a[half::kEnd + half::kY] - b[half::kY] - b[half::kEnd + half::kY]);
+  return gty * ws.capacitance_inv[i];
+}
+
+void woodbury_joints(const Model& m, const Workspace& ws, const double* y, double* qdd, int begin, int end) {
   const Eigen::Vector4d& w = m.bend_inv_w;
-  for (int i = 0; i < m.links; ++i) {
-    double gx, gy;
-    link_g(ws.kin, i, gx, gy);
-    double* a = y + m.half_a(i + 1);
-    double* b = y + m.half_b(i);
-    const double gty = gx * (a[half::kX] + a[half::kEnd + half::kX] - b[half::kX] - b[half::kEnd + half::kX]) +
-                       gy * (a[half::kY] + a[half::kEnd + half::kY] - b[half::kY] - b[half::kEnd + half::kY]);
-    const double t = gty * ws.capacitance_inv[i];
-    for (int p = 0; p < 2; ++p) {
-      const double g = p == 0 ? gx : gy;
-      const auto d = plane_dofs(p);
-      for (int r = 0; r < 4; ++r) {
-        a[d[r]] -= t * g * w[r];
-        b[d[r]] += t * g * w[r];
+  for (int j = begin; j < end; ++j) {
+    const int o = m.joint(j);
+    for (int i = 0; i < kJointSize; ++i) qdd[o + i] = y[o + i];
+    // Links share no half: a_j belongs to link j-1 only, b_j to link j only.
+    for (int h = 0; h < 2; ++h) {
+      double gx, gy;
+      const double t = woodbury_t(m, ws, y, h == 0 ? m.wrap(j - 1) : j, gx, gy);
+      const double sign = h == 0 ? -1.0 : 1.0;
+      double* r = qdd + o + (h == 0 ? kJointA : kJointB);
+      for (int p = 0; p < 2; ++p) {
+        const double g = p == 0 ? gx : gy;
+        const auto d = plane_dofs(p);
+        for (int k = 0; k < 4; ++k) r[d[k]] += sign * (t * g * w[k]);
       }
     }
   }
+}
+
+void accelerations(const Model& m, Workspace& ws) {
+  // ws.accel_free holds y = A0^-1 F between the two passes.
+  a0_inverse_joints(m, ws.force.data(), ws.accel_free.data(), 0, m.links);
+  a0_inverse_shafts(m, ws.force.data(), ws.accel_free.data());
+  a0_inverse_shafts(m, ws.force.data(), ws.accel.data());
+  woodbury_joints(m, ws, ws.accel_free.data(), ws.accel.data(), 0, m.links);
 }
 
 double kinetic_energy(const Model& m, const double* q, const double* v) {

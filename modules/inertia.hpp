@@ -17,6 +17,15 @@ void inertia_decomposition(const Model& m, Workspace& ws, int begin, int end);
 
 // 3.2 "accelerations": solves A(q) qdd = F for the gathered ws.force into ws.accel.
 void accelerations(const Model& m, Workspace& ws);
+// The same solve in two pin-range passes (any split gives the same bits):
+// y = A0^-1 F on the coordinates of joints [begin, end) ...
+void a0_inverse_joints(const Model& m, const double* F, double* y, int begin, int end);
+// ... and of the shafts and the load;
+void a0_inverse_shafts(const Model& m, const double* F, double* y);
+// then qdd = y - A0^-1 G C^-1 G^T y on joints [begin, end): half a_j takes the correction
+// of link j-1, half b_j that of link j (reads y of the neighbouring joints, writes qdd
+// of its own only).
+void woodbury_joints(const Model& m, const Workspace& ws, const double* y, double* qdd, int begin, int end);
 
 // Adds tau_i g_i to F for every link (the ordered gather of link torques).
 void add_link_torques(const Model& m, const LinkKinematics& kin, const double* tau, double* F);
