@@ -7,11 +7,58 @@
 #include "engine/h5_writer.hpp"
 #include "engine/model.hpp"
 #include "engine/simulation.hpp"
+#include "graph/schedule.hpp"
+#include "numa/arenas.hpp"
+#include "numa/describe.hpp"
+#include "numa/topology.hpp"
 
 namespace {
 
+struct ScheduleArgs {
+  std::string scheduler = "serial";
+  int threads = 1;
+  int grain = 4;
+  cvt::ScheduleOptions options() const {
+    cvt::ScheduleOptions o;
+    o.kind = cvt::parse_scheduler(scheduler);
+    o.threads = threads;
+    o.grain = grain;
+    return o;
+  }
+};
+
+void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
+  cmd->add_option("--scheduler", a.scheduler, "serial | flowgraph | paper-omp")
+      ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}))
+      ->capture_default_str();
+  cmd->add_option("--threads", a.threads, "threads (flowgraph, paper-omp)")->check(CLI::Range(1, 4096))->capture_default_str();
+  cmd->add_option("--grain", a.grain, "pins per task in the flow-graph module nodes")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+}
+
+int cmd_graph(const std::string& config_path, const std::vector<std::string>& overrides, const ScheduleArgs& sa) {
+  using namespace cvt;
+  const Model model = build_model(load_config(config_path, overrides));
+  Workspace ws(model);
+  const auto schedule = make_schedule(model, ws, sa.options());
+  std::printf("// %s\n%s", schedule->describe().c_str(), schedule->graphviz().c_str());
+  return kExitOk;
+}
+
+int cmd_topology(const std::string& config_path, int threads) {
+  using namespace cvt;
+  int pins = 84;
+  if (!config_path.empty()) pins = build_model(load_config(config_path, {})).links;
+  const numa::Topology topo = numa::discover_topology();
+  if (threads < 1) threads = topo.total_cores();
+  const numa::NodeArenas arenas(topo, threads);
+  std::printf("%s", numa::describe(topo, &arenas, pins).c_str());
+  return kExitOk;
+}
+
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
-            const std::string& step, const std::string& out, bool quiet) {
+            const std::string& step, const std::string& out, bool quiet, const ScheduleArgs& sa) {
   using namespace cvt;
   // Command-line shortcuts are overrides too, passed as typed: validated like any key and
   // recorded in the resolved TOML.
@@ -27,6 +74,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
               to_string(cfg.friction.law));
   std::fflush(stdout);
   RunOptions opt;
+  opt.schedule = sa.options();
   opt.out_path = out;
   opt.progress = !quiet;
   const RunSummary r = run_simulation(model, opt);
@@ -64,6 +112,23 @@ int main(int argc, char** argv) {
   run->add_option("--out", out, "output HDF5 file")->capture_default_str();
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
   run->add_flag("--quiet", quiet, "no progress line");
+  ScheduleArgs sched;
+  add_schedule_options(run, sched);
+
+  auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
+  std::string graph_config;
+  std::vector<std::string> graph_overrides;
+  ScheduleArgs graph_sched;
+  graph_sched.scheduler = "flowgraph";
+  graph->add_option("CONFIG", graph_config, "TOML configuration")->required();
+  graph->add_option("--set", graph_overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(graph, graph_sched);
+
+  auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
+  std::string topo_config;
+  int topo_threads = 0;
+  topology->add_option("CONFIG", topo_config, "TOML configuration (for the number of pins; default 84)");
+  topology->add_option("--threads", topo_threads, "threads to lay out (default: all cores)");
 
   try {
     app.parse(argc, argv);
@@ -71,7 +136,9 @@ int main(int argc, char** argv) {
     return app.exit(e);
   }
   try {
-    if (*run) return cmd_run(config, overrides, t_end, step, out, quiet);
+    if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched);
+    if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
+    if (*topology) return cmd_topology(topo_config, topo_threads);
   } catch (const cvt::ConfigError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitConfig;

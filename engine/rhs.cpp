@@ -43,18 +43,20 @@ static inline double module_tau(const std::vector<JointSlot>& s, int i, int in) 
   return (0.0 + s[i].tau_own) + s[in].tau_prev;
 }
 
-void gather_joints(const Model& m, Workspace& ws, int begin, int end) {
+// The gather of joints [begin, end) with the chain and pulley sums taken from `chain` and
+// `pulley` (each sum(j, jp, i) and tau(i, in)).
+template <class Chain, class Pulley>
+static void gather_joints_impl(const Model& m, Workspace& ws, const Chain& chain, const Pulley& pulley, int begin,
+                               int end) {
   double* F = ws.force.data();
   for (int j = begin; j < end; ++j) {
     const int jp = m.wrap(j - 1), jn = m.wrap(j + 1);
     double* fj = F + m.joint(j);
     for (int i = 0; i < kJointSize; ++i)
-      fj[i] = (module_sum(ws.chain_slots, j, jp, i) + module_sum(ws.pulley_slots, j, jp, i)) +
-              module_sum(ws.inertia_slots, j, jp, i);
+      fj[i] = (chain.sum(j, jp, i) + pulley.sum(j, jp, i)) + module_sum(ws.inertia_slots, j, jp, i);
     // Torque of link i acts through g_i: + on a_{i+1}, - on b_i (docs/model.md 3.2).
     const auto tau = [&](int i, int in) {
-      return (module_tau(ws.chain_slots, i, in) + module_tau(ws.pulley_slots, i, in)) +
-             module_tau(ws.inertia_slots, i, in);
+      return (chain.tau(i, in) + pulley.tau(i, in)) + module_tau(ws.inertia_slots, i, in);
     };
     const double tp = tau(jp, j), to = tau(j, jn);
     ws.link_tau[j] = to;
@@ -69,6 +71,39 @@ void gather_joints(const Model& m, Workspace& ws, int begin, int end) {
     }
   }
   a0_inverse_joints(m, F, ws.accel_free.data(), begin, end);
+}
+
+namespace {
+struct FromSlots {
+  const std::vector<JointSlot>& s;
+  double sum(int j, int jp, int i) const { return module_sum(s, j, jp, i); }
+  double tau(int i, int in) const { return module_tau(s, i, in); }
+};
+struct FromBuffer {
+  const Model& m;
+  const double* b;
+  double sum(int j, int, int i) const { return b[m.joint(j) + i]; }
+  double tau(int i, int) const { return b[kJointSize * m.links + i]; }
+};
+}  // namespace
+
+void gather_joints(const Model& m, Workspace& ws, int begin, int end) {
+  gather_joints_impl(m, ws, FromSlots{ws.chain_slots}, FromSlots{ws.pulley_slots}, begin, end);
+}
+
+void gather_joints_from_sums(const Model& m, Workspace& ws, const double* chain_sum, const double* pulley_sum,
+                             int begin, int end) {
+  gather_joints_impl(m, ws, FromBuffer{m, chain_sum}, FromBuffer{m, pulley_sum}, begin, end);
+}
+
+void scatter_slot(const Model& m, const JointSlot& s, int j, double* buf) {
+  double* fj = buf + m.joint(j);
+  for (int i = 0; i < kJointSize; ++i) fj[i] += s.f[i];
+  double* fa = buf + m.half_a(j + 1);
+  for (int i = 0; i < half::kSize; ++i) fa[i] += s.f_next_a[i];
+  double* tau = buf + kJointSize * m.links;
+  tau[m.wrap(j - 1)] += s.tau_prev;
+  tau[j] += s.tau_own;
 }
 
 void gather_shafts(const Model& m, Workspace& ws) {

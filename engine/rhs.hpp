@@ -17,6 +17,14 @@ void set_stage_input(const Model& m, Workspace& ws, double t, const double* y);
 // module slots in a fixed order (docs/model.md 4.0), link torques through g_i, and
 // y = A0^-1 F for those joints. Reads the slots of joints begin-1 .. end.
 void gather_joints(const Model& m, Workspace& ws, int begin, int end);
+// The same with the chain and pulley contributions already summed per coordinate, in a
+// buffer laid out as [joint coordinates 21 N][link torques N] (graph/paper_omp.cpp). Each
+// coordinate takes at most two contributions per module, so a zeroed buffer summed in any
+// order holds exactly the sum gather_joints forms.
+void gather_joints_from_sums(const Model& m, Workspace& ws, const double* chain_sum, const double* pulley_sum,
+                             int begin, int end);
+// Adds slot j into such a buffer.
+void scatter_slot(const Model& m, const JointSlot& s, int j, double* buf);
 // Forces on the shafts and the load (sums over all pins in pin order), their A0^-1, and
 // the dissipated power. Runs beside gather_joints.
 void gather_shafts(const Model& m, Workspace& ws);

@@ -15,15 +15,15 @@
 
 namespace cvt {
 
-Simulation::Simulation(const Model& m)
-    : m_(m), ws_(m), diag_(m), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
+Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
+    : m_(m), ws_(m), diag_(m), schedule_(make_schedule(m, ws_, schedule)), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
   update_contact_status(m_, ws_, t_, y_.data());
   const Energies e = energies(m_, t_, y_.data(), &ws_.status);
   energy0_ = e.kinetic + e.elastic;
 }
 
 void Simulation::step(double h, bool update_status) {
-  rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { rhs_serial(m_, ws_, t, y, dy, op); },
+  rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
             t_, h, y_);
   ++steps_;
   t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
@@ -215,7 +215,9 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
                                 std::to_string(m.pulley[1].running_radius) +
                                 " m, closure residual = " + std::to_string(m.closure_residual) + " m");
   Recorder rec(file, m);
-  Simulation sim(m);
+  Simulation sim(m, opt.schedule);
+  std::printf("  schedule: %s\n", sim.schedule().describe().c_str());
+  std::fflush(stdout);
   std::vector<Sample> samples;
   std::vector<double> pos, ten;
 

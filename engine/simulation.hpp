@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "engine/integrator.hpp"
+#include "graph/schedule.hpp"
 #include "engine/model.hpp"
 #include "engine/state.hpp"
 
@@ -44,7 +45,7 @@ struct Sample {
 
 class Simulation {
  public:
-  explicit Simulation(const Model& m);
+  explicit Simulation(const Model& m, const ScheduleOptions& schedule = {});
 
   const Model& model() const { return m_; }
   double time() const { return t_; }
@@ -54,6 +55,7 @@ class Simulation {
   // Continues from (t, steps): for restarts from a saved state.
   void set_clock(double t, long steps) { t_ = t0_ = t; steps_ = steps0_ = steps; }
   Workspace& workspace() { return ws_; }
+  const Schedule& schedule() const { return *schedule_; }
 
   // One RK4 step of size h, then (unless frozen) the contact statuses for the next step.
   void step(double h, bool update_status = true);
@@ -68,6 +70,7 @@ class Simulation {
   const Model& m_;
   Workspace ws_;     // the integrator's
   Workspace diag_;   // sampling
+  std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   Rk4 rk_;
   Eigen::VectorXd y_, dy_;
   double t_ = 0, t0_ = 0;
@@ -86,6 +89,7 @@ struct RunSummary {
 struct RunOptions {
   std::string out_path = "results.h5";
   bool progress = true;
+  ScheduleOptions schedule;
 };
 
 // Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.

@@ -1,0 +1,215 @@
+// The flow-graph schedule (DESIGN.md): per NUMA arena one oneTBB graph, built once and
+// reused for every stage:
+//   start -> {chain_forces, pulley_contact, other_forces, inertia_decomposition}
+//         -> {gather (pins), gather_shafts} -> accelerations + stage update
+// Module nodes are continue_nodes whose bodies run a chunked parallel_for over the arena's
+// pin segment (simple_partitioner, `grain` pins per task); data lives in the workspace,
+// not in messages. With one NUMA node the whole stage is one graph run. With several,
+// the gather of a segment reads the slots of its neighbour's boundary pin and the solve
+// reads the neighbours' A0^-1 F, so the graphs stop after the modules and the gather and
+// the solve run as two more all-node phases.
+#include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/flow_graph.h>
+#include <oneapi/tbb/parallel_for.h>
+#include <oneapi/tbb/partitioner.h>
+#include <oneapi/tbb/task_group.h>
+
+#include <chrono>
+#include <sstream>
+#include <vector>
+
+#include "graph/schedule.hpp"
+#include "modules/chain_forces.hpp"
+#include "modules/inertia.hpp"
+#include "modules/other_forces.hpp"
+#include "modules/pulley_contact.hpp"
+#include "numa/arenas.hpp"
+#include "numa/topology.hpp"
+
+namespace cvt {
+
+namespace {
+
+namespace flow = tbb::flow;
+using Msg = flow::continue_msg;
+
+class FlowGraphSchedule final : public Schedule {
+ public:
+  FlowGraphSchedule(const Model& m, Workspace& ws, const ScheduleOptions& opt)
+      : m_(m), ws_(ws), grain_(opt.grain), topo_(numa::discover_topology()),
+        arenas_(std::make_unique<numa::NodeArenas>(topo_, opt.threads)) {
+    const int nodes = arenas_->nodes();
+    std::vector<int> weights(nodes);
+    for (int n = 0; n < nodes; ++n) weights[n] = arenas_->threads(n);
+    bounds_ = numa::partition_pins(m.links, weights);
+    parts_.resize(nodes);
+    groups_ = std::make_unique<tbb::task_group[]>(nodes);
+    empty_ = opt.empty_kernels;
+    for (int n = 0; n < nodes; ++n)
+      for (const char* name : {"chain_forces", "pulley_contact", "inertia_decomposition", "other_forces"})
+        spans_.push_back({"node" + std::to_string(n) + "/" + name, 0, 0});
+    for (int n = 0; n < nodes; ++n) arenas_->execute_on(n, [&, n] { build(n, nodes == 1); });
+  }
+
+  void rhs(double t, const double* y, double* dy, const StageOp* op) override {
+    set_stage_input(m_, ws_, t, y);
+    if (!empty_) link_kinematics(m_, ws_, 0, m_.links);  // O(N) and tiny; every module reads it
+    dy_ = dy;
+    op_ = op;
+    const int nodes = arenas_->nodes();
+    if (nodes == 1) {
+      arenas_->arena(0).execute([&] {
+        parts_[0].start->try_put(Msg());
+        parts_[0].graph->wait_for_all();
+      });
+      return;
+    }
+    on_all_nodes([&](int n) {
+      parts_[n].start->try_put(Msg());
+      parts_[n].graph->wait_for_all();
+    });
+    on_all_nodes([&](int n) {
+      pins(n, [&](int b, int e) { gather_joints(m_, ws_, b, e); });
+      if (n == 0) gather_shafts(m_, ws_);
+    });
+    on_all_nodes([&](int n) {
+      pins(n, [&](int b, int e) { finish_joints(m_, ws_, dy_, op_, b, e); });
+      if (n == 0) finish_shafts(m_, ws_, dy_, op_);
+    });
+  }
+
+  std::string describe() const override {
+    std::ostringstream os;
+    os << "flowgraph (" << arenas_->total_threads() << " threads, " << arenas_->nodes() << " NUMA arena"
+       << (arenas_->nodes() > 1 ? "s" : "") << ", grain " << grain_ << " pins; pins per node:";
+    for (int n = 0; n < arenas_->nodes(); ++n) os << ' ' << bounds_[n + 1] - bounds_[n];
+    os << ')';
+    return os.str();
+  }
+
+  std::string graphviz() const override {
+    std::ostringstream os;
+    os << "digraph stage {\n  rankdir=LR;\n  node [shape=box];\n";
+    for (int n = 0; n < arenas_->nodes(); ++n) {
+      const std::string p = "n" + std::to_string(n) + "_";
+      os << "  subgraph cluster_" << n << " {\n    label=\"NUMA node " << n << ": pins [" << bounds_[n] << ", "
+         << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n";
+      os << "    " << p << "start [label=\"start\\n(link kinematics)\"];\n";
+      for (const char* mod : {"chain_forces", "pulley_contact", "inertia_decomposition"})
+        os << "    " << p << mod << " [label=\"" << mod << "\\nparallel_for, grain " << grain_ << "\"];\n"
+           << "    " << p << "start -> " << p << mod << ";\n";
+      if (n == 0) os << "    " << p << "other_forces;\n    " << p << "start -> " << p << "other_forces;\n";
+      if (arenas_->nodes() == 1) {
+        os << "    " << p << "gather [label=\"gather\\nparallel_for\"];\n    " << p
+           << "gather_shafts;\n    " << p << "accelerations [label=\"accelerations + stage update\\nparallel_for\"];\n";
+        for (const char* mod : {"chain_forces", "pulley_contact", "other_forces", "inertia_decomposition"})
+          os << "    " << p << mod << " -> {" << p << "gather " << p << "gather_shafts};\n";
+        os << "    {" << p << "gather " << p << "gather_shafts} -> " << p << "accelerations;\n";
+      }
+      os << "  }\n";
+    }
+    if (arenas_->nodes() > 1)
+      os << "  all_nodes_modules -> gather_phase -> accelerations_phase [style=dashed, label=\"cross-node\"];\n";
+    os << "}\n";
+    return os.str();
+  }
+
+  int threads() const override { return arenas_->total_threads(); }
+  void set_tracing(bool on) override { tracing_ = on; }
+  std::vector<NodeSpan> last_spans() const override {
+    std::vector<NodeSpan> out;
+    for (const NodeSpan& s : spans_)
+      if (s.end > 0) out.push_back(s);
+    return out;
+  }
+
+ private:
+  struct Part {
+    std::unique_ptr<flow::graph> graph;
+    std::unique_ptr<flow::broadcast_node<Msg>> start;
+    std::vector<std::unique_ptr<flow::continue_node<Msg>>> nodes;
+  };
+
+  // Runs f(b, e) over the node's pin segment in chunks of grain_ pins.
+  template <class F>
+  void pins(int n, const F& f) {
+    tbb::parallel_for(
+        tbb::blocked_range<int>(bounds_[n], bounds_[n + 1], grain_),
+        [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); }, tbb::simple_partitioner());
+  }
+
+  template <class F>
+  void on_all_nodes(const F& f) {
+    const int nodes = arenas_->nodes();
+    for (int n = 1; n < nodes; ++n) arenas_->arena(n).enqueue(groups_[n].defer([&f, n] { f(n); }));
+    arenas_->arena(0).execute([&] { f(0); });
+    for (int n = 1; n < nodes; ++n) arenas_->arena(n).execute([&, n] { groups_[n].wait(); });
+  }
+
+  // Declares node n's graph; it reads like the DAG of a stage.
+  void build(int n, bool whole_stage) {
+    Part& p = parts_[n];
+    p.graph = std::make_unique<flow::graph>();
+    flow::graph& g = *p.graph;
+    p.start = std::make_unique<flow::broadcast_node<Msg>>(g);
+    const auto node = [&](auto body) {
+      p.nodes.push_back(std::make_unique<flow::continue_node<Msg>>(g, [this, body](const Msg&) {
+        if (!empty_) body();
+      }));
+      return p.nodes.back().get();
+    };
+    // Module nodes, traced when asked (spans_[slot] of node n's stage).
+    const auto module = [&](int slot, auto body) {
+      return node([this, n, slot, body] {
+        if (!tracing_) return body();
+        NodeSpan& s = spans_[4 * n + slot];
+        s.begin = now();
+        body();
+        s.end = now();
+      });
+    };
+    auto* chain = module(0, [this, n] { pins(n, [this](int b, int e) { chain_forces(m_, ws_, b, e); }); });
+    auto* pulley = module(1, [this, n] { pins(n, [this](int b, int e) { pulley_contact(m_, ws_, b, e); }); });
+    auto* inertia = module(2, [this, n] { pins(n, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }); });
+    std::vector<flow::continue_node<Msg>*> modules = {chain, pulley, inertia};
+    if (n == 0) modules.push_back(module(3, [this] { other_forces(m_, ws_); }));
+    for (auto* mod : modules) flow::make_edge(*p.start, *mod);
+    if (!whole_stage) return;
+    auto* gather = node([this, n] { pins(n, [this](int b, int e) { gather_joints(m_, ws_, b, e); }); });
+    auto* shafts = node([this] { gather_shafts(m_, ws_); });
+    auto* accel = node([this, n] {
+      pins(n, [this](int b, int e) { finish_joints(m_, ws_, dy_, op_, b, e); });
+      finish_shafts(m_, ws_, dy_, op_);
+    });
+    for (auto* mod : modules) {
+      flow::make_edge(*mod, *gather);
+      flow::make_edge(*mod, *shafts);
+    }
+    flow::make_edge(*gather, *accel);
+    flow::make_edge(*shafts, *accel);
+  }
+
+  const Model& m_;
+  Workspace& ws_;
+  int grain_;
+  numa::Topology topo_;
+  std::unique_ptr<numa::NodeArenas> arenas_;
+  std::vector<int> bounds_;
+  std::vector<Part> parts_;
+  std::unique_ptr<tbb::task_group[]> groups_;
+  double* dy_ = nullptr;
+  const StageOp* op_ = nullptr;
+  bool empty_ = false, tracing_ = false;
+  std::vector<NodeSpan> spans_;
+  static double now() {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Schedule> make_flowgraph_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt) {
+  return std::make_unique<FlowGraphSchedule>(m, ws, opt);
+}
+
+}  // namespace cvt

@@ -1,0 +1,59 @@
+// How one RHS evaluation is scheduled (DESIGN.md, graph/): the same kernels and passes
+// (engine/rhs.hpp) run module after module on one thread, as a oneTBB flow graph per
+// NUMA arena, or as the published OpenMP scheme. All three give the same bits.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/rhs.hpp"
+
+namespace cvt {
+
+enum class SchedulerKind { serial, flowgraph, paper_omp };
+
+struct ScheduleOptions {
+  SchedulerKind kind = SchedulerKind::serial;
+  int threads = 1;  // flowgraph, paper-omp
+  int grain = 4;    // pins per task in the module nodes (flowgraph)
+  // Benchmarks only: the flow graph with every node body empty (its own overhead).
+  bool empty_kernels = false;
+};
+
+// When a node of the last traced stage ran (flowgraph with tracing on) [s, steady clock].
+struct NodeSpan {
+  std::string name;
+  double begin = 0, end = 0;
+};
+
+// Parses "serial" | "flowgraph" | "paper-omp"; throws std::invalid_argument otherwise.
+SchedulerKind parse_scheduler(const std::string& name);
+const char* scheduler_name(SchedulerKind kind);
+
+// Time spent in the parts of paper-omp (its buffer zeroing and gathering against the
+// kernels, paper 2 Fig. 8), summed over threads [s].
+struct ScheduleCounters {
+  double zero_s = 0, compute_s = 0, gather_s = 0;
+};
+
+class Schedule {
+ public:
+  virtual ~Schedule() = default;
+  // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
+  // the schedule was built with.
+  virtual void rhs(double t, const double* y, double* dy, const StageOp* op) = 0;
+  virtual std::string describe() const = 0;
+  // GraphViz of one stage (flowgraph; a chain of passes for the others).
+  virtual std::string graphviz() const = 0;
+  virtual int threads() const = 0;
+  virtual ScheduleCounters counters() const { return {}; }
+  // Tracing of the module nodes' start and end (flowgraph; others record nothing).
+  virtual void set_tracing(bool) {}
+  virtual std::vector<NodeSpan> last_spans() const { return {}; }
+};
+
+// Builds the schedule for model m over workspace ws (both must outlive it).
+std::unique_ptr<Schedule> make_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
+
+}  // namespace cvt
