@@ -10,37 +10,14 @@
 #include "modules/inertia.hpp"
 #include "modules/other_forces.hpp"
 #include "modules/pulley_contact.hpp"
+#include "bench/bench_fixture.hpp"
 
 namespace {
 
 using namespace cvt;
-
-// The reference model after 0.3 ms of its run, so that contacts are established.
-struct Fixture {
-  Model m;
-  Eigen::VectorXd y;
-  ContactStatus status;
-  explicit Fixture(const std::string& name)
-      : m(build_model(load_config(std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml"))) {
-    Simulation sim(m);
-    for (int n = 0; n < 30000; ++n) sim.step(m.cfg.integrator.step);
-    y = sim.state();
-    status = sim.workspace().status;
-  }
-};
-
-Fixture& reference() {
-  static Fixture f("reference");
-  return f;
-}
-
-Workspace prepared(const Fixture& f) {
-  Workspace ws(f.m);
-  ws.status = f.status;
-  set_stage_input(f.m, ws, 3e-4, f.y.data());
-  link_kinematics(f.m, ws, 0, f.m.links);
-  return ws;
-}
+using bench::reference;
+using bench::prepared;
+using bench::Fixture;
 
 void BM_ChainForces(benchmark::State& st) {
   auto& f = reference();

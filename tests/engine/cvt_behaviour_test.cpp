@@ -46,21 +46,24 @@ Means run_and_average(const Model& m, double t_end, double from) {
   return r;
 }
 
-// The drive and load torsion springs are damped near critical here (5 % in the shipped
-// configs, where the load-side mode rings with a period of about 10 ms), so that 5-8 ms
-// is a steady state and its means compare with the load.
-// Slow target (make test-slow), 8e5 steps. It currently FAILS on the torque: ratio and
-// strand tensions are right, but the mean output torque is -1.8 N m for a 10 N m load
-// (issue 2 notes).
+// The mini configuration holds ratio 1 (equal clamping forces: with F2 > F1 the variator
+// shifts towards underdrive and the decelerating load inertia, not the chain, carries the
+// load torque) and has small shaft and load inertias, so that the creep settles in about
+// 3 ms; 4-6 ms is then a steady state whose means compare with CVT theory.
+// Slow target (make test-slow): 6e5 steps, about a minute.
 TEST(SlowCvtBehaviourTest, LightLoadIsTransmittedNearTheGeometricRatio) {
-  const Model m = test::model("mini", {"ramp.time=1e-3", "drive.damping=30", "load.damping=30"});
-  const Means r = run_and_average(m, 8e-3, 5e-3);
-  std::printf("mean over 5-8 ms: speed ratio %.5f, geometric ratio %.5f, output torque %.3f N m (load %.3f), "
+  const Model m = test::model("mini");
+  const Means r = run_and_average(m, 6e-3, 4e-3);
+  std::printf("mean over 4-6 ms: speed ratio %.5f, geometric ratio %.5f, output torque %.3f N m (load %.3f), "
               "link tension %.0f..%.0f N\n",
               r.speed_ratio, r.geometric_ratio, r.output_torque, r.load_torque, r.tension_min, r.tension_max);
   EXPECT_NEAR(r.output_torque, r.load_torque, 0.15 * r.load_torque);
   EXPECT_NEAR(r.speed_ratio / r.geometric_ratio, 1.0, 0.02);
-  EXPECT_GT(r.tension_max - r.tension_min, 0.0);
+  // Creep, not gross slip, and in the direction of the power flow: the driven pulley lags.
+  EXPECT_GT(r.speed_ratio, r.geometric_ratio);
+  // The strands differ in tension by about the transmitted torque over the running radius.
+  const double dT = m.cfg.load.torque / m.pulley[1].running_radius;
+  EXPECT_GT(r.tension_max - r.tension_min, 0.5 * dT);
 }
 
 }  // namespace
