@@ -68,6 +68,8 @@ void BM_SerialGapBetweenStages(benchmark::State& st) {
 void thread_args(benchmark::internal::Benchmark* b) {
   const int hw = std::max(1u, std::thread::hardware_concurrency());
   for (int t = 1; t <= hw; t *= 2) b->Args({t, 4});
+  if (hw >= 2)
+    for (int g : {1, 2, 8, 16, 42}) b->Args({2, g});
   if ((hw & (hw - 1)) != 0) b->Args({hw, 4});
 }
 

@@ -112,12 +112,14 @@ void gather_shafts(const Model& m, Workspace& ws) {
   double* fs = F + m.shaft(0);
   for (int i = 0; i < 2 * kShaftSize + 1; ++i) fs[i] = 0.0;
   double p = ws.other.p_diss;
-  for (const auto* slots : {&ws.chain_slots, &ws.pulley_slots, &ws.inertia_slots})
-    for (int j = 0; j < N; ++j) {
-      const JointSlot& s = (*slots)[j];
-      for (int i = 0; i < 2 * kShaftSize; ++i) fs[i] += s.shaft[i];
-      p += s.p_diss;
-    }
+  // Only pulley contact acts on the shafts, and inertia dissipates nothing: the other
+  // slots hold zeros there (adding them would change no bit, only cost cache misses).
+  for (int j = 0; j < N; ++j) p += ws.chain_slots[j].p_diss;
+  for (int j = 0; j < N; ++j) {
+    const JointSlot& s = ws.pulley_slots[j];
+    for (int i = 0; i < 2 * kShaftSize; ++i) fs[i] += s.shaft[i];
+    p += s.p_diss;
+  }
   for (int i = 0; i < 2 * kShaftSize + 1; ++i) fs[i] += ws.other.f[i];
   ws.p_diss = p;
   a0_inverse_shafts(m, F, ws.accel.data());

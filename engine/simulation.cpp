@@ -23,14 +23,16 @@ Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
 }
 
 void Simulation::step(double h, bool update_status) {
-  rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
-            t_, h, y_);
-  ++steps_;
-  t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
-  if (update_status) {
-    update_contact_status(m_, ws_, t_, y_.data());
-    y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
-  }
+  schedule_->within([&] {
+    rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
+             t_, h, y_);
+    ++steps_;
+    t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
+    if (update_status) {
+      update_contact_status(m_, ws_, t_, y_.data());
+      y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
+    }
+  });
 }
 
 void Simulation::check_finite() const {

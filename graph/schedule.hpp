@@ -3,6 +3,7 @@
 // NUMA arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -43,6 +44,10 @@ class Schedule {
   // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
   // the schedule was built with.
   virtual void rhs(double t, const double* y, double* dy, const StageOp* op) = 0;
+  // Runs f (a whole step: its stages and the status update) where the schedule's threads
+  // live, so that they stay awake between the stages instead of leaving the arena after
+  // each one (DESIGN.md: wake-up dominates short stages).
+  virtual void within(const std::function<void()>& f) { f(); }
   virtual std::string describe() const = 0;
   // GraphViz of one stage (flowgraph; a chain of passes for the others).
   virtual std::string graphviz() const = 0;

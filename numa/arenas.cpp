@@ -31,13 +31,21 @@ struct SavedBinding {
   bool valid = false;
 };
 
+// `current` caches the binding this thread was last given or read (valid once `known`):
+// entering an arena the thread is already bound for, and leaving back to the same set,
+// then cost no system call. That matters because the master enters node 0's arena once
+// per RK4 stage, and get/set/get/set would cost microseconds per stage. The cache assumes
+// nothing else rebinds the thread behind our back.
 struct ThreadBindings {
   std::vector<SavedBinding> stack;
   std::size_t depth = 0;
   hwloc_bitmap_t scratch = hwloc_bitmap_alloc();
+  hwloc_bitmap_t current = hwloc_bitmap_alloc();
+  bool known = false;
   ~ThreadBindings() {
     for (auto& s : stack) hwloc_bitmap_free(s.set);
     hwloc_bitmap_free(scratch);
+    hwloc_bitmap_free(current);
   }
   SavedBinding& push(const void* owner) {
     if (depth == stack.size()) stack.push_back({nullptr, hwloc_bitmap_alloc(), false});
@@ -71,11 +79,15 @@ class BindingObserver final : public tbb::task_scheduler_observer {
   void on_scheduler_entry(bool) override {
     ThreadBindings& tb = tls_bindings;
     SavedBinding& saved = tb.push(this);
-    saved.valid = hwloc_get_cpubind(topo_, saved.set, HWLOC_CPUBIND_THREAD) == 0;
+    if (!tb.known) tb.known = hwloc_get_cpubind(topo_, tb.current, HWLOC_CPUBIND_THREAD) == 0;
+    saved.valid = tb.known;
+    if (saved.valid) hwloc_bitmap_copy(saved.set, tb.current);
     binds_.fetch_add(1, std::memory_order_relaxed);
+    if (tb.known && hwloc_bitmap_isequal(tb.current, set_)) return;  // bound for this node already
     const bool ok = hwloc_set_cpubind(topo_, set_, HWLOC_CPUBIND_THREAD) == 0 &&
                     hwloc_get_cpubind(topo_, tb.scratch, HWLOC_CPUBIND_THREAD) == 0 &&
                     hwloc_bitmap_isequal(tb.scratch, set_);
+    tb.known = hwloc_get_cpubind(topo_, tb.current, HWLOC_CPUBIND_THREAD) == 0;
     if (!ok) failures_.fetch_add(1, std::memory_order_relaxed);
   }
 
@@ -85,7 +97,9 @@ class BindingObserver final : public tbb::task_scheduler_observer {
     // inside) has nothing to give back.
     if (tb.depth == 0 || tb.stack[tb.depth - 1].owner != this) return;
     SavedBinding& saved = tb.stack[--tb.depth];
-    if (saved.valid) hwloc_set_cpubind(topo_, saved.set, HWLOC_CPUBIND_THREAD);
+    if (!saved.valid || (tb.known && hwloc_bitmap_isequal(tb.current, saved.set))) return;
+    tb.known = hwloc_set_cpubind(topo_, saved.set, HWLOC_CPUBIND_THREAD) == 0;
+    if (tb.known) hwloc_bitmap_copy(tb.current, saved.set);
   }
 
  private:
