@@ -132,8 +132,12 @@ int main(int argc, char** argv) {
 
   try {
     app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
+  } catch (const CLI::Success& e) {  // --help, --version
     return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    // Usage errors (unknown option, bad --scheduler, --threads 0 ...): EX_USAGE.
+    app.exit(e);
+    return cvt::kExitUsage;
   }
   try {
     if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched);

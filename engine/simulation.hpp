@@ -18,6 +18,7 @@ namespace cvt {
 inline constexpr int kExitOk = 0;
 inline constexpr int kExitFailure = 1;
 inline constexpr int kExitBlowUp = 70;
+inline constexpr int kExitUsage = 64;  // command-line usage error (EX_USAGE)
 
 // Numerical blow-up: non-finite state or absurd penetration.
 class BlowUpError : public std::runtime_error {

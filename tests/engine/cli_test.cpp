@@ -188,3 +188,37 @@ TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
 
 }  // namespace
 }  // namespace cvt
+
+namespace cvt {
+namespace {
+
+// Usage errors (an option's value outside its set or range) exit with 64 and write nothing.
+TEST_F(CliTest, BadSchedulerIsAUsageError) {
+  for (const std::vector<std::string>& extra :
+       {std::vector<std::string>{"--scheduler", "openmp"}, {"--threads", "0"}, {"--grain", "-1"}}) {
+    std::vector<std::string> args = {"run", kMini, "--quiet", "--out", "out.h5"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const RunResult r = run(args);
+    EXPECT_EQ(r.exit_code, 64) << extra[0] << ": " << r.err;
+    EXPECT_NE(r.err.find(extra[0]), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / "out.h5"));
+  }
+}
+
+TEST_F(CliTest, GraphPrintsTheStageAsGraphViz) {
+  const RunResult r = run({"graph", kReference, "--threads", "2"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* node : {"digraph", "chain_forces", "pulley_contact", "other_forces", "inertia_decomposition",
+                           "gather", "accelerations"})
+    EXPECT_NE(r.out.find(node), std::string::npos) << node << " missing:\n" << r.out;
+}
+
+TEST_F(CliTest, TopologyReportsNodesPinsAndBinding) {
+  const RunResult r = run({"topology", kReference, "--threads", "2"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* what : {"NUMA nodes", "[0, 84)", "thread binding", "memory binding"})
+    EXPECT_NE(r.out.find(what), std::string::npos) << what << " missing:\n" << r.out;
+}
+
+}  // namespace
+}  // namespace cvt
