@@ -32,8 +32,10 @@ build: deps configure
 	@cmake --build $(BUILD) -j $(JOBS) 2>&1 | grep -Ev '^\[ *[0-9]+%\]|^-- ' || true
 	@test -x $(BUILD)/cvt-engine
 
+THREADS ?= $(shell nproc)
+
 run: build
-	$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT)
+	$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT) --scheduler flowgraph --threads $(THREADS)
 
 # The whole fast suite (minutes). Long physics runs are named Slow* and run by test-slow.
 test: build
