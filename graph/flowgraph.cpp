@@ -25,6 +25,7 @@
 #include "modules/other_forces.hpp"
 #include "modules/pulley_contact.hpp"
 #include "numa/arenas.hpp"
+#include "numa/node_buffer.hpp"
 #include "numa/topology.hpp"
 
 namespace cvt {
@@ -51,6 +52,7 @@ class FlowGraphSchedule final : public Schedule {
       for (const char* name : {"chain_forces", "pulley_contact", "inertia_decomposition", "other_forces"})
         spans_.push_back({"node" + std::to_string(n) + "/" + name, 0, 0});
     for (int n = 0; n < nodes; ++n) arenas_->execute_on(n, [&, n] { build(n, nodes == 1); });
+    if (nodes > 1) place_slots();
   }
 
   void rhs(double t, const double* y, double* dy, const StageOp* op) override {
@@ -87,6 +89,7 @@ class FlowGraphSchedule final : public Schedule {
     os << "flowgraph (" << arenas_->total_threads() << " threads, " << arenas_->nodes() << " NUMA arena"
        << (arenas_->nodes() > 1 ? "s" : "") << ", grain " << grain_ << " pins; pins per node:";
     for (int n = 0; n < arenas_->nodes(); ++n) os << ' ' << bounds_[n + 1] - bounds_[n];
+    if (!placement_.empty()) os << "; " << placement_;
     os << ')';
     return os.str();
   }
@@ -174,6 +177,35 @@ class FlowGraphSchedule final : public Schedule {
     for (int n = 1; n < nodes; ++n) arenas_->arena(n).execute([&, n] { groups_[n].wait(); });
   }
 
+  // With several nodes, the pages of each node's segment of the per-pin arrays (module
+  // slots, forces, accelerations) move to that node, and its threads touch them first.
+  void place_slots() {
+    std::string why;
+    int moved = 0, tried = 0;
+    const auto note = [&](const std::string& r) {
+      if (r == "-") return;  // no whole page in the segment
+      ++tried;
+      moved += r.empty();
+      if (!r.empty() && why.empty()) why = r;
+    };
+    for (int n = 0; n < arenas_->nodes(); ++n) {
+      const int b = bounds_[n], e = bounds_[n + 1];
+      for (auto* slots : {&ws_.chain_slots, &ws_.pulley_slots, &ws_.inertia_slots}) {
+        note(numa::migrate_to_node(*arenas_, slots->data() + b, sizeof(JointSlot) * (e - b), n));
+      }
+      for (Eigen::VectorXd* v : {&ws_.force, &ws_.accel, &ws_.accel_free}) {
+        note(numa::migrate_to_node(*arenas_, v->data() + m_.joint(b), sizeof(double) * kJointSize * (e - b), n));
+      }
+      arenas_->execute_on(n, [&] {
+        pins(n, kChain, [&](int pb, int pe) {
+          for (int j = pb; j < pe; ++j) ws_.chain_slots[j].clear(), ws_.pulley_slots[j].clear(), ws_.inertia_slots[j].clear();
+        });
+      });
+    }
+    placement_ = std::to_string(moved) + " of " + std::to_string(tried) + " per-node array segments moved to their node" +
+                 (why.empty() ? "" : " (" + why + ")");
+  }
+
   // Declares node n's graph; it reads like the DAG of a stage.
   void build(int n, bool whole_stage) {
     Part& p = parts_[n];
@@ -232,6 +264,7 @@ class FlowGraphSchedule final : public Schedule {
   bool empty_ = false, tracing_ = false;
   bool inside_ = false;  // the master is in arena 0 (within())
   std::vector<NodeSpan> spans_;
+  std::string placement_;
   std::vector<std::unique_ptr<tbb::affinity_partitioner>> affinity_;
   static double now() {
     return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();

@@ -3,6 +3,8 @@
 // first touch would move them. Fresh anonymous pages also need no topology to free.
 #include "numa/node_buffer.hpp"
 
+#include <cstdint>
+
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/partitioner.h>
@@ -101,6 +103,22 @@ int memory_node_of(const Topology& topo, const void* p, std::size_t bytes) {
   }
   hwloc_bitmap_free(where);
   return node;
+}
+
+std::string migrate_to_node(NodeArenas& arenas, void* p, std::size_t bytes, int node) {
+  const std::uintptr_t page = static_cast<std::uintptr_t>(sysconf(_SC_PAGESIZE));
+  const std::uintptr_t lo = (reinterpret_cast<std::uintptr_t>(p) + page - 1) / page * page;
+  const std::uintptr_t hi = (reinterpret_cast<std::uintptr_t>(p) + bytes) / page * page;
+  if (hi <= lo) return "-";
+  hwloc_topology_t t = arenas.topology();
+  if (!hwloc_topology_is_thissystem(t)) return "topology is not this system";
+  const hwloc_topology_support* support = hwloc_topology_get_support(t);
+  if (!support->membind->set_area_membind || !support->membind->migrate_membind)
+    return "hwloc cannot migrate memory on this system";
+  if (hwloc_set_area_membind(t, reinterpret_cast<void*>(lo), hi - lo, arenas.nodeset(node), HWLOC_MEMBIND_BIND,
+                             HWLOC_MEMBIND_BYNODESET | HWLOC_MEMBIND_MIGRATE) != 0)
+    return "migrating to OS node " + bitmap_list(arenas.nodeset(node)) + " failed: " + std::strerror(errno);
+  return "";
 }
 
 }  // namespace cvt::numa

@@ -89,4 +89,10 @@ class NodeBuffer {
 // or they lie on a node the Topology does not use (memory-only).
 int memory_node_of(const Topology& topo, const void* p, std::size_t bytes);
 
+// Moves the whole pages inside [p, p + bytes) to the node (hwloc_set_area_membind with
+// MIGRATE): for arrays already allocated and touched elsewhere, whose per-node segments
+// should live next to the node's threads. Pages that straddle the ends stay where they
+// are. Returns "" on success, "-" when no whole page lies inside, else the reason.
+std::string migrate_to_node(NodeArenas& arenas, void* p, std::size_t bytes, int node);
+
 }  // namespace cvt::numa
