@@ -1,0 +1,65 @@
+#!/usr/bin/python3
+"""Checks a cvt-engine result against CVT theory over a time window.
+
+    /usr/bin/python3 tools/cvt_check.py results.h5 [--from T0] [--to T1]
+
+Prints the window means of input, output and load torque, speed ratio against the
+geometric ratio (creep), the efficiency as 1 - dissipated / input work over the window
+(insensitive to energy swinging in and out of the torsion springs), and, from the last
+snapshot, the mean link tension of the two free strands against the difference the
+transmitted torque demands (T_tight - T_slack = M_out / R2).
+"""
+import argparse
+import sys
+
+import h5py
+import numpy as np
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("file")
+    ap.add_argument("--from", dest="t0", type=float, default=None, help="window start [s] (default: 50 %% of the run)")
+    ap.add_argument("--to", dest="t1", type=float, default=None, help="window end [s] (default: end of the run)")
+    a = ap.parse_args()
+    try:
+        f = h5py.File(a.file, "r")
+    except OSError as e:
+        sys.exit(f"cvt_check: cannot open {a.file}: {e}")
+    o = f["observables"]
+    t = o["input_speed/time"][:]
+    t0 = a.t0 if a.t0 is not None else 0.5 * t[-1]
+    t1 = a.t1 if a.t1 is not None else t[-1]
+    i0, i1 = np.searchsorted(t, t0), np.searchsorted(t, t1, side="right") - 1
+    if i1 <= i0:
+        sys.exit(f"cvt_check: empty window [{t0}, {t1}] (run covers [{t[0]}, {t[-1]}])")
+    w = slice(i0, i1 + 1)
+    v = lambda k: o[k + "/value"][:]
+    d = lambda k: v(k)[i1] - v(k)[i0]
+    Min, Mout, Mload = v("input_torque")[w].mean(), v("output_torque")[w].mean(), v("load_torque")[w].mean()
+    ratio, geo = v("speed_ratio")[w].mean(), v("geometric_ratio")[w].mean()
+    print(f"window {t[i0]*1e3:.2f} .. {t[i1]*1e3:.2f} ms ({i1 - i0 + 1} samples)")
+    print(f"  torque in / out / load      {Min:8.2f} / {Mout:8.2f} / {Mload:8.2f} N m   (out/load {Mout / Mload:.3f})")
+    print(f"  speed ratio / geometric     {ratio:.5f} / {geo:.5f}   (creep {100 * (ratio / geo - 1):+.3f} %)")
+    print(f"  efficiency 1 - D/W_in       {1 - d('work_dissipated') / d('work_input'):.4f}")
+    print(f"  energy residual / W_in      {v('energy_residual')[i1] / v('work_input')[i1]:.2e} (whole run)")
+    if "particles/chain/position" in f:
+        P = f["particles/chain/position/value"][-1]
+        T = f["particles/chain/link_tension/value"][-1]
+        ts = f["particles/chain/position/time"][-1]
+        cfg = f["parameters/config"][()]
+        cfg = cfg.decode() if isinstance(cfg, bytes) else str(cfg)
+        a_dist = float([l for l in cfg.splitlines() if l.strip().startswith("centre_distance")][0].split("=")[1].split("#")[0])
+        x, y = P[:, 0], P[:, 1]
+        mid = (x > 0.2 * a_dist) & (x < 0.8 * a_dist)
+        up, lo = T[mid & (y > 0)], T[mid & (y < 0)]
+        k = np.searchsorted(t, ts)
+        k = min(k, len(t) - 1)
+        R2 = np.sqrt(((P[:, 0] - a_dist) ** 2 + P[:, 1] ** 2))[x > a_dist].mean()
+        M = v("output_torque")[k]
+        print(f"  strands at t = {ts*1e3:.2f} ms: upper {up.mean():.0f} N ({up.size} links), lower {lo.mean():.0f} N ({lo.size} links)")
+        print(f"    difference {abs(up.mean() - lo.mean()):.0f} N; output torque / R2 = {M:.1f} / {R2*1e3:.1f} mm = {M / R2:.0f} N")
+
+
+if __name__ == "__main__":
+    main()
