@@ -19,6 +19,7 @@ Workspace::Workspace(const Model& m) {
   for (auto* s : {&chain_slots, &pulley_slots, &inertia_slots})
     for (auto& x : *s) x.clear();
   capacitance_inv.assign(N, 0.0);
+  switch_slot.assign(N, 0.0);
   force = Eigen::VectorXd::Zero(m.ndof);
   accel = Eigen::VectorXd::Zero(m.ndof);
   accel_free = Eigen::VectorXd::Zero(m.ndof);
@@ -173,12 +174,27 @@ void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double
   finish_shafts(m, ws, dy, op);
 }
 
-void update_contact_status(const Model& m, Workspace& ws, double t, const double* y) {
+void begin_status_update(const Model& m, Workspace& ws, double t, const double* y) {
   set_stage_input(m, ws, t, y);
-  ws.switch_work = 0;
   link_kinematics(m, ws, 0, m.links);
-  update_rocker_status(m, ws);
-  update_pulley_status(m, ws);
+}
+
+void update_status_joints(const Model& m, Workspace& ws, int begin, int end) {
+  for (int j = begin; j < end; ++j) ws.switch_slot[j] = 0.0;
+  update_rocker_status(m, ws, begin, end);
+  update_pulley_status(m, ws, begin, end);
+}
+
+void finish_status_update(const Model& m, Workspace& ws) {
+  double w = 0.0;
+  for (int j = 0; j < m.links; ++j) w += ws.switch_slot[j];
+  ws.switch_work = w;
+}
+
+void update_contact_status(const Model& m, Workspace& ws, double t, const double* y) {
+  begin_status_update(m, ws, t, y);
+  update_status_joints(m, ws, 0, m.links);
+  finish_status_update(m, ws);
 }
 
 Energies energies(const Model& m, double t, const double* y, const ContactStatus* status) {

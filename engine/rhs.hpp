@@ -40,8 +40,14 @@ void gather_forces(const Model& m, Workspace& ws);
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy,
                 const StageOp* op = nullptr);
 
-// Contact statuses for the next step from the state y (docs/model.md 4.4).
+// Contact statuses for the next step from the state y (docs/model.md 4.4), and the
+// contact energy switched in or out (ws.switch_work). In passes like the RHS: the link
+// kinematics, then joints [begin, end) (each writes its own statuses and switch_slot[j]),
+// then the sum of switch_slot in pin order.
 void update_contact_status(const Model& m, Workspace& ws, double t, const double* y);
+void begin_status_update(const Model& m, Workspace& ws, double t, const double* y);
+void update_status_joints(const Model& m, Workspace& ws, int begin, int end);
+void finish_status_update(const Model& m, Workspace& ws);
 
 // Energies of the state y at time t (docs/model.md 6).
 struct Energies {

@@ -29,7 +29,7 @@ void Simulation::step(double h, bool update_status) {
     ++steps_;
     t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
     if (update_status) {
-      update_contact_status(m_, ws_, t_, y_.data());
+      schedule_->update_status(t_, y_.data());
       y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
     }
   });

@@ -78,6 +78,7 @@ struct Workspace {
   // a pair switched on while penetrating brings its Hertz energy in, one switched off
   // takes it out.
   double switch_work = 0;
+  std::vector<double> switch_slot;  // per joint, summed in pin order into switch_work
 };
 
 }  // namespace cvt

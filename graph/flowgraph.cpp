@@ -122,6 +122,21 @@ class FlowGraphSchedule final : public Schedule {
   }
 
   int threads() const override { return arenas_->total_threads(); }
+
+  // Per pin like the forces: one parallel pass per node (phases when there are several).
+  void update_status(double t, const double* y) override {
+    begin_status_update(m_, ws_, t, y);
+    const auto pass = [&](int n) {
+      pins(n, kStatus, [this](int b, int e) { update_status_joints(m_, ws_, b, e); }, coarse(n));
+    };
+    if (arenas_->nodes() == 1) {
+      if (inside_) pass(0);
+      else arenas_->arena(0).execute([&] { pass(0); });
+    } else {
+      on_all_nodes(pass);
+    }
+    finish_status_update(m_, ws_);
+  }
   void within(const std::function<void()>& f) override {
     if (arenas_->nodes() > 1 || inside_) return f();
     arenas_->arena(0).execute([&] {
@@ -156,7 +171,7 @@ class FlowGraphSchedule final : public Schedule {
   // Each pass of each node keeps its own affinity_partitioner, so that a pin's chunk runs
   // on the same thread stage after stage and its data stays in that core's cache (a
   // cache line moved between cores costs about 80 ns here, and a stage touches ~2000).
-  enum Pass { kChain, kPulley, kInertia, kGather, kFinish, kPasses };
+  enum Pass { kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
   template <class F>
   void pins(int n, Pass pass, const F& f, int grain = 0) {
     if (grain == 0) grain = grain_;

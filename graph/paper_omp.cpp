@@ -74,6 +74,9 @@ class PaperOmpSchedule final : public Schedule {
     finish_shafts(m, ws, dy, op);
   }
 
+  // The published code updated its contact events serially.
+  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y); }
+
   std::string describe() const override {
     return "paper-omp (" + std::to_string(threads_) + " OpenMP threads, static loops, thread-local buffers)";
   }

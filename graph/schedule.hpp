@@ -44,6 +44,9 @@ class Schedule {
   // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
   // the schedule was built with.
   virtual void rhs(double t, const double* y, double* dy, const StageOp* op) = 0;
+  // Contact statuses for the next step (engine/rhs.hpp update_contact_status), scheduled
+  // like the RHS; the same bits for every schedule.
+  virtual void update_status(double t, const double* y) = 0;
   // Runs f (a whole step: its stages and the status update) where the schedule's threads
   // live, so that they stay awake between the stages instead of leaving the arena after
   // each one (DESIGN.md: wake-up dominates short stages).

@@ -11,6 +11,7 @@ class SerialSchedule final : public Schedule {
  public:
   SerialSchedule(const Model& m, Workspace& ws) : m_(m), ws_(ws) {}
   void rhs(double t, const double* y, double* dy, const StageOp* op) override { rhs_serial(m_, ws_, t, y, dy, op); }
+  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y); }
   std::string describe() const override { return "serial (1 thread)"; }
   std::string graphviz() const override {
     return "digraph stage {\n  rankdir=LR;\n  start -> link_kinematics -> chain_forces -> pulley_contact -> "

@@ -340,10 +340,10 @@ double half_axial_force(const Model& m, const double* q, const double* v, int o)
   return m.cfg.pin.ea / m.L0 * (eps + m.beam_beta * rate);
 }
 
-void update_rocker_status(const Model& m, Workspace& ws) {
+void update_rocker_status(const Model& m, Workspace& ws, int begin, int end) {
   const int nst = m.cfg.rocker.stations;
   const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
-  for (int j = 0; j < m.links; ++j) {
+  for (int j = begin; j < end; ++j) {
     const double* qa = ws.q + m.half_a(j);
     const double* va = ws.v + m.half_a(j);
     const double* qb = ws.q + m.half_b(j);
@@ -352,7 +352,7 @@ void update_rocker_status(const Model& m, Workspace& ws) {
       const RockerEval r = rocker_eval(m, ws.kin, qa, va, qb, vb, m.wrap(j - 1), j, m.station_xi[st]);
       std::uint8_t& status = ws.status.rocker[j * nst + st];
       const std::uint8_t now = r.pen > 0 && hertz_force(crk, r.pen) + brk * r.pen_rate > 0;
-      if (now != status) ws.switch_work += (now ? 1.0 : -1.0) * hertz_energy(crk, r.pen);
+      if (now != status) ws.switch_slot[j] += (now ? 1.0 : -1.0) * hertz_energy(crk, r.pen);
       status = now;
     }
   }

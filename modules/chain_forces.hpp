@@ -20,6 +20,7 @@ double half_axial_force(const Model& m, const double* q, const double* v, int ha
 
 // Updates the rocker statuses after a step (4.4): active where the faces penetrate and
 // the normal force is compressive.
-void update_rocker_status(const Model& m, Workspace& ws);
+// Rocker statuses of joints [begin, end); energy switched in or out goes to ws.switch_slot[j].
+void update_rocker_status(const Model& m, Workspace& ws, int begin, int end);
 
 }  // namespace cvt

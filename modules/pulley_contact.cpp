@@ -179,9 +179,9 @@ double pulley_energy(const Model& m, const double* q, const ContactStatus* statu
   return E;
 }
 
-void update_pulley_status(const Model& m, Workspace& ws) {
+void update_pulley_status(const Model& m, Workspace& ws, int begin, int end) {
   const double cn = m.cfg.pulley_contact.stiffness, bn = m.cfg.pulley_contact.damping * m.damp;
-  for (int j = 0; j < m.links; ++j)
+  for (int j = begin; j < end; ++j)
     for (int h = 0; h < 2; ++h) {
       const int o = h == 0 ? m.half_a(j) : m.half_b(j);
       for (int k = 0; k < 2; ++k)
@@ -195,7 +195,7 @@ void update_pulley_status(const Model& m, Workspace& ws) {
           if (g.pen <= 0) continue;  // no energy in or out: Hertz energy is 0 here
           const double rate = penetration_rate(m, g, ws.v + o, e, shv);
           st = hertz_force(cn, g.pen) + bn * rate > 0;
-          if (st != was) ws.switch_work += (st ? 1.0 : -1.0) * hertz_energy(cn, g.pen);
+          if (st != was) ws.switch_slot[j] += (st ? 1.0 : -1.0) * hertz_energy(cn, g.pen);
         }
     }
 }

@@ -24,7 +24,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
 
 // Hertz energy of the pin ends (with `status`, only the active pairs).
 double pulley_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);
-void update_pulley_status(const Model& m, Workspace& ws);
+// Pin-end statuses of joints [begin, end); switched energy into ws.switch_slot[j].
+void update_pulley_status(const Model& m, Workspace& ws, int begin, int end);
 
 // Mean radius of the joint centres in contact with pulley k (the running radius of the
 // current state, for the geometric ratio); 0 if none.
