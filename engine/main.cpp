@@ -1,5 +1,6 @@
 // The cvt-engine command line (docs/cli.md).
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 
@@ -88,7 +89,12 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   std::printf("    geometric ratio          %.5f\n", r.geometric_ratio);
   std::printf("    input torque             %.3f N m\n", r.input_torque);
   std::printf("    output torque            %.3f N m\n", r.output_torque);
-  std::printf("    efficiency               %.4f\n", r.efficiency);
+  std::printf("    efficiency               %.4f (mean output power / mean input power)\n", r.efficiency);
+  std::printf("    1 - dissipated/input     %.4f (work over the window)\n", r.loss_efficiency);
+  if (r.load_torque > 0 && std::abs(r.output_torque / r.load_torque - 1.0) > 0.1)
+    std::printf("    note: output torque differs from the load (%.3f N m) by %.0f %%: not yet steady (load ramp,\n"
+                "          torsion modes); means and the power ratio are transient values\n",
+                r.load_torque, 100.0 * std::abs(r.output_torque / r.load_torque - 1.0));
   std::printf("  energy balance residual    %.4g J (%.3g of the work in)\n", r.energy_residual,
               r.work_input != 0 ? std::abs(r.energy_residual / r.work_input) : 0.0);
   return kExitOk;

@@ -282,6 +282,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
     r.geometric_ratio += s.geometric_ratio;
     r.input_torque += s.input_torque;
     r.output_torque += s.output_torque;
+    r.load_torque += s.load_torque;
     pin += s.input_torque * s.input_speed;
     pout += s.output_torque * s.output_speed;
   }
@@ -289,7 +290,14 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   r.geometric_ratio /= cnt;
   r.input_torque /= cnt;
   r.output_torque /= cnt;
+  r.load_torque /= cnt;
   r.efficiency = pin != 0 ? pout / pin : 0.0;
+  // 1 - D / W_in over the same window: unlike the ratio of mean powers, it does not see
+  // energy swinging in and out of the torsion springs and inertias.
+  const Sample& a = samples[from];
+  const Sample& b = samples.back();
+  const double win = b.work_input - a.work_input;
+  r.loss_efficiency = win > 0 ? 1.0 - (b.work_dissipated - a.work_dissipated) / win : 0.0;
   r.energy_residual = samples.back().energy_residual;
   r.work_input = samples.back().work_input;
   return r;

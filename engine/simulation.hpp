@@ -84,6 +84,8 @@ struct RunSummary {
   double model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
   // Means over the last 20 % of the run.
   double speed_ratio = 0, geometric_ratio = 0, input_torque = 0, output_torque = 0, efficiency = 0;
+  double load_torque = 0;
+  double loss_efficiency = 0;  // 1 - dissipated / input work over the window
   double energy_residual = 0, work_input = 0;
 };
 

@@ -105,13 +105,16 @@ inline PlateEval plate_eval(const Model& m, const double* qb, const double* vb, 
   e.b = plate_point(m, qb, vb, s + zeta, sd);
   e.a = plate_point(m, qa, va, s + zeta, sd);
   const double dx = e.a.x - e.b.x, dy = e.a.y - e.b.y;
-  const double d = std::sqrt(dx * dx + dy * dy);
-  e.ux = dx / d;
-  e.uy = dy / d;
+  const double d = std::sqrt(dx * dx + dy * dy), inv = 1.0 / d;
+  e.ux = dx * inv;
+  e.uy = dy * inv;
   e.stretch = d - m.plate_rest;
   e.rate = e.ux * (e.a.vx - e.b.vx) + e.uy * (e.a.vy - e.b.vy);
   return e;
 }
+
+// config.cpp limits rocker.stations to 16.
+constexpr int kMaxStations = 16;
 
 // 4.3: rocker geometry at one station.
 struct RockerEval {
@@ -123,10 +126,11 @@ struct RockerEval {
 };
 
 inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const double* qa, const double* va,
-                              const double* qb, const double* vb, int lp, int lc, double xi) {
+                              const double* qb, const double* vb, int lp, int lc, double xi,
+                              const HermiteWeights& h) {
   RockerEval r;
   r.xi = xi;
-  r.h = hermite(xi, m.L0);
+  r.h = h;
   r.pax = lateral(qa, r.h, 0);
   r.pay = lateral(qa, r.h, 1);
   r.pbx = lateral(qb, r.h, 0);
@@ -161,6 +165,8 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
   const FrictionLaw law = c.friction.law;
   const double f0 = c.friction.f0, v0 = c.friction.v0;
   const int nst = c.rocker.stations;
+  HermiteWeights sh[kMaxStations];  // the stations sit at fixed xi: weights once per call
+  for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
   for (int j = begin; j < end; ++j) {
     JointSlot& s = ws.chain_slots[j];
     s.clear();
@@ -180,7 +186,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
     const int lp = m.wrap(j - 1), lc = j;
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
-      const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st]);
+      const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
       const double Nel = hertz_force(crk, r.pen);
       const double N = Nel + (r.pen > 0 ? brk * r.pen_rate : 0.0);
       s.p_diss += (N - Nel) * r.pen_rate;
@@ -343,13 +349,15 @@ double half_axial_force(const Model& m, const double* q, const double* v, int o)
 void update_rocker_status(const Model& m, Workspace& ws, int begin, int end) {
   const int nst = m.cfg.rocker.stations;
   const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
+  HermiteWeights sh[kMaxStations];
+  for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
   for (int j = begin; j < end; ++j) {
     const double* qa = ws.q + m.half_a(j);
     const double* va = ws.v + m.half_a(j);
     const double* qb = ws.q + m.half_b(j);
     const double* vb = ws.v + m.half_b(j);
     for (int st = 0; st < nst; ++st) {
-      const RockerEval r = rocker_eval(m, ws.kin, qa, va, qb, vb, m.wrap(j - 1), j, m.station_xi[st]);
+      const RockerEval r = rocker_eval(m, ws.kin, qa, va, qb, vb, m.wrap(j - 1), j, m.station_xi[st], sh[st]);
       std::uint8_t& status = ws.status.rocker[j * nst + st];
       const std::uint8_t now = r.pen > 0 && hertz_force(crk, r.pen) + brk * r.pen_rate > 0;
       if (now != status) ws.switch_slot[j] += (now ? 1.0 : -1.0) * hertz_energy(crk, r.pen);
