@@ -113,6 +113,28 @@ inline PlateEval plate_eval(const Model& m, const double* qb, const double* vb, 
   return e;
 }
 
+// 4.2, fast form: the lateral position of a half at xi, sum_i w_i(xi) q_i, as the cubic
+// c0 + c1 xi + c2 xi^2 + c3 xi^3 (the Hermite weights of beam.hpp expanded in xi).
+struct Cubic {
+  double c0, c1, c2, c3;
+};
+inline Cubic cubic_of(const double* hq, int plane, double L) {
+  const auto d = plane_dofs(plane);
+  const double q0 = hq[d[0]], q1 = hq[d[1]], q2 = hq[d[2]], q3 = hq[d[3]];
+  return {q0, L * q1, -3 * q0 - 2 * L * q1 + 3 * q2 - L * q3, 2 * q0 + L * q1 - 2 * q2 + L * q3};
+}
+inline double at(const Cubic& c, double x) { return c.c0 + x * (c.c1 + x * (c.c2 + x * c.c3)); }
+inline double slope(const Cubic& c, double x) { return c.c1 + x * (2 * c.c2 + x * 3 * c.c3); }
+// Generalized forces on (x1, sx1, x2, sx2) of one plane from the moments M_p = sum f xi^p
+// of lateral forces f applied at parameters xi: sum_p (coefficient of xi^p in w_i) M_p.
+inline void add_moments(double* hf, int plane, double L, const double M[4]) {
+  const auto d = plane_dofs(plane);
+  hf[d[0]] += M[0] - 3 * M[2] + 2 * M[3];
+  hf[d[1]] += L * (M[1] - 2 * M[2] + M[3]);
+  hf[d[2]] += 3 * M[2] - 2 * M[3];
+  hf[d[3]] += L * (M[3] - M[2]);
+}
+
 // config.cpp limits rocker.stations to 16.
 constexpr int kMaxStations = 16;
 
@@ -251,17 +273,54 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       s.tau_own -= F * (-0.5 * along);
     }
 
-    // 4.2 plates of link j between b_j and a_{j+1}.
+    // 4.2 plates of link j between b_j and a_{j+1}. Each half's lateral centre line is a
+    // cubic in xi (Horner, instead of four Hermite weights per plate), and the plate forces
+    // are gathered as moments sum f xi^p, mapped back to the half's coordinates once.
     const double* qn = ws.q + m.half_a(j + 1);
     const double* vn = ws.v + m.half_a(j + 1);
     const double sq = ws.q[m.pack(j)], sv = ws.v[m.pack(j)];
-    for (double zeta : m.plate_zeta) {
-      const PlateEval e = plate_eval(m, qb, vb, qn, vn, sq, sv, zeta);
-      if (e.stretch <= 0) continue;
-      const double T = kpl * e.stretch + cpl * e.rate;
-      s.p_diss += cpl * e.rate * e.rate;
-      plate_point_force(m, e.a, -T * e.ux, -T * e.uy, fn, fs);
-      plate_point_force(m, e.b, T * e.ux, T * e.uy, fb, fs);
+    {
+      const double L = m.L0, invL = 1.0 / L;
+      const Cubic bx = cubic_of(qb, 0, L), by = cubic_of(qb, 1, L), bvx = cubic_of(vb, 0, L), bvy = cubic_of(vb, 1, L);
+      const Cubic nx = cubic_of(qn, 0, L), ny = cubic_of(qn, 1, L), nvx = cubic_of(vn, 0, L), nvy = cubic_of(vn, 1, L);
+      const double zmb = 0.5 * (qb[half::kZ] + qb[half::kEnd + half::kZ]);
+      const double zmn = 0.5 * (qn[half::kZ] + qn[half::kEnd + half::kZ]);
+      const double xidb = (sv - 0.5 * (vb[half::kZ] + vb[half::kEnd + half::kZ])) * invL;
+      const double xidn = (sv - 0.5 * (vn[half::kZ] + vn[half::kEnd + half::kZ])) * invL;
+      double Mbx[4] = {0, 0, 0, 0}, Mby[4] = {0, 0, 0, 0}, Mnx[4] = {0, 0, 0, 0}, Mny[4] = {0, 0, 0, 0};
+      double Sb = 0, Sn = 0;  // sum of f . dP/dxi at the b and the n points
+      for (double zeta : m.plate_zeta) {
+        const double xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
+        const double dx = at(nx, xn) - at(bx, xb), dy = at(ny, xn) - at(by, xb);
+        const double d = std::sqrt(dx * dx + dy * dy);
+        const double stretch = d - m.plate_rest;
+        if (stretch <= 0) continue;
+        const double inv = 1.0 / d, ux = dx * inv, uy = dy * inv;
+        const double sbx = slope(bx, xb), sby = slope(by, xb), snx = slope(nx, xn), sny = slope(ny, xn);
+        const double rate = ux * ((at(nvx, xn) + snx * xidn) - (at(bvx, xb) + sbx * xidb)) +
+                            uy * ((at(nvy, xn) + sny * xidn) - (at(bvy, xb) + sby * xidb));
+        const double T = kpl * stretch + cpl * rate;
+        s.p_diss += cpl * rate * rate;
+        // (T ux, T uy) on the b point, the opposite on the n point.
+        const double fx = T * ux, fy = T * uy;
+        const double xb2 = xb * xb, xn2 = xn * xn;
+        Mbx[0] += fx, Mbx[1] += fx * xb, Mbx[2] += fx * xb2, Mbx[3] += fx * xb2 * xb;
+        Mby[0] += fy, Mby[1] += fy * xb, Mby[2] += fy * xb2, Mby[3] += fy * xb2 * xb;
+        Mnx[0] -= fx, Mnx[1] -= fx * xn, Mnx[2] -= fx * xn2, Mnx[3] -= fx * xn2 * xn;
+        Mny[0] -= fy, Mny[1] -= fy * xn, Mny[2] -= fy * xn2, Mny[3] -= fy * xn2 * xn;
+        Sb += fx * sbx + fy * sby;
+        Sn -= fx * snx + fy * sny;
+      }
+      add_moments(fb, 0, L, Mbx);
+      add_moments(fb, 1, L, Mby);
+      add_moments(fn, 0, L, Mnx);
+      add_moments(fn, 1, L, Mny);
+      // Through xi the forces also act on s (+1/L0) and on the half's end z (-1/(2 L0) each).
+      *fs += (Sb + Sn) * invL;
+      fb[half::kZ] -= 0.5 * Sb * invL;
+      fb[half::kEnd + half::kZ] -= 0.5 * Sb * invL;
+      fn[half::kZ] -= 0.5 * Sn * invL;
+      fn[half::kEnd + half::kZ] -= 0.5 * Sn * invL;
     }
     // 4.2 pack: s held to the axial mid-position of each of its two halves, so that no
     // half slides out through its plates.
