@@ -20,10 +20,23 @@ struct StageOp {
   double w = 1;
   bool first = false, last = false;
   void apply(const double* dy, int begin, int end) const {
-    for (int i = begin; i < end; ++i) {
-      const double d = dy[i];
-      if (acc) acc[i] = first ? d : acc[i] + w * d;
-      if (next) next[i] = base[i] + a * (last ? acc[i] : d);
+    // One loop per case, so that each vectorizes; the arithmetic is the formula above.
+    if (acc && first && next) {
+      for (int i = begin; i < end; ++i) acc[i] = dy[i], next[i] = base[i] + a * dy[i];
+    } else if (acc && last && next) {
+      for (int i = begin; i < end; ++i) {
+        const double s = acc[i] + w * dy[i];
+        acc[i] = s;
+        next[i] = base[i] + a * s;
+      }
+    } else if (acc && next) {
+      for (int i = begin; i < end; ++i) acc[i] = acc[i] + w * dy[i], next[i] = base[i] + a * dy[i];
+    } else {
+      for (int i = begin; i < end; ++i) {
+        const double d = dy[i];
+        if (acc) acc[i] = first ? d : acc[i] + w * d;
+        if (next) next[i] = base[i] + a * (last ? acc[i] : d);
+      }
     }
   }
 };
