@@ -57,7 +57,11 @@ class FlowGraphSchedule final : public Schedule {
 
   void rhs(double t, const double* y, double* dy, const StageOp* op) override {
     set_stage_input(m_, ws_, t, y);
-    if (!empty_) link_kinematics(m_, ws_, 0, m_.links);  // O(N) and tiny; every module reads it
+    // With one node the graph computes the link kinematics itself, in parallel: done here by
+    // the master it would pull the whole state across to one core every stage. With
+    // several, every node's modules read links of the neighbouring segment, so it is
+    // done before the graphs start.
+    if (!empty_ && arenas_->nodes() > 1) link_kinematics(m_, ws_, 0, m_.links);
     dy_ = dy;
     op_ = op;
     const int nodes = arenas_->nodes();
@@ -101,11 +105,16 @@ class FlowGraphSchedule final : public Schedule {
       const std::string p = "n" + std::to_string(n) + "_";
       os << "  subgraph cluster_" << n << " {\n    label=\"NUMA node " << n << ": pins [" << bounds_[n] << ", "
          << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n";
-      os << "    " << p << "start [label=\"start\\n(link kinematics)\"];\n";
+      if (arenas_->nodes() == 1)
+        os << "    " << p << "start;\n    " << p << "kinematics [label=\"link kinematics\\nparallel_for\"];\n    " << p
+           << "start -> " << p << "kinematics;\n";
+      else
+        os << "    " << p << "start [label=\"start\\n(link kinematics, all links)\"];\n";
+      const std::string src = arenas_->nodes() == 1 ? p + "kinematics" : p + "start";
       for (const char* mod : {"chain_forces", "pulley_contact", "inertia_decomposition"})
         os << "    " << p << mod << " [label=\"" << mod << "\\nparallel_for, grain " << grain_ << "\"];\n"
-           << "    " << p << "start -> " << p << mod << ";\n";
-      if (n == 0) os << "    " << p << "other_forces;\n    " << p << "start -> " << p << "other_forces;\n";
+           << "    " << src << " -> " << p << mod << ";\n";
+      if (n == 0) os << "    " << p << "other_forces;\n    " << src << " -> " << p << "other_forces;\n";
       if (arenas_->nodes() == 1) {
         os << "    " << p << "gather [label=\"gather\\nparallel_for\"];\n    " << p
            << "gather_shafts;\n    " << p << "accelerations [label=\"accelerations + stage update\\nparallel_for\"];\n";
@@ -171,7 +180,7 @@ class FlowGraphSchedule final : public Schedule {
   // Each pass of each node keeps its own affinity_partitioner, so that a pin's chunk runs
   // on the same thread stage after stage and its data stays in that core's cache (a
   // cache line moved between cores costs about 80 ns here, and a stage touches ~2000).
-  enum Pass { kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
+  enum Pass { kKinematics, kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
   template <class F>
   void pins(int n, Pass pass, const F& f, int grain = 0) {
     if (grain == 0) grain = grain_;
@@ -243,6 +252,13 @@ class FlowGraphSchedule final : public Schedule {
         s.end = now();
       });
     };
+    // One node: start -> kinematics -> modules. Several: start -> modules.
+    flow::sender<Msg>* source = p.start.get();
+    if (whole_stage) {
+      auto* kin = node([this, n] { pins(n, kKinematics, [this](int b, int e) { link_kinematics(m_, ws_, b, e); }, coarse(n)); });
+      flow::make_edge(*p.start, *kin);
+      source = kin;
+    }
     auto* chain = module(0, [this, n] { pins(n, kChain, [this](int b, int e) { chain_forces(m_, ws_, b, e); }); });
     auto* pulley =
         module(1, [this, n] { pins(n, kPulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e); }, coarse(n)); });
@@ -250,7 +266,7 @@ class FlowGraphSchedule final : public Schedule {
         module(2, [this, n] { pins(n, kInertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n)); });
     std::vector<flow::continue_node<Msg>*> modules = {chain, pulley, inertia};
     if (n == 0) modules.push_back(module(3, [this] { other_forces(m_, ws_); }));
-    for (auto* mod : modules) flow::make_edge(*p.start, *mod);
+    for (auto* mod : modules) flow::make_edge(*source, *mod);
     if (!whole_stage) return;
     auto* gather = node([this, n] { pins(n, kGather, [this](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n)); });
     auto* shafts = node([this] { gather_shafts(m_, ws_); });
