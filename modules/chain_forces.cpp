@@ -145,6 +145,7 @@ struct RockerEval {
   double pax, pay, pbx, pby;  // half centre lines at the station
   double mx, my;              // unit normal from b to a
   double pen, pen_rate;       // penetration Delta and its rate
+  double lvax, lvay, lvbx, lvby;  // lateral velocities of the centre lines at the station
 };
 
 inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const double* qa, const double* va,
@@ -162,15 +163,19 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
   const double cax = r.pax - kap * k.ex[lp], cay = r.pay - kap * k.ey[lp];
   const double cbx = r.pbx + kap * k.ex[lc], cby = r.pby + kap * k.ey[lc];
   const double Dx = cax - cbx, Dy = cay - cby;
-  const double dist = std::sqrt(Dx * Dx + Dy * Dy);
-  r.mx = Dx / dist;
-  r.my = Dy / dist;
+  const double dist = std::sqrt(Dx * Dx + Dy * Dy), inv = 1.0 / dist;
+  r.mx = Dx * inv;
+  r.my = Dy * inv;
   r.pen = 2 * m.cfg.rocker.radius - dist;
+  r.lvax = lateral(va, r.h, 0);
+  r.lvay = lateral(va, r.h, 1);
+  r.lvbx = lateral(vb, r.h, 0);
+  r.lvby = lateral(vb, r.h, 1);
   // e_dot = psi_dot n, n = (-ey, ex).
-  const double cadx = lateral(va, r.h, 0) + kap * k.psi_dot[lp] * k.ey[lp];
-  const double cady = lateral(va, r.h, 1) - kap * k.psi_dot[lp] * k.ex[lp];
-  const double cbdx = lateral(vb, r.h, 0) - kap * k.psi_dot[lc] * k.ey[lc];
-  const double cbdy = lateral(vb, r.h, 1) + kap * k.psi_dot[lc] * k.ex[lc];
+  const double cadx = r.lvax + kap * k.psi_dot[lp] * k.ey[lp];
+  const double cady = r.lvay - kap * k.psi_dot[lp] * k.ex[lp];
+  const double cbdx = r.lvbx - kap * k.psi_dot[lc] * k.ey[lc];
+  const double cbdy = r.lvby + kap * k.psi_dot[lc] * k.ex[lc];
   r.pen_rate = -(r.mx * (cadx - cbdx) + r.my * (cady - cbdy));
   return r;
 }
@@ -213,43 +218,45 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       const double N = Nel + (r.pen > 0 ? brk * r.pen_rate : 0.0);
       s.p_diss += (N - Nel) * r.pen_rate;
       // Normal: F_a = N m, F_b = -N m; link torques -N kappa (m . n).
-      add_lateral(fa, r.h, 0, N * r.mx);
-      add_lateral(fa, r.h, 1, N * r.my);
-      add_lateral(fb, r.h, 0, -N * r.mx);
-      add_lateral(fb, r.h, 1, -N * r.my);
       s.tau_prev += -N * m.kappa * (r.mx * -kin.ey[lp] + r.my * kin.ex[lp]);
       s.tau_own += -N * m.kappa * (r.mx * -kin.ey[lc] + r.my * kin.ex[lc]);
-      if (Nel <= 0 || law == FrictionLaw::none) continue;
-      // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
-      const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
-      const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
-      const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
-      const double xi = r.xi;
-      const double vax = lateral(va, r.h, 0) - kin.psi_dot[lp] * ray;
-      const double vay = lateral(va, r.h, 1) + kin.psi_dot[lp] * rax;
-      const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
-      const double vbx = lateral(vb, r.h, 0) - kin.psi_dot[lc] * rby;
-      const double vby = lateral(vb, r.h, 1) + kin.psi_dot[lc] * rbx;
-      const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
-      double wx = vax - vbx, wy = vay - vby;
-      const double wz = vaz - vbz;
-      const double wn = wx * r.mx + wy * r.my;
-      wx -= wn * r.mx;
-      wy -= wn * r.my;
-      const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
-      const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-      const double Rx = -mu * wx, Ry = -mu * wy, Rz = -mu * wz;  // on a
-      s.p_diss += mu * speed * speed;
-      add_lateral(fa, r.h, 0, Rx);
-      add_lateral(fa, r.h, 1, Ry);
-      fa[half::kZ] += (1 - xi) * Rz;
-      fa[half::kEnd + half::kZ] += xi * Rz;
-      add_lateral(fb, r.h, 0, -Rx);
-      add_lateral(fb, r.h, 1, -Ry);
-      fb[half::kZ] -= (1 - xi) * Rz;
-      fb[half::kEnd + half::kZ] -= xi * Rz;
-      s.tau_prev += rax * Ry - ray * Rx;
-      s.tau_own -= rbx * Ry - rby * Rx;
+      double Rx = 0, Ry = 0;  // friction on a (lateral part)
+      if (Nel > 0 && law != FrictionLaw::none) {
+        // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
+        const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
+        const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
+        const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
+        const double xi = r.xi;
+        const double vax = r.lvax - kin.psi_dot[lp] * ray;
+        const double vay = r.lvay + kin.psi_dot[lp] * rax;
+        const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
+        const double vbx = r.lvbx - kin.psi_dot[lc] * rby;
+        const double vby = r.lvby + kin.psi_dot[lc] * rbx;
+        const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
+        double wx = vax - vbx, wy = vay - vby;
+        const double wz = vaz - vbz;
+        const double wn = wx * r.mx + wy * r.my;
+        wx -= wn * r.mx;
+        wy -= wn * r.my;
+        const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
+        const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+        Rx = -mu * wx;
+        Ry = -mu * wy;
+        const double Rz = -mu * wz;
+        s.p_diss += mu * speed * speed;
+        fa[half::kZ] += (1 - xi) * Rz;
+        fa[half::kEnd + half::kZ] += xi * Rz;
+        fb[half::kZ] -= (1 - xi) * Rz;
+        fb[half::kEnd + half::kZ] -= xi * Rz;
+        s.tau_prev += rax * Ry - ray * Rx;
+        s.tau_own -= rbx * Ry - rby * Rx;
+      }
+      // Normal and friction act at the same station: one Hermite distribution each plane.
+      const double Fx = N * r.mx + Rx, Fy = N * r.my + Ry;
+      add_lateral(fa, r.h, 0, Fx);
+      add_lateral(fa, r.h, 1, Fy);
+      add_lateral(fb, r.h, 0, -Fx);
+      add_lateral(fb, r.h, 1, -Fy);
     }
 
     // 4.3 rolling keeper: s = nbar . (mid(a_j) - mid(b_j)), nbar normal to the bisector of
