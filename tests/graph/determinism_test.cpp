@@ -3,6 +3,7 @@
 // compared byte for byte across schedulers, thread counts, grains and NUMA layouts.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstdlib>
 #include <cstring>
 
@@ -132,8 +133,12 @@ TEST(FlowGraphTest, ModuleNodesOverlap) {
   auto schedule = make_schedule(m, ws, o);
   schedule->set_tracing(true);
   Eigen::VectorXd dy(m.nstate);
-  int overlapping = 0, stages = 200;
-  for (int i = 0; i < stages; ++i) {
+  // At least 200 stages; under a loaded machine (ctest -j) keep going for up to 3 s, so
+  // that the two threads get a core at the same time.
+  int overlapping = 0, stages = 0;
+  const auto start = std::chrono::steady_clock::now();
+  while (stages < 200 || (overlapping == 0 && std::chrono::steady_clock::now() - start < std::chrono::seconds(3))) {
+    ++stages;
     schedule->rhs(0.0, m.y0.data(), dy.data(), nullptr);
     const auto spans = schedule->last_spans();
     ASSERT_EQ(spans.size(), 4u);
