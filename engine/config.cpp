@@ -535,15 +535,17 @@ std::optional<toml::table> parse_value(const std::string& text, std::string* err
 }
 
 void apply_override(toml::table& root, const std::string& raw, std::map<std::string, std::string>& override_text) {
+  // A malformed override is named as the option and its text, quoted (it may be empty).
+  if (raw.find('=') == std::string::npos)
+    throw ConfigError("--set", "'" + raw + "'", "malformed override: expected section.key=value (no '=')");
   const auto eq = raw.find('=');
-  if (eq == std::string::npos)
-    throw ConfigError(raw, "", "malformed override: expected section.key=value (no '=')");
   const std::string qkey = trim(std::string_view(raw).substr(0, eq));
   const std::string value = trim(std::string_view(raw).substr(eq + 1));
   const auto dot = qkey.find('.');
   if (dot == std::string::npos || dot == 0 || dot + 1 == qkey.size())
-    throw ConfigError(raw, "", "malformed override: expected section.key=value (key must be section.key)");
-  if (value.empty()) throw ConfigError(raw, "", "malformed override: expected section.key=value (empty value)");
+    throw ConfigError("--set", "'" + raw + "'", "malformed override: expected section.key=value (key must be section.key)");
+  if (value.empty())
+    throw ConfigError("--set", "'" + raw + "'", "malformed override: expected section.key=value (empty value)");
   const std::string section = qkey.substr(0, dot);
   const std::string key = qkey.substr(dot + 1);
   std::string error;
