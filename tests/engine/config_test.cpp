@@ -283,12 +283,14 @@ TEST(ConfigTest, OverrideIntoSectionMissingFromFile) {
 }
 
 TEST(ConfigTest, MalformedOverride) {
-  auto e = expect_override_error("chain.links40", "chain.links40", "chain.links40");
+  // Named as the option and its quoted text (which may be empty).
+  auto e = expect_override_error("chain.links40", "--set", "'chain.links40'");
   EXPECT_TRUE(contains(e.reason(), "=")) << e.reason();
-  expect_override_error("links=40", "links=40", "links=40");
-  expect_override_error(".links=40", ".links=40", ".links=40");
-  expect_override_error("chain.=40", "chain.=40", "chain.=40");
-  expect_override_error("chain.links=", "chain.links=", "chain.links=");
+  expect_override_error("links=40", "--set", "'links=40'");
+  expect_override_error(".links=40", "--set", "'.links=40'");
+  expect_override_error("chain.=40", "--set", "'chain.=40'");
+  expect_override_error("chain.links=", "--set", "'chain.links='");
+  expect_override_error("", "--set", "''");
 }
 
 TEST(ConfigTest, OverridesAreValidated) {
