@@ -79,7 +79,11 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   opt.out_path = out;
   opt.progress = !quiet;
   const RunSummary r = run_simulation(model, opt);
-  std::printf("\nrun complete: %s\n", out.c_str());
+  if (r.interrupted)
+    std::printf("\nrun interrupted by signal %d at t = %.9g s after %ld steps: results up to there in %s\n",
+                r.signal, r.model_time, r.steps, out.c_str());
+  else
+    std::printf("\nrun complete: %s\n", out.c_str());
   std::printf("  steps                      %ld\n", r.steps);
   std::printf("  wall time                  %.3f s\n", r.wall_s);
   std::printf("  time per step              %.2f us\n", r.us_per_step);
@@ -97,7 +101,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
                 r.load_torque, 100.0 * std::abs(r.output_torque / r.load_torque - 1.0));
   std::printf("  energy balance residual    %.4g J (%.3g of the work in)\n", r.energy_residual,
               r.work_input != 0 ? std::abs(r.energy_residual / r.work_input) : 0.0);
-  return kExitOk;
+  return r.interrupted ? kExitInterrupted : kExitOk;
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "engine/simulation.hpp"
 
 #include <chrono>
+#include <csignal>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -197,6 +198,28 @@ class Recorder {
 
 long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
 
+// SIGINT / SIGTERM during a run: the step in progress finishes, the state at that moment
+// is sampled, and the file is closed and kept (docs/cli.md, exit code 130).
+volatile std::sig_atomic_t g_stop_signal = 0;
+extern "C" void on_stop_signal(int sig) { g_stop_signal = sig; }
+
+// Installs the handlers for the lifetime of a run and restores the previous ones.
+struct StopSignals {
+  struct sigaction old_int {}, old_term {};
+  StopSignals() {
+    g_stop_signal = 0;
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, &old_int);
+    sigaction(SIGTERM, &sa, &old_term);
+  }
+  ~StopSignals() {
+    sigaction(SIGINT, &old_int, nullptr);
+    sigaction(SIGTERM, &old_term, nullptr);
+  }
+};
+
 }  // namespace
 
 RunSummary run_simulation(const Model& m, const RunOptions& opt) {
@@ -237,8 +260,19 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
     rec.snapshot(0.0, pos, ten);
   }
   double step_wall = 0;
+  StopSignals signals;
+  long done = total;
   for (long n = 1; n <= total; ++n) {
     sim.step(h);
+    if (g_stop_signal) {
+      // Keep everything up to this step: its sample ends the series.
+      done = n;
+      if (n % every_sample != 0) {
+        sim.check_finite();
+        record();
+      }
+      break;
+    }
     if (n % every_sample == 0 || n == total) {
       sim.check_finite();
       record();
@@ -267,10 +301,12 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   std::filesystem::rename(tmp, opt.out_path);
 
   RunSummary r;
-  r.steps = total;
+  r.steps = done;
+  r.interrupted = g_stop_signal != 0;
+  r.signal = g_stop_signal;
   r.model_time = sim.time();
   r.wall_s = step_wall;
-  r.us_per_step = 1e6 * step_wall / total;
+  r.us_per_step = 1e6 * step_wall / done;
   r.model_s_per_hour = sim.time() / step_wall * 3600.0;
   // Means over the last 20 % of the samples; efficiency as the ratio of mean powers.
   const size_t from = samples.size() - std::max<size_t>(1, samples.size() / 5);

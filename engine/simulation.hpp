@@ -19,6 +19,7 @@ inline constexpr int kExitOk = 0;
 inline constexpr int kExitFailure = 1;
 inline constexpr int kExitBlowUp = 70;
 inline constexpr int kExitUsage = 64;  // command-line usage error (EX_USAGE)
+inline constexpr int kExitInterrupted = 130;  // stopped by SIGINT or SIGTERM, file kept
 
 // Numerical blow-up: non-finite state or absurd penetration.
 class BlowUpError : public std::runtime_error {
@@ -87,6 +88,8 @@ struct RunSummary {
   double load_torque = 0;
   double loss_efficiency = 0;  // 1 - dissipated / input work over the window
   double energy_residual = 0, work_input = 0;
+  bool interrupted = false;  // stopped by SIGINT or SIGTERM (the file holds the run so far)
+  int signal = 0;
 };
 
 struct RunOptions {
