@@ -3,7 +3,9 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 
+#include "engine/checkpoint.hpp"
 #include "engine/config.hpp"
 #include "engine/h5_writer.hpp"
 #include "engine/model.hpp"
@@ -58,16 +60,30 @@ int cmd_topology(const std::string& config_path, int threads) {
   return kExitOk;
 }
 
+struct RunArgs {
+  std::string resume;
+  long checkpoint_every = 50000;
+};
+
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
-            const std::string& step, const std::string& out, bool quiet, const ScheduleArgs& sa) {
+            const std::string& step, const std::string& out, bool quiet, const ScheduleArgs& sa, const RunArgs& ra) {
   using namespace cvt;
   // Command-line shortcuts are overrides too, passed as typed: validated like any key and
   // recorded in the resolved TOML.
   if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
   if (!step.empty()) overrides.push_back("integrator.step=" + step);
-  const Config cfg = load_config(config_path, overrides);
+  // A resumed run takes its configuration from the checkpoint (overrides still apply:
+  // --t-end to go further; changing the physics would break the continuation).
+  std::optional<Checkpoint> ckpt;
+  if (!ra.resume.empty()) {
+    if (!config_path.empty()) throw ConfigError("CONFIG", config_path, "give either CONFIG or --resume, not both");
+    ckpt = read_checkpoint(ra.resume);
+  } else if (config_path.empty()) {
+    throw ConfigError("CONFIG", "", "missing: give a TOML configuration or --resume CHECKPOINT");
+  }
+  const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume) : load_config(config_path, overrides);
   const Model model = build_model(cfg);
-  std::printf("cvt-engine %s: %s\n", CVT_VERSION, config_path.c_str());
+  std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
   std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
   std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
               1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
@@ -76,6 +92,8 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   std::fflush(stdout);
   RunOptions opt;
   opt.schedule = sa.options();
+  opt.checkpoint_every = ra.checkpoint_every;
+  opt.resume = ckpt ? &*ckpt : nullptr;
   opt.out_path = out;
   opt.progress = !quiet;
   const RunSummary r = run_simulation(model, opt);
@@ -116,7 +134,13 @@ int main(int argc, char** argv) {
   std::vector<std::string> overrides;
   std::string t_end, step;
   bool quiet = false;
-  run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml)")->required();
+  run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml); omit with --resume");
+  RunArgs run_args;
+  run->add_option("--resume", run_args.resume, "continue bit-identically from a checkpoint (FILE.ckpt)");
+  run->add_option("--checkpoint-every", run_args.checkpoint_every,
+                  "steps between checkpoints to OUT.ckpt (0: only at the end and on SIGINT/SIGTERM)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
   run->add_option("--out", out, "output HDF5 file")->capture_default_str();
@@ -150,7 +174,7 @@ int main(int argc, char** argv) {
     return cvt::kExitUsage;
   }
   try {
-    if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched);
+    if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched, run_args);
     if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
     if (*topology) return cmd_topology(topo_config, topo_threads);
   } catch (const cvt::ConfigError& e) {

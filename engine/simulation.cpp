@@ -36,6 +36,29 @@ void Simulation::step(double h, bool update_status) {
   });
 }
 
+Checkpoint Simulation::checkpoint() const {
+  Checkpoint c;
+  c.config_toml = m_.cfg.resolved_toml;
+  c.state = y_;
+  c.rocker = ws_.status.rocker;
+  c.pulley = ws_.status.pulley;
+  c.t = t_, c.t0 = t0_, c.steps = steps_, c.steps0 = steps0_;
+  c.energy0 = energy0_;
+  return c;
+}
+
+void Simulation::restore(const Checkpoint& c) {
+  if (c.state.size() != m_.nstate || c.rocker.size() != ws_.status.rocker.size() ||
+      c.pulley.size() != ws_.status.pulley.size())
+    throw std::runtime_error("checkpoint does not fit the model (state of " + std::to_string(c.state.size()) +
+                             " numbers for a model of " + std::to_string(m_.nstate) + ")");
+  y_ = c.state;
+  ws_.status.rocker = c.rocker;
+  ws_.status.pulley = c.pulley;
+  t_ = c.t, t0_ = c.t0, steps_ = c.steps, steps0_ = c.steps0;
+  energy0_ = c.energy0;
+}
+
 void Simulation::check_finite() const {
   for (int i = 0; i < m_.nstate; ++i)
     if (!std::isfinite(y_[i])) {
@@ -241,7 +264,14 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
                                 " m, closure residual = " + std::to_string(m.closure_residual) + " m");
   Recorder rec(file, m);
   Simulation sim(m, opt.schedule);
+  if (opt.resume) sim.restore(*opt.resume);
+  const long start = sim.steps();
+  if (start >= total)
+    throw std::runtime_error("the checkpoint is at step " + std::to_string(start) + " (t = " + std::to_string(sim.time()) +
+                             " s), not before t_end = " + std::to_string(c.run.t_end) + " s: raise --t-end");
+  const std::string ckpt_path = opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path;
   std::printf("  schedule: %s\n", sim.schedule().describe().c_str());
+  if (opt.resume) std::printf("  resumed at t = %.9g s, step %ld\n", sim.time(), start);
   std::fflush(stdout);
   std::vector<Sample> samples;
   std::vector<double> pos, ten;
@@ -262,8 +292,9 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   double step_wall = 0;
   StopSignals signals;
   long done = total;
-  for (long n = 1; n <= total; ++n) {
+  for (long n = start + 1; n <= total; ++n) {
     sim.step(h);
+    if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0) write_checkpoint(ckpt_path, sim.checkpoint());
     if (g_stop_signal) {
       // Keep everything up to this step: its sample ends the series.
       done = n;
@@ -283,7 +314,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       }
       if (opt.progress && now - last_progress > std::chrono::seconds(3)) {
         const double el = std::chrono::duration<double>(now - t0).count();
-        const double eta = el / n * (total - n);
+        const double eta = el / (n - start) * (total - n);
         std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s",
                      tty ? "\r" : "", n, total, sim.time(), 100.0 * n / total, sim.time() / el * 3600, eta,
                      tty ? "   " : "\n");
@@ -297,17 +328,18 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   }
   step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
   if (opt.progress && tty) std::fprintf(stderr, "\n");
+  write_checkpoint(ckpt_path, sim.checkpoint());
   file.close();
   std::filesystem::rename(tmp, opt.out_path);
 
   RunSummary r;
-  r.steps = done;
+  r.steps = done - start;
   r.interrupted = g_stop_signal != 0;
   r.signal = g_stop_signal;
   r.model_time = sim.time();
   r.wall_s = step_wall;
-  r.us_per_step = 1e6 * step_wall / done;
-  r.model_s_per_hour = sim.time() / step_wall * 3600.0;
+  r.us_per_step = 1e6 * step_wall / std::max(1L, done - start);
+  r.model_s_per_hour = (done - start) * h / step_wall * 3600.0;
   // Means over the last 20 % of the samples; efficiency as the ratio of mean powers.
   const size_t from = samples.size() - std::max<size_t>(1, samples.size() / 5);
   double pin = 0, pout = 0;

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/checkpoint.hpp"
 #include "engine/integrator.hpp"
 #include "graph/schedule.hpp"
 #include "engine/model.hpp"
@@ -67,6 +68,10 @@ class Simulation {
   void snapshot(std::vector<double>& positions, std::vector<double>& tensions);
   // Throws BlowUpError naming time, step and the likely cause when the state is not finite.
   void check_finite() const;
+  // Everything needed to continue bit-identically (engine/checkpoint.hpp), and back.
+  Checkpoint checkpoint() const;
+  // Throws std::runtime_error if the checkpoint does not fit this model.
+  void restore(const Checkpoint& c);
 
  private:
   const Model& m_;
@@ -96,6 +101,12 @@ struct RunOptions {
   std::string out_path = "results.h5";
   bool progress = true;
   ScheduleOptions schedule;
+  // A checkpoint every this many steps (0: only at the end and on SIGINT/SIGTERM), to
+  // checkpoint_path (default: out_path + ".ckpt").
+  long checkpoint_every = 50000;
+  std::string checkpoint_path;
+  // Continue from this checkpoint (its model: build it from resume->config_toml).
+  const Checkpoint* resume = nullptr;
 };
 
 // Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.

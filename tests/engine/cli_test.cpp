@@ -251,6 +251,7 @@ TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   const std::string out = read_text(dir_ / "stdout.txt");
   EXPECT_NE(out.find("run interrupted by signal " + std::to_string(sig)), std::string::npos) << out;
   EXPECT_FALSE(fs::exists(dir_ / "sig.h5.partial"));
+  EXPECT_TRUE(fs::exists(dir_ / "sig.h5.ckpt")) << "no checkpoint written at the stop";
   ASSERT_TRUE(fs::exists(dir_ / "sig.h5"));
   const hid_t f = H5Fopen((dir_ / "sig.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   ASSERT_GE(f, 0) << "the kept file does not open";

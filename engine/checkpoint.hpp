@@ -1,0 +1,28 @@
+// Checkpoints (issue 4): everything a run needs to continue bit-identically, in a small
+// HDF5 file of its own: the resolved configuration, the state, the contact statuses, the
+// clock (its origin included, so that t = t0 + (n - n0) h is formed as in the first run)
+// and the reference energy of the balance. Written to FILE.tmp and renamed, so that a
+// crash while writing never leaves a broken checkpoint.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+
+namespace cvt {
+
+struct Checkpoint {
+  std::string config_toml;               // the fully resolved TOML of the run
+  Eigen::VectorXd state;                 // y
+  std::vector<std::uint8_t> rocker, pulley;  // contact statuses for the next step
+  double t = 0, t0 = 0;                  // time, and the clock's origin
+  long steps = 0, steps0 = 0;            // steps done, and the clock's origin
+  double energy0 = 0;                    // E at the start of the first run (balance)
+};
+
+void write_checkpoint(const std::string& path, const Checkpoint& c);
+// Throws std::runtime_error naming the file and what is missing or wrong.
+Checkpoint read_checkpoint(const std::string& path);
+
+}  // namespace cvt
