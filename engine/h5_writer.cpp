@@ -228,6 +228,12 @@ H5File H5File::create(const std::string& path) {
   return H5File(std::move(file), path);
 }
 
+void H5File::start_swmr() {
+  require_open("H5Fstart_swmr_write", path_);
+  flush();
+  check(H5Fstart_swmr_write(file_.get()), "H5Fstart_swmr_write", path_);
+}
+
 H5File& H5File::operator=(H5File&& other) noexcept {
   if (this != &other) {
     try {

@@ -140,6 +140,10 @@ class H5File {
 
   // Writes the buffered rows of every series, then H5Fflush(H5F_SCOPE_GLOBAL).
   void flush();
+  // Switches to single-writer/multiple-reader mode (H5Fstart_swmr_write): readers may then
+  // open the file with SWMR read access while it grows. Every dataset and attribute must
+  // exist before: in SWMR mode only appends to existing datasets are allowed.
+  void start_swmr();
   // Writes the buffered rows, closes every dataset and the file; idempotent; the destructor
   // calls it (and swallows errors: call close() yourself to see them).
   void close();

@@ -63,6 +63,7 @@ int cmd_topology(const std::string& config_path, int threads) {
 struct RunArgs {
   std::string resume;
   long checkpoint_every = 50000;
+  double flush_seconds = 10.0;
 };
 
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
@@ -93,6 +94,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   RunOptions opt;
   opt.schedule = sa.options();
   opt.checkpoint_every = ra.checkpoint_every;
+  opt.flush_seconds = ra.flush_seconds;
   opt.resume = ckpt ? &*ckpt : nullptr;
   opt.out_path = out;
   opt.progress = !quiet;
@@ -140,6 +142,10 @@ int main(int argc, char** argv) {
   run->add_option("--checkpoint-every", run_args.checkpoint_every,
                   "steps between checkpoints to OUT.ckpt (0: only at the end and on SIGINT/SIGTERM)")
       ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  run->add_option("--flush-every", run_args.flush_seconds,
+                  "wall seconds between flushes of the output file (what a kill -9 cannot take away)")
+      ->check(CLI::PositiveNumber)
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");

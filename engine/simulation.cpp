@@ -287,8 +287,11 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   record();
   if (every_snapshot) {
     sim.snapshot(pos, ten);
-    rec.snapshot(0.0, pos, ten);
+    rec.snapshot(sim.time(), pos, ten);
   }
+  // Every dataset exists now: from here on the file is only appended to, and readers
+  // (h5py.File(path, "r", swmr=True)) can follow the run while it writes.
+  file.start_swmr();
   double step_wall = 0;
   StopSignals signals;
   long done = total;
@@ -308,7 +311,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       sim.check_finite();
       record();
       const auto now = Clock::now();
-      if (now - last_flush > std::chrono::seconds(10)) {
+      if (std::chrono::duration<double>(now - last_flush).count() > opt.flush_seconds) {
         file.flush();
         last_flush = now;
       }

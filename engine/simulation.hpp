@@ -104,6 +104,7 @@ struct RunOptions {
   // A checkpoint every this many steps (0: only at the end and on SIGINT/SIGTERM), to
   // checkpoint_path (default: out_path + ".ckpt").
   long checkpoint_every = 50000;
+  double flush_seconds = 10.0;  // wall time between flushes of the output file
   std::string checkpoint_path;
   // Continue from this checkpoint (its model: build it from resume->config_toml).
   const Checkpoint* resume = nullptr;
