@@ -59,16 +59,93 @@ void Simulation::restore(const Checkpoint& c) {
   energy0_ = c.energy0;
 }
 
-void Simulation::check_finite() const {
-  for (int i = 0; i < m_.nstate; ++i)
-    if (!std::isfinite(y_[i])) {
-      char buf[512];
-      std::snprintf(buf, sizeof buf,
-                    "numerical blow-up at t = %.9g s (step %ld): state component %d is not finite; "
-                    "the step %.3g s is likely above the stable RK4 step of this model",
-                    t_, steps_, i, m_.cfg.integrator.step);
-      throw BlowUpError(buf);
-    }
+std::string describe_state_index(const Model& m, int i) {
+  const int n = m.ndof;
+  std::string what = "position of ";
+  if (i >= 2 * n) {
+    static const char* aux[] = {"work in", "work out", "work dissipated", "work of clamping", "controller integral",
+                                "contact switching work"};
+    const int k = i - 2 * n;
+    return std::string("work integral ") + (k < 6 ? aux[k] : "?");
+  }
+  if (i >= n) what = "velocity of ", i -= n;
+  if (i < kJointSize * m.links) {
+    const int j = i / kJointSize, r = i % kJointSize;
+    if (r == kJointS) return what + "joint " + std::to_string(j) + ", plate pack";
+    static const char* coord[] = {"x", "y", "z", "slope x", "slope y"};
+    const int h = r < kJointB ? 0 : 1, e = (r % half::kSize) / half::kEnd, c = r % half::kEnd;
+    return what + "joint " + std::to_string(j) + ", half " + (h ? "b" : "a") + ", end " + std::to_string(e) + ", " +
+           coord[c];
+  }
+  if (i < m.load_index()) {
+    static const char* coord[] = {"ux", "uy", "uz", "tilt x", "tilt y", "angle", "moving sheave"};
+    const int k = (i - m.shaft(0)) / kShaftSize;
+    return what + (k == 0 ? "driving" : "driven") + " shaft, " + coord[(i - m.shaft(0)) % kShaftSize];
+  }
+  return what + "load";
+}
+
+double Simulation::spectral_radius(const Eigen::VectorXd& y, double t, const ContactStatus& status, int iterations) {
+  Workspace ws(m_);
+  ws.status = status;
+  Eigen::VectorXd f0(m_.nstate), f1(m_.nstate), v = Eigen::VectorXd::Ones(m_.nstate), yp(m_.nstate);
+  rhs_serial(m_, ws, t, y.data(), f0.data());
+  // Work integrals do not feed back into the dynamics: leave them out of the iteration.
+  v.tail(kAuxSize).setZero();
+  // Power iteration. J is far from normal (positions and velocities on very different
+  // scales), so single ratios |J v| overshoot; the geometric mean of the last ten ratios
+  // estimates |lambda_max| (and averages out the beat of a complex pair).
+  double log_sum = 0;
+  int counted = 0;
+  for (int it = 0; it < iterations; ++it) {
+    v /= v.norm();
+    const double eps = 1e-9 * (1.0 + y.head(2 * m_.ndof).norm());
+    yp = y + eps * v;
+    rhs_serial(m_, ws, t, yp.data(), f1.data());
+    v = (f1 - f0) / eps;
+    v.tail(kAuxSize).setZero();
+    const double r = v.norm();
+    if (!std::isfinite(r) || r == 0) return 0.0;
+    if (it >= iterations - 10) log_sum += std::log(r), ++counted;
+  }
+  const double rho = counted ? std::exp(log_sum / counted) : 0.0;
+  return rho;
+}
+
+void Simulation::check_finite() {
+  int bad = -1;
+  for (int i = 0; i < m_.nstate && bad < 0; ++i)
+    if (!std::isfinite(y_[i])) bad = i;
+  if (bad < 0) {
+    if (first_y_.size() == 0) first_y_ = y_, first_t_ = t_, first_status_ = ws_.status;
+    good_y_ = y_;
+    good_t_ = t_;
+    good_status_ = ws_.status;
+    return;
+  }
+  const double h = m_.cfg.integrator.step;
+  std::string cause;
+  char buf[1024];
+  if (good_y_.size() == m_.nstate) {
+    // The last good sample may already be on its way up; then the run's first state tells.
+    double rho = spectral_radius(good_y_, good_t_, good_status_), at = good_t_;
+    if (!(rho > 0 && std::isfinite(rho))) rho = spectral_radius(first_y_, first_t_, first_status_), at = first_t_;
+    const double h_stable = rho > 0 ? 2.8 / rho : 0;
+    std::snprintf(buf, sizeof buf,
+                  "at t = %.9g s the Jacobian's spectral radius is about %.3g 1/s, so RK4 is "
+                  "stable for h up to about %.3g s; ",
+                  at, rho, h_stable);
+    cause = buf;
+    std::snprintf(buf, sizeof buf, "%.3g", h);
+    cause += h > h_stable ? "the step h = " + std::string(buf) + " s is above it: reduce integrator.step"
+                          : "the step is below it: look for a contact or friction instability, or an unphysical "
+                            "parameter";
+  } else {
+    cause = "no good sample to analyse";
+  }
+  std::snprintf(buf, sizeof buf, "numerical blow-up at t = %.9g s (step %ld): %s is not finite; ", t_, steps_,
+                describe_state_index(m_, bad).c_str());
+  throw BlowUpError(buf + cause);
 }
 
 Sample Simulation::sample() {
@@ -284,6 +361,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
     samples.push_back(sim.sample());
     rec.record(samples.back());
   };
+  sim.check_finite();
   record();
   if (every_snapshot) {
     sim.snapshot(pos, ten);
@@ -295,6 +373,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   double step_wall = 0;
   StopSignals signals;
   long done = total;
+  try {
   for (long n = start + 1; n <= total; ++n) {
     sim.step(h);
     if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0) write_checkpoint(ckpt_path, sim.checkpoint());
@@ -328,6 +407,13 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       sim.snapshot(pos, ten);
       rec.snapshot(sim.time(), pos, ten);
     }
+  }
+  } catch (const BlowUpError& e) {
+    // Keep every good sample: close the file under its final name, then report.
+    if (opt.progress && tty) std::fprintf(stderr, "\n");
+    file.close();
+    std::filesystem::rename(tmp, opt.out_path);
+    throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt.out_path);
   }
   step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
   if (opt.progress && tty) std::fprintf(stderr, "\n");

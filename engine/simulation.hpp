@@ -66,8 +66,13 @@ class Simulation {
   Sample sample();
   // Joint centres [N][3] and link tensions [N] of the current state.
   void snapshot(std::vector<double>& positions, std::vector<double>& tensions);
-  // Throws BlowUpError naming time, step and the likely cause when the state is not finite.
-  void check_finite() const;
+  // Throws BlowUpError naming time, step, the coordinate and the likely cause when the
+  // state is not finite (with the stable RK4 step estimated at the last good state);
+  // otherwise remembers the state as the last good one.
+  void check_finite();
+  // Largest |eigenvalue| of the Jacobian of f at a state (power iteration on finite
+  // differences, statuses as given) [1/s]; RK4 is stable for h up to about 2.8 / rho.
+  double spectral_radius(const Eigen::VectorXd& y, double t, const ContactStatus& status, int iterations = 40);
   // Everything needed to continue bit-identically (engine/checkpoint.hpp), and back.
   Checkpoint checkpoint() const;
   // Throws std::runtime_error if the checkpoint does not fit this model.
@@ -83,7 +88,16 @@ class Simulation {
   double t_ = 0, t0_ = 0;
   long steps_ = 0, steps0_ = 0;
   double energy0_ = 0;
+  Eigen::VectorXd good_y_;  // last state that passed check_finite, with its time and statuses
+  double good_t_ = 0;
+  ContactStatus good_status_;
+  Eigen::VectorXd first_y_;  // the first state that passed check_finite
+  double first_t_ = 0;
+  ContactStatus first_status_;
 };
+
+// Names coordinate i of the first-order state (e.g. "velocity of joint 17, half b, end 1, x").
+std::string describe_state_index(const Model& m, int i);
 
 struct RunSummary {
   long steps = 0;

@@ -8,6 +8,9 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
 #include <chrono>
 #include <thread>
 #include <filesystem>
@@ -311,6 +314,39 @@ TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
   EXPECT_GT(first, 0) << "not readable while the run writes it";
   EXPECT_GT(second, first) << "a reader does not see the file grow";
   EXPECT_GE(after, second) << "kill -9 lost flushed samples or the file no longer opens";
+}
+
+// A step far above the stable RK4 step blows the run up: exit 70, a message naming time,
+// step, the coordinate and the stable step estimated from the Jacobian's spectral radius
+// (below the step that failed), and a file with every good sample.
+TEST_F(CliTest, BlowUpIsExplainedAndKeepsTheGoodSamples) {
+  const RunResult r = run({"run", kMini, "--step", "1e-5", "--t-end", "1e-3", "--out", "bu.h5", "--quiet"});
+  EXPECT_EQ(r.exit_code, 70) << r.err;
+  for (const char* what : {"numerical blow-up at t = ", "(step ", "is not finite", "joint", "spectral radius",
+                           "stable for h up to about", "reduce integrator.step", "bu.h5"})
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  double h_stable = 0;
+  const auto at = r.err.find("stable for h up to about ");
+  ASSERT_NE(at, std::string::npos);
+  h_stable = std::atof(r.err.c_str() + at + std::strlen("stable for h up to about "));
+  EXPECT_GT(h_stable, 0.0);
+  EXPECT_LT(h_stable, 1e-5);
+  ASSERT_TRUE(fs::exists(dir_ / "bu.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "bu.h5.partial"));
+  const hid_t f = H5Fopen((dir_ / "bu.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const hid_t d = H5Dopen2(f, "/observables/input_speed/value", H5P_DEFAULT);
+  const hid_t sp = H5Dget_space(d);
+  hsize_t n = 0;
+  H5Sget_simple_extent_dims(sp, &n, nullptr);
+  std::vector<double> v(n);
+  H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data());
+  EXPECT_GE(n, 1u);
+  for (double x : v) EXPECT_TRUE(std::isfinite(x)) << "a bad sample was kept";
+  std::printf("blow-up: %llu good samples kept; estimated stable step %.3g s\n", static_cast<unsigned long long>(n), h_stable);
+  H5Sclose(sp);
+  H5Dclose(d);
+  H5Fclose(f);
 }
 
 }  // namespace
