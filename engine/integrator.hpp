@@ -11,7 +11,7 @@ namespace cvt {
 // schedule can run it over the same pin ranges as the forces (docs/model.md 7). With
 // d = dy[i]:  acc[i] = d (first stage) or acc[i] + w d;  then next[i] = base[i] + a d, or
 // in the last stage next[i] = base[i] + a acc[i]. Element by element, so the result does
-// not depend on how the range is split.
+// not depend on how the range is split. base, next and acc are all required.
 struct StageOp {
   const double* base = nullptr;
   double* next = nullptr;
@@ -21,22 +21,16 @@ struct StageOp {
   bool first = false, last = false;
   void apply(const double* dy, int begin, int end) const {
     // One loop per case, so that each vectorizes; the arithmetic is the formula above.
-    if (acc && first && next) {
+    if (first) {
       for (int i = begin; i < end; ++i) acc[i] = dy[i], next[i] = base[i] + a * dy[i];
-    } else if (acc && last && next) {
+    } else if (last) {
       for (int i = begin; i < end; ++i) {
         const double s = acc[i] + w * dy[i];
         acc[i] = s;
         next[i] = base[i] + a * s;
       }
-    } else if (acc && next) {
-      for (int i = begin; i < end; ++i) acc[i] = acc[i] + w * dy[i], next[i] = base[i] + a * dy[i];
     } else {
-      for (int i = begin; i < end; ++i) {
-        const double d = dy[i];
-        if (acc) acc[i] = first ? d : acc[i] + w * d;
-        if (next) next[i] = base[i] + a * (last ? acc[i] : d);
-      }
+      for (int i = begin; i < end; ++i) acc[i] = acc[i] + w * dy[i], next[i] = base[i] + a * dy[i];
     }
   }
 };

@@ -61,9 +61,9 @@ static void gather_joints_impl(const Model& m, Workspace& ws, const Chain& chain
     };
     const double tp = tau(jp, j), to = tau(j, jn);
     ws.link_tau[j] = to;
-    const LinkKinematics& k = ws.kin;
-    const double gxp = -0.5 * k.ey[jp] * k.inv_len[jp], gyp = 0.5 * k.ex[jp] * k.inv_len[jp];
-    const double gxo = -0.5 * k.ey[j] * k.inv_len[j], gyo = 0.5 * k.ex[j] * k.inv_len[j];
+    double gxp, gyp, gxo, gyo;
+    link_g(ws.kin, jp, gxp, gyp);
+    link_g(ws.kin, j, gxo, gyo);
     for (int e = 0; e < 2; ++e) {
       fj[kJointA + e * half::kEnd + half::kX] += tp * gxp;
       fj[kJointA + e * half::kEnd + half::kY] += tp * gyp;

@@ -83,17 +83,6 @@ inline PlatePoint plate_point(const Model& m, const double* hq, const double* hv
   return p;
 }
 
-// Distributes a lateral force (fx, fy) at a plate point: Hermite weights on the lateral
-// coordinates, and through xi onto s (+1/L0) and the half's end z (-1/(2 L0) each).
-inline void plate_point_force(const Model& m, const PlatePoint& p, double fx, double fy, double* hf, double* fs) {
-  add_lateral(hf, p.h, 0, fx);
-  add_lateral(hf, p.h, 1, fy);
-  const double fxi = fx * p.dx_dxi + fy * p.dy_dxi;
-  *fs += fxi / m.L0;
-  hf[half::kZ] -= 0.5 * fxi / m.L0;
-  hf[half::kEnd + half::kZ] -= 0.5 * fxi / m.L0;
-}
-
 struct PlateEval {
   PlatePoint b, a;
   double ux, uy, stretch, rate;

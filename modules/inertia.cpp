@@ -44,12 +44,6 @@ void inertia_decomposition(const Model& m, Workspace& ws, int begin, int end) {
   }
 }
 
-// g_i has entries +-(1/2) n / |Delta| on the lateral end translations of a_{i+1} (+) and
-// b_i (-): coefficient per (half, plane).
-static inline void link_g(const LinkKinematics& k, int i, double& gx, double& gy) {
-  gx = -0.5 * k.ey[i] * k.inv_len[i];
-  gy = 0.5 * k.ex[i] * k.inv_len[i];
-}
 
 void add_link_torques(const Model& m, const LinkKinematics& kin, const double* tau, double* F) {
   for (int i = 0; i < m.links; ++i) {
@@ -136,8 +130,7 @@ void woodbury_joints(const Model& m, const Workspace& ws, const double* y, doubl
 void accelerations(const Model& m, Workspace& ws) {
   // ws.accel_free holds y = A0^-1 F between the two passes.
   a0_inverse_joints(m, ws.force.data(), ws.accel_free.data(), 0, m.links);
-  a0_inverse_shafts(m, ws.force.data(), ws.accel_free.data());
-  a0_inverse_shafts(m, ws.force.data(), ws.accel.data());
+  a0_inverse_shafts(m, ws.force.data(), ws.accel.data());  // the Woodbury part reads joints only
   woodbury_joints(m, ws, ws.accel_free.data(), ws.accel.data(), 0, m.links);
 }
 

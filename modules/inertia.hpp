@@ -27,6 +27,13 @@ void a0_inverse_shafts(const Model& m, const double* F, double* y);
 // of its own only).
 void woodbury_joints(const Model& m, const Workspace& ws, const double* y, double* qdd, int begin, int end);
 
+// g_i has entries +-(1/2) n / |Delta| on the lateral end translations of a_{i+1} (+) and
+// b_i (-): coefficient per (half, plane).
+inline void link_g(const LinkKinematics& k, int i, double& gx, double& gy) {
+  gx = -0.5 * k.ey[i] * k.inv_len[i];
+  gy = 0.5 * k.ex[i] * k.inv_len[i];
+}
+
 // Adds tau_i g_i to F for every link (the ordered gather of link torques).
 void add_link_torques(const Model& m, const LinkKinematics& kin, const double* tau, double* F);
 
