@@ -102,7 +102,10 @@ class FlowGraphSchedule final : public Schedule {
     std::ostringstream os;
     os << "digraph stage {\n  rankdir=LR;\n  node [shape=box];\n";
     for (int n = 0; n < arenas_->nodes(); ++n) {
-      const std::string p = "n" + std::to_string(n) + "_";
+      // (Built with += : GCC 12 warns falsely, -Wrestrict, on "n" + std::to_string(n).)
+      std::string p = "n";
+      p += std::to_string(n);
+      p += '_';
       os << "  subgraph cluster_" << n << " {\n    label=\"NUMA node " << n << ": pins [" << bounds_[n] << ", "
          << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n";
       if (arenas_->nodes() == 1)
@@ -146,12 +149,12 @@ class FlowGraphSchedule final : public Schedule {
     }
     finish_status_update(m_, ws_);
   }
-  void within(const std::function<void()>& f) override {
-    if (arenas_->nodes() > 1 || inside_) return f();
+  void within_impl(void (*body)(void*), void* ctx) override {
+    if (arenas_->nodes() > 1 || inside_) return body(ctx);
     arenas_->arena(0).execute([&] {
       inside_ = true;
       try {
-        f();
+        body(ctx);
       } catch (...) {
         inside_ = false;
         throw;

@@ -3,7 +3,7 @@
 // NUMA arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
-#include <functional>
+#include <type_traits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -50,7 +50,14 @@ class Schedule {
   // Runs f (a whole step: its stages and the status update) where the schedule's threads
   // live, so that they stay awake between the stages instead of leaving the arena after
   // each one (DESIGN.md: wake-up dominates short stages).
-  virtual void within(const std::function<void()>& f) { f(); }
+  // (No std::function: a step's lambda would not fit its small buffer, and allocating
+  // once per step is what the house style forbids.)
+  template <class F>
+  void within(F&& f) {
+    using Body = std::remove_reference_t<F>;
+    within_impl([](void* c) { (*static_cast<Body*>(c))(); }, const_cast<void*>(static_cast<const void*>(&f)));
+  }
+  virtual void within_impl(void (*body)(void*), void* ctx) { body(ctx); }
   virtual std::string describe() const = 0;
   // GraphViz of one stage (flowgraph; a chain of passes for the others).
   virtual std::string graphviz() const = 0;
