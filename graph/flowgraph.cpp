@@ -12,7 +12,6 @@
 #include <oneapi/tbb/flow_graph.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/partitioner.h>
-#include <oneapi/tbb/task_group.h>
 
 #include <algorithm>
 #include <chrono>
@@ -45,7 +44,6 @@ class FlowGraphSchedule final : public Schedule {
     for (int n = 0; n < nodes; ++n) weights[n] = arenas_->threads(n);
     bounds_ = numa::partition_pins(m.links, weights);
     parts_.resize(nodes);
-    groups_ = std::make_unique<tbb::task_group[]>(nodes);
     empty_ = opt.empty_kernels;
     for (int i = 0; i < nodes * kPasses; ++i) affinity_.push_back(std::make_unique<tbb::affinity_partitioner>());
     for (int n = 0; n < nodes; ++n)
@@ -74,15 +72,15 @@ class FlowGraphSchedule final : public Schedule {
       else arenas_->arena(0).execute(run);
       return;
     }
-    on_all_nodes([&](int n) {
+    arenas_->run_on_all_nodes([&](int n) {
       parts_[n].start->try_put(Msg());
       parts_[n].graph->wait_for_all();
     });
-    on_all_nodes([&](int n) {
+    arenas_->run_on_all_nodes([&](int n) {
       pins(n, kGather, [&](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
       if (n == 0) gather_shafts(m_, ws_);
     });
-    on_all_nodes([&](int n) {
+    arenas_->run_on_all_nodes([&](int n) {
       pins(n, kFinish, [&](int b, int e) { finish_joints(m_, ws_, dy_, op_, b, e); }, coarse(n));
       if (n == 0) finish_shafts(m_, ws_, dy_, op_);
     });
@@ -145,7 +143,7 @@ class FlowGraphSchedule final : public Schedule {
       if (inside_) pass(0);
       else arenas_->arena(0).execute([&] { pass(0); });
     } else {
-      on_all_nodes(pass);
+      arenas_->run_on_all_nodes(pass);
     }
     finish_status_update(m_, ws_);
   }
@@ -196,13 +194,6 @@ class FlowGraphSchedule final : public Schedule {
     return std::max(1, (len + chunks - 1) / chunks);
   }
 
-  template <class F>
-  void on_all_nodes(const F& f) {
-    const int nodes = arenas_->nodes();
-    for (int n = 1; n < nodes; ++n) arenas_->arena(n).enqueue(groups_[n].defer([&f, n] { f(n); }));
-    arenas_->arena(0).execute([&] { f(0); });
-    for (int n = 1; n < nodes; ++n) arenas_->arena(n).execute([&, n] { groups_[n].wait(); });
-  }
 
   // With several nodes, the pages of each node's segment of the per-pin arrays (module
   // slots, forces, accelerations) move to that node, and its threads touch them first.
@@ -292,7 +283,6 @@ class FlowGraphSchedule final : public Schedule {
   std::unique_ptr<numa::NodeArenas> arenas_;
   std::vector<int> bounds_;
   std::vector<Part> parts_;
-  std::unique_ptr<tbb::task_group[]> groups_;
   double* dy_ = nullptr;
   const StageOp* op_ = nullptr;
   bool empty_ = false, tracing_ = false;

@@ -198,6 +198,7 @@ NodeArenas::NodeArenas(const Topology& topo, int total_threads) : topo_(topo.han
     arenas_.push_back(std::make_unique<tbb::task_arena>(threads_[i], static_cast<unsigned>(reserved_slots(i))));
     arenas_.back()->initialize();
   }
+  groups_ = std::make_unique<tbb::task_group[]>(static_cast<std::size_t>(n));
 
   thread_message_ = probe_thread_binding(topo, cpusets_);
   thread_binding_probe_ = thread_message_.empty();

@@ -78,8 +78,8 @@ class NodeArenas {
   // arena, the others enqueued as a task_group task in their own arena (run by that
   // node's workers; while waiting, the caller may join a node's arena and help). The
   // first exception by node order, node 0 first, is rethrown after all have finished.
-  // Meant for set-up and coarse work, and for an external thread (one that is not a TBB
-  // worker); it allocates one task_group per node and call.
+  // For an external thread (one that is not a TBB worker), one call at a time: the
+  // task_groups are the NodeArenas' own, so the flow graph's per-stage phases use it too.
   template <class F>
   void run_on_all_nodes(F&& f);
 
@@ -91,6 +91,7 @@ class NodeArenas {
   std::vector<hwloc_const_nodeset_t> nodesets_;
   std::optional<tbb::global_control> worker_limit_;
   std::vector<std::unique_ptr<tbb::task_arena>> arenas_;
+  std::unique_ptr<tbb::task_group[]> groups_;  // run_on_all_nodes: one per node
   struct Counters;
   std::unique_ptr<Counters[]> counters_;
   std::vector<std::unique_ptr<BindingObserver>> observers_;  // after arenas_: destroyed first
@@ -103,7 +104,7 @@ class NodeArenas {
 template <class F>
 void NodeArenas::run_on_all_nodes(F&& f) {
   const int n = nodes();
-  auto groups = std::make_unique<tbb::task_group[]>(static_cast<std::size_t>(n));
+  tbb::task_group* groups = groups_.get();
   for (int node = 1; node < n; ++node) arena(node).enqueue(groups[node].defer([&f, node] { f(node); }));
   std::exception_ptr first;
   try {
@@ -113,7 +114,7 @@ void NodeArenas::run_on_all_nodes(F&& f) {
   }
   for (int node = 1; node < n; ++node) {
     try {
-      arena(node).execute([&groups, node] { groups[node].wait(); });
+      arena(node).execute([groups, node] { groups[node].wait(); });
     } catch (...) {
       if (!first) first = std::current_exception();
     }
