@@ -40,6 +40,26 @@ std::string source_config(const std::string& name) {
   return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
 }
 
+// Rows of a 1-D dataset of an HDF5 file (with SWMR read access if asked); -1 when the file
+// or the dataset does not open.
+long h5_rows(const fs::path& file, const char* dataset, bool swmr = false) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY | (swmr ? H5F_ACC_SWMR_READ : 0), H5P_DEFAULT);
+  if (f < 0) return -1;
+  long n = -1;
+  const hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+  if (d >= 0) {
+    const hid_t sp = H5Dget_space(d);
+    hsize_t dims = 0;
+    H5Sget_simple_extent_dims(sp, &dims, nullptr);
+    n = static_cast<long>(dims);
+    H5Sclose(sp);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return n;
+}
+
 struct RunResult {
   int exit_code = -1;
   std::string out, err;
@@ -82,6 +102,20 @@ class CliTest : public ::testing::Test {
     r.out = read_text(dir_ / "stdout.txt");
     r.err = read_text(dir_ / "stderr.txt");
     return r;
+  }
+
+  // Starts `cvt-engine ARGS` in the temp directory without waiting (stdout and stderr to
+  // files there); returns its pid.
+  pid_t start(const std::vector<std::string>& args) {
+    const pid_t pid = fork();
+    if (pid != 0) return pid;
+    std::vector<char*> argv = {const_cast<char*>(CVT_ENGINE_EXE)};
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    if (chdir(dir_.c_str()) != 0) _exit(127);
+    if (!freopen("stdout.txt", "w", stdout) || !freopen("stderr.txt", "w", stderr)) _exit(127);
+    execv(CVT_ENGINE_EXE, argv.data());
+    _exit(127);
   }
 
   // Bad input: status 78, stderr names key, value and reason, no FILE nor FILE.partial.
@@ -233,15 +267,8 @@ class CliSignalTest : public CliTest, public ::testing::WithParamInterface<int> 
 
 TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   const int sig = GetParam();
-  const pid_t pid = fork();
+  const pid_t pid = start({"run", kMini, "--t-end", "1.0", "--out", "sig.h5", "--quiet"});
   ASSERT_NE(pid, -1);
-  if (pid == 0) {
-    if (chdir(dir_.c_str()) != 0) _exit(127);
-    if (!freopen("stdout.txt", "w", stdout) || !freopen("stderr.txt", "w", stderr)) _exit(127);
-    execl(CVT_ENGINE_EXE, CVT_ENGINE_EXE, "run", kMini.c_str(), "--t-end", "1.0", "--out", "sig.h5", "--quiet",
-          static_cast<char*>(nullptr));
-    _exit(127);
-  }
   // Let it run: the file exists from the start; wait a little longer for some samples.
   for (int i = 0; i < 200 && !fs::exists(dir_ / "sig.h5.partial"); ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -256,18 +283,9 @@ TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   EXPECT_FALSE(fs::exists(dir_ / "sig.h5.partial"));
   EXPECT_TRUE(fs::exists(dir_ / "sig.h5.ckpt")) << "no checkpoint written at the stop";
   ASSERT_TRUE(fs::exists(dir_ / "sig.h5"));
-  const hid_t f = H5Fopen((dir_ / "sig.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0) << "the kept file does not open";
-  const hid_t d = H5Dopen2(f, "/observables/input_speed/time", H5P_DEFAULT);
-  ASSERT_GE(d, 0);
-  const hid_t sp = H5Dget_space(d);
-  hsize_t n = 0;
-  H5Sget_simple_extent_dims(sp, &n, nullptr);
-  std::printf("signal %d: exit %d, %llu samples kept\n", sig, WEXITSTATUS(status), static_cast<unsigned long long>(n));
-  EXPECT_GT(n, 1u);
-  H5Sclose(sp);
-  H5Dclose(d);
-  H5Fclose(f);
+  const long n = h5_rows(dir_ / "sig.h5", "/observables/input_speed/time");
+  std::printf("signal %d: exit %d, %ld samples kept\n", sig, WEXITSTATUS(status), n);
+  EXPECT_GT(n, 1) << "the kept file does not open, or holds no samples";
 }
 
 INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTERM));
@@ -275,33 +293,9 @@ INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTE
 // The output file can be read while the run writes it (SWMR), and after kill -9 it still
 // opens and holds every sample up to the last flush.
 TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
-  const pid_t pid = fork();
+  const pid_t pid = start({"run", kMini, "--t-end", "1.0", "--out", "live.h5", "--quiet", "--flush-every", "0.2"});
   ASSERT_NE(pid, -1);
-  if (pid == 0) {
-    if (chdir(dir_.c_str()) != 0) _exit(127);
-    if (!freopen("stdout.txt", "w", stdout) || !freopen("stderr.txt", "w", stderr)) _exit(127);
-    execl(CVT_ENGINE_EXE, CVT_ENGINE_EXE, "run", kMini.c_str(), "--t-end", "1.0", "--out", "live.h5", "--quiet",
-          "--flush-every", "0.2", static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  const fs::path partial = dir_ / "live.h5.partial";
-  const auto rows = [&]() -> long {  // -1: does not open
-    const hid_t f = H5Fopen(partial.c_str(), H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, H5P_DEFAULT);
-    if (f < 0) return -1;
-    long n = -1;
-    const hid_t d = H5Dopen2(f, "/observables/input_speed/time", H5P_DEFAULT);
-    if (d >= 0) {
-      const hid_t sp = H5Dget_space(d);
-      hsize_t dims = 0;
-      H5Sget_simple_extent_dims(sp, &dims, nullptr);
-      n = static_cast<long>(dims);
-      H5Sclose(sp);
-      H5Dclose(d);
-    }
-    H5Fclose(f);
-    return n;
-  };
-  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const auto rows = [&] { return h5_rows(dir_ / "live.h5.partial", "/observables/input_speed/time", true); };
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
   const long first = rows();
   std::this_thread::sleep_for(std::chrono::milliseconds(1000));
