@@ -228,6 +228,15 @@ H5File H5File::create(const std::string& path) {
   return H5File(std::move(file), path);
 }
 
+H5File H5File::open(const std::string& path) {
+  h5_silence_error_printing();
+  H5Handle fapl(H5Pcreate(H5P_FILE_ACCESS), "H5Pcreate(H5P_FILE_ACCESS)", path);
+  check(H5Pset_libver_bounds(fapl.get(), H5F_LIBVER_LATEST, H5F_LIBVER_LATEST),
+        "H5Pset_libver_bounds", path);
+  H5Handle file(H5Fopen(path.c_str(), H5F_ACC_RDWR, fapl.get()), "H5Fopen", path);
+  return H5File(std::move(file), path);
+}
+
 void H5File::start_swmr() {
   require_open("H5Fstart_swmr_write", path_);
   flush();
@@ -318,6 +327,50 @@ void H5File::set_string_attribute(const std::string& object_path, const std::str
   check(H5Awrite(attr.get(), type.get(), &data), "H5Awrite", where);
   attr.close(where);
   object.close(path);
+}
+
+void H5File::set_double_attribute(const std::string& object_path, const std::string& name, double value) {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("set_double_attribute", where);
+  if (!link_exists(path)) {
+    H5Handle lcpl = make_lcpl(path);
+    H5Handle group(H5Gcreate2(file_.get(), path.c_str(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
+                   "H5Gcreate2", path);
+    group.close(path);
+  }
+  H5Handle object(H5Oopen(file_.get(), path.c_str(), H5P_DEFAULT), "H5Oopen", path);
+  const htri_t exists = H5Aexists(object.get(), name.c_str());
+  if (exists < 0) fail("H5Aexists", where);
+  if (exists > 0) check(H5Adelete(object.get(), name.c_str()), "H5Adelete", where);
+  H5Handle space(H5Screate(H5S_SCALAR), "H5Screate(H5S_SCALAR)", where);
+  H5Handle attr(H5Acreate2(object.get(), name.c_str(), H5T_IEEE_F64LE, space.get(), H5P_DEFAULT,
+                           H5P_DEFAULT),
+                "H5Acreate2", where);
+  check(H5Awrite(attr.get(), H5T_NATIVE_DOUBLE, &value), "H5Awrite", where);
+  attr.close(where);
+  object.close(path);
+}
+
+void H5File::write_strings(const std::string& dataset_path, const std::vector<std::string>& v) {
+  const std::string path = normalize(dataset_path);
+  require_open("write_strings", path);
+  if (link_exists(path)) throw H5Error("HDF5: dataset '" + path + "' already exists");
+  std::vector<const char*> data;
+  for (const std::string& x : v) {
+    require_no_nul(x, path);
+    data.push_back(x.c_str());
+  }
+  H5Handle type = make_string_type(path);
+  const hsize_t dims[1] = {static_cast<hsize_t>(v.size())};
+  H5Handle space(H5Screate_simple(1, dims, nullptr), "H5Screate_simple", path);
+  H5Handle lcpl = make_lcpl(path);
+  H5Handle dataset(H5Dcreate2(file_.get(), path.c_str(), type.get(), space.get(), lcpl.get(),
+                              H5P_DEFAULT, H5P_DEFAULT),
+                   "H5Dcreate2", path);
+  if (!v.empty())
+    check(H5Dwrite(dataset.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, data.data()), "H5Dwrite", path);
+  dataset.close(path);
 }
 
 void H5File::write_string(const std::string& dataset_path, const std::string& text) {

@@ -111,6 +111,9 @@ class H5File {
   // Creates (truncates) the file, with the latest file format (libver bounds LATEST..LATEST)
   // so that SWMR writing can be enabled later.
   static H5File create(const std::string& path);
+  // Opens an existing file for reading and writing (not in SWMR mode): to add objects
+  // after a SWMR run has closed it (the end-of-run /profile group).
+  static H5File open(const std::string& path);
 
   H5File(H5File&& other) noexcept = default;
   H5File& operator=(H5File&& other) noexcept;
@@ -131,6 +134,10 @@ class H5File {
   // Replaces an attribute of the same name.
   void set_string_attribute(const std::string& object_path, const std::string& name,
                             const std::string& value);
+  // A scalar double attribute (same rules as set_string_attribute).
+  void set_double_attribute(const std::string& object_path, const std::string& name, double value);
+  // A 1-D dataset of variable-length UTF-8 strings; creates intermediate groups.
+  void write_strings(const std::string& dataset_path, const std::vector<std::string>& v);
   // A scalar variable-length UTF-8 string dataset; creates intermediate groups. The dataset must
   // not exist yet.
   void write_string(const std::string& dataset_path, const std::string& text);

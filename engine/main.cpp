@@ -64,6 +64,7 @@ struct RunArgs {
   std::string resume;
   long checkpoint_every = 50000;
   double flush_seconds = 10.0;
+  std::string profile_json;
 };
 
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
@@ -98,6 +99,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   opt.resume = ckpt ? &*ckpt : nullptr;
   opt.out_path = out;
   opt.progress = !quiet;
+  opt.profile_json = ra.profile_json;
   const RunSummary r = run_simulation(model, opt);
   if (r.interrupted)
     std::printf("\nrun interrupted by signal %d at t = %.9g s after %ld steps: results up to there in %s\n",
@@ -121,6 +123,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
                 r.load_torque, 100.0 * std::abs(r.output_torque / r.load_torque - 1.0));
   std::printf("  energy balance residual    %.4g J (%.3g of the work in)\n", r.energy_residual,
               r.work_input != 0 ? std::abs(r.energy_residual / r.work_input) : 0.0);
+  std::printf("\n%s", format_profile(r.profile).c_str());
   return r.interrupted ? kExitInterrupted : kExitOk;
 }
 
@@ -152,6 +155,7 @@ int main(int argc, char** argv) {
   run->add_option("--out", out, "output HDF5 file")->capture_default_str();
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
   run->add_flag("--quiet", quiet, "no progress line");
+  run->add_option("--profile-json", run_args.profile_json, "write the end-of-run profile table as JSON to FILE");
   ScheduleArgs sched;
   add_schedule_options(run, sched);
 

@@ -132,10 +132,14 @@ void finish_joints(const Model& m, Workspace& ws, double* dy, const StageOp* op,
   const int lo = m.joint(begin), hi = m.joint(begin) + kJointSize * (end - begin);
   for (int i = lo; i < hi; ++i) dy[i] = ws.v[i];
   for (int i = lo; i < hi; ++i) dy[n + i] = ws.accel[i];
-  if (op) {
-    op->apply(dy, lo, hi);
-    op->apply(dy, n + lo, n + hi);
-  }
+  if (op) stage_update_joints(m, op, dy, begin, end);
+}
+
+void stage_update_joints(const Model& m, const StageOp* op, double* dy, int begin, int end) {
+  const int n = m.ndof;
+  const int lo = m.joint(begin), hi = m.joint(begin) + kJointSize * (end - begin);
+  op->apply(dy, lo, hi);
+  op->apply(dy, n + lo, n + hi);
 }
 
 void finish_shafts(const Model& m, Workspace& ws, double* dy, const StageOp* op) {
@@ -149,10 +153,13 @@ void finish_shafts(const Model& m, Workspace& ws, double* dy, const StageOp* op)
   da[kWorkClamp] = ws.other.p_clamp;
   da[kCtrlIntegral] = ws.other.ctrl_rate;
   da[kWorkSwitch] = 0.0;  // incremented between steps, not integrated (docs/model.md 4.4)
-  if (op) {
-    op->apply(dy, lo, n);
-    op->apply(dy, n + lo, m.nstate);
-  }
+  if (op) stage_update_shafts(m, op, dy);
+}
+
+void stage_update_shafts(const Model& m, const StageOp* op, double* dy) {
+  const int n = m.ndof, lo = m.shaft(0);
+  op->apply(dy, lo, n);
+  op->apply(dy, n + lo, m.nstate);
 }
 
 void gather_forces(const Model& m, Workspace& ws) {

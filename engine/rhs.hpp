@@ -32,6 +32,10 @@ void gather_shafts(const Model& m, Workspace& ws);
 void finish_joints(const Model& m, Workspace& ws, double* dy, const StageOp* op, int begin, int end);
 // The shafts', the load's and the work integrals' part of dy, and `op` on it.
 void finish_shafts(const Model& m, Workspace& ws, double* dy, const StageOp* op);
+// The stage update `op` alone, over the same coordinates as finish_joints / finish_shafts
+// (finish_* with op = nullptr, then these, give the same bits: the update is elementwise).
+void stage_update_joints(const Model& m, const StageOp* op, double* dy, int begin, int end);
+void stage_update_shafts(const Model& m, const StageOp* op, double* dy);
 
 // Whole-vector forms of the passes (tests, benchmarks, sampling).
 void gather_forces(const Model& m, Workspace& ws);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <set>
 #include <unistd.h>
 
@@ -23,7 +24,16 @@ Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
   energy0_ = e.kinetic + e.elastic;
 }
 
+Profiler& Simulation::enable_profiling() {
+  if (!prof_) {
+    prof_ = std::make_unique<Profiler>(schedule_->threads());
+    schedule_->set_profiler(prof_.get());
+  }
+  return *prof_;
+}
+
 void Simulation::step(double h, bool update_status) {
+  const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   schedule_->within([&] {
     rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
              t_, h, y_);
@@ -34,6 +44,7 @@ void Simulation::step(double h, bool update_status) {
       y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
     }
   });
+  if (prof_) prof_->add_step(Profiler::ticks() - tick0);
 }
 
 Checkpoint Simulation::checkpoint() const {
@@ -216,6 +227,35 @@ void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& t
 
 namespace {
 
+// The /profile group (docs/output.md): one entry per row of the table.
+void write_profile(H5File& f, const Profiler::Report& r) {
+  std::vector<std::string> names;
+  std::vector<double> calls, wall, us, pct, bmin, bavg, bmax, imb;
+  for (const auto& row : r.rows) {
+    names.push_back(row.name);
+    calls.push_back(static_cast<double>(row.calls));
+    wall.push_back(row.wall_s), us.push_back(row.us_per_step), pct.push_back(row.percent);
+    bmin.push_back(row.busy_min_s), bavg.push_back(row.busy_avg_s), bmax.push_back(row.busy_max_s);
+    imb.push_back(row.imbalance_percent);
+  }
+  f.write_strings("/profile/name", names);
+  f.write_vector("/profile/calls", calls);
+  f.write_vector("/profile/wall_s", wall);
+  f.write_vector("/profile/us_per_step", us);
+  f.write_vector("/profile/percent", pct);
+  f.write_vector("/profile/busy_min_s", bmin);
+  f.write_vector("/profile/busy_avg_s", bavg);
+  f.write_vector("/profile/busy_max_s", bmax);
+  f.write_vector("/profile/imbalance_percent", imb);
+  f.set_double_attribute("/profile", "steps", static_cast<double>(r.steps));
+  f.set_double_attribute("/profile", "us_per_step", r.us_per_step);
+  f.set_double_attribute("/profile", "model_s_per_hour", r.model_s_per_hour);
+  f.set_double_attribute("/profile", "threads", r.threads);
+  f.set_double_attribute("/profile", "numa_nodes", r.numa_nodes);
+  f.set_double_attribute("/profile", "wall_s", r.wall_s);
+  f.set_string_attribute("/profile", "scheduler", r.scheduler);
+}
+
 // The HDF5 layout of docs/output.md.
 class Recorder {
  public:
@@ -357,9 +397,18 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   auto last_progress = t0, last_flush = t0;
+  Profiler& prof = sim.enable_profiling();
+  // Output (sampling, snapshots, flushes, checkpoints) is timed as one row of the profile.
+  const auto output = [&](auto&& f) {
+    const std::uint64_t k0 = Profiler::ticks();
+    f();
+    prof.add_output(Profiler::ticks() - k0);
+  };
   auto record = [&]() {
-    samples.push_back(sim.sample());
-    rec.record(samples.back());
+    output([&] {
+      samples.push_back(sim.sample());
+      rec.record(samples.back());
+    });
   };
   sim.check_finite();
   record();
@@ -376,7 +425,8 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   try {
   for (long n = start + 1; n <= total; ++n) {
     sim.step(h);
-    if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0) write_checkpoint(ckpt_path, sim.checkpoint());
+    if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0)
+      output([&] { write_checkpoint(ckpt_path, sim.checkpoint()); });
     if (g_stop_signal) {
       // Keep everything up to this step: its sample ends the series.
       done = n;
@@ -391,7 +441,7 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       record();
       const auto now = Clock::now();
       if (std::chrono::duration<double>(now - last_flush).count() > opt.flush_seconds) {
-        file.flush();
+        output([&] { file.flush(); });
         last_flush = now;
       }
       if (opt.progress && now - last_progress > std::chrono::seconds(3)) {
@@ -404,8 +454,10 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       }
     }
     if (every_snapshot && n % every_snapshot == 0) {
-      sim.snapshot(pos, ten);
-      rec.snapshot(sim.time(), pos, ten);
+      output([&] {
+        sim.snapshot(pos, ten);
+        rec.snapshot(sim.time(), pos, ten);
+      });
     }
   }
   } catch (const BlowUpError& e) {
@@ -417,11 +469,26 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   }
   step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
   if (opt.progress && tty) std::fprintf(stderr, "\n");
-  write_checkpoint(ckpt_path, sim.checkpoint());
-  file.close();
+  output([&] {
+    write_checkpoint(ckpt_path, sim.checkpoint());
+    file.close();
+  });
+  RunSummary r;
+  r.profile = prof.report(std::chrono::duration<double>(Clock::now() - t0).count(), sim.time() - (opt.resume ? opt.resume->t : 0.0),
+                          sim.schedule().numa_nodes(), scheduler_name(opt.schedule.kind));
+  // SWMR allows no new objects: the profile goes in after the file is closed.
+  {
+    H5File f = H5File::open(tmp);
+    write_profile(f, r.profile);
+    f.close();
+  }
+  if (!opt.profile_json.empty()) {
+    std::ofstream js(opt.profile_json);
+    js << profile_json(r.profile);
+    if (!js) throw std::runtime_error("cannot write the profile to '" + opt.profile_json + "'");
+  }
   std::filesystem::rename(tmp, opt.out_path);
 
-  RunSummary r;
   r.steps = done - start;
   r.interrupted = g_stop_signal != 0;
   r.signal = g_stop_signal;

@@ -59,6 +59,10 @@ class Simulation {
   void set_clock(double t, long steps) { t_ = t0_ = t; steps_ = steps0_ = steps; }
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
+  // Per-module timing of every following step (engine/profile.hpp); the profiler lives
+  // as long as the simulation.
+  Profiler& enable_profiling();
+  Profiler* profiler() { return prof_.get(); }
 
   // One RK4 step of size h, then (unless frozen) the contact statuses for the next step.
   void step(double h, bool update_status = true);
@@ -83,6 +87,7 @@ class Simulation {
   Workspace ws_;     // the integrator's
   Workspace diag_;   // sampling
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
+  std::unique_ptr<Profiler> prof_;
   Rk4 rk_;
   Eigen::VectorXd y_, dy_;
   double t_ = 0, t0_ = 0;
@@ -109,6 +114,7 @@ struct RunSummary {
   double energy_residual = 0, work_input = 0;
   bool interrupted = false;  // stopped by SIGINT or SIGTERM (the file holds the run so far)
   int signal = 0;
+  Profiler::Report profile;  // the end-of-run table (also in /profile of the file)
 };
 
 struct RunOptions {
@@ -122,6 +128,8 @@ struct RunOptions {
   std::string checkpoint_path;
   // Continue from this checkpoint (its model: build it from resume->config_toml).
   const Checkpoint* resume = nullptr;
+  // The end-of-run profile as JSON to this file as well (empty: not written).
+  std::string profile_json;
 };
 
 // Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.

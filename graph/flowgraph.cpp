@@ -12,6 +12,7 @@
 #include <oneapi/tbb/flow_graph.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/partitioner.h>
+#include <oneapi/tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
@@ -43,6 +44,8 @@ class FlowGraphSchedule final : public Schedule {
     std::vector<int> weights(nodes);
     for (int n = 0; n < nodes; ++n) weights[n] = arenas_->threads(n);
     bounds_ = numa::partition_pins(m.links, weights);
+    offset_.assign(nodes + 1, 0);
+    for (int n = 0; n < nodes; ++n) offset_[n + 1] = offset_[n] + arenas_->threads(n);
     parts_.resize(nodes);
     empty_ = opt.empty_kernels;
     for (int i = 0; i < nodes * kPasses; ++i) affinity_.push_back(std::make_unique<tbb::affinity_partitioner>());
@@ -59,9 +62,17 @@ class FlowGraphSchedule final : public Schedule {
     // the master it would pull the whole state across to one core every stage. With
     // several, every node's modules read links of the neighbouring segment, so it is
     // done before the graphs start.
-    if (!empty_ && arenas_->nodes() > 1) link_kinematics(m_, ws_, 0, m_.links);
+    if (!empty_ && arenas_->nodes() > 1) {
+      ScopedTimer tm(prof_, 0, Section::inertia);
+      link_kinematics(m_, ws_, 0, m_.links);
+    }
     dy_ = dy;
     op_ = op;
+    if (prof_) {
+      for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
+        prof_->call(s);
+      if (op) prof_->call(Section::update);
+    }
     const int nodes = arenas_->nodes();
     if (nodes == 1) {
       const auto run = [&] {
@@ -77,12 +88,15 @@ class FlowGraphSchedule final : public Schedule {
       parts_[n].graph->wait_for_all();
     });
     arenas_->run_on_all_nodes([&](int n) {
-      pins(n, kGather, [&](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
-      if (n == 0) gather_shafts(m_, ws_);
+      pins(n, kGather, Section::accel, [&](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
+      if (n == 0) {
+        ScopedTimer tm(prof_, worker(0), Section::accel);
+        gather_shafts(m_, ws_);
+      }
     });
     arenas_->run_on_all_nodes([&](int n) {
-      pins(n, kFinish, [&](int b, int e) { finish_joints(m_, ws_, dy_, op_, b, e); }, coarse(n));
-      if (n == 0) finish_shafts(m_, ws_, dy_, op_);
+      pins(n, kFinish, Section::count, [&](int b, int e) { finish(n, b, e); }, coarse(n));
+      if (n == 0) finish(0, -1, -1);
     });
   }
 
@@ -132,12 +146,17 @@ class FlowGraphSchedule final : public Schedule {
   }
 
   int threads() const override { return arenas_->total_threads(); }
+  int numa_nodes() const override { return arenas_->nodes(); }
 
   // Per pin like the forces: one parallel pass per node (phases when there are several).
   void update_status(double t, const double* y) override {
-    begin_status_update(m_, ws_, t, y);
+    if (prof_) prof_->call(Section::status);
+    {
+      ScopedTimer tm(prof_, 0, Section::status);
+      begin_status_update(m_, ws_, t, y);
+    }
     const auto pass = [&](int n) {
-      pins(n, kStatus, [this](int b, int e) { update_status_joints(m_, ws_, b, e); }, coarse(n));
+      pins(n, kStatus, Section::status, [this](int b, int e) { update_status_joints(m_, ws_, b, e); }, coarse(n));
     };
     if (arenas_->nodes() == 1) {
       if (inside_) pass(0);
@@ -145,6 +164,7 @@ class FlowGraphSchedule final : public Schedule {
     } else {
       arenas_->run_on_all_nodes(pass);
     }
+    ScopedTimer tm(prof_, 0, Section::status);
     finish_status_update(m_, ws_);
   }
   void within_impl(void (*body)(void*), void* ctx) override {
@@ -182,12 +202,39 @@ class FlowGraphSchedule final : public Schedule {
   // on the same thread stage after stage and its data stays in that core's cache (a
   // cache line moved between cores costs about 80 ns here, and a stage touches ~2000).
   enum Pass { kKinematics, kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
+  // Each chunk is timed as `sec` on the worker that runs it when profiling
+  // (Section::count: f times itself).
   template <class F>
-  void pins(int n, Pass pass, const F& f, int grain = 0) {
+  void pins(int n, Pass pass, Section sec, const F& f, int grain = 0) {
     if (grain == 0) grain = grain_;
     tbb::parallel_for(
         tbb::blocked_range<int>(bounds_[n], bounds_[n + 1], grain),
-        [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); }, *affinity_[n * kPasses + pass]);
+        [&](const tbb::blocked_range<int>& r) {
+          if (!prof_ || sec == Section::count) return f(r.begin(), r.end());
+          ScopedTimer tm(prof_, worker(n), sec);
+          f(r.begin(), r.end());
+        },
+        *affinity_[n * kPasses + pass]);
+  }
+  // This thread's index among all the schedule's threads (arena n's slots come after
+  // those of the nodes before it).
+  int worker(int n) const { return offset_[n] + tbb::this_task_arena::current_thread_index(); }
+  // Accelerations and dy of joints [b, e) (b < 0: the shafts), then the stage update,
+  // timed apart.
+  void finish(int n, int b, int e) {
+    const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
+    if (b < 0) finish_shafts(m_, ws_, dy_, nullptr);
+    else finish_joints(m_, ws_, dy_, nullptr, b, e);
+    const std::uint64_t t1 = prof_ ? Profiler::ticks() : 0;
+    if (op_) {
+      if (b < 0) stage_update_shafts(m_, op_, dy_);
+      else stage_update_joints(m_, op_, dy_, b, e);
+    }
+    if (prof_) {
+      const int w = worker(n);
+      prof_->add(w, Section::accel, t1 - t0);
+      prof_->add(w, Section::update, Profiler::ticks() - t1);
+    }
   }
   int coarse(int n) const {
     const int len = bounds_[n + 1] - bounds_[n], chunks = 2 * arenas_->threads(n);
@@ -215,7 +262,7 @@ class FlowGraphSchedule final : public Schedule {
         note(numa::migrate_to_node(*arenas_, v->data() + m_.joint(b), sizeof(double) * kJointSize * (e - b), n));
       }
       arenas_->execute_on(n, [&] {
-        pins(n, kChain, [&](int pb, int pe) {
+        pins(n, kChain, Section::count, [&](int pb, int pe) {
           for (int j = pb; j < pe; ++j) ws_.chain_slots[j].clear(), ws_.pulley_slots[j].clear(), ws_.inertia_slots[j].clear();
         });
       });
@@ -249,24 +296,38 @@ class FlowGraphSchedule final : public Schedule {
     // One node: start -> kinematics -> modules. Several: start -> modules.
     flow::sender<Msg>* source = p.start.get();
     if (whole_stage) {
-      auto* kin = node([this, n] { pins(n, kKinematics, [this](int b, int e) { link_kinematics(m_, ws_, b, e); }, coarse(n)); });
+      auto* kin = node([this, n] {
+        pins(n, kKinematics, Section::inertia, [this](int b, int e) { link_kinematics(m_, ws_, b, e); }, coarse(n));
+      });
       flow::make_edge(*p.start, *kin);
       source = kin;
     }
-    auto* chain = module(0, [this, n] { pins(n, kChain, [this](int b, int e) { chain_forces(m_, ws_, b, e); }); });
-    auto* pulley =
-        module(1, [this, n] { pins(n, kPulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e); }, coarse(n)); });
-    auto* inertia =
-        module(2, [this, n] { pins(n, kInertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n)); });
+    auto* chain = module(0, [this, n] {
+      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e); });
+    });
+    auto* pulley = module(1, [this, n] {
+      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e); }, coarse(n));
+    });
+    auto* inertia = module(2, [this, n] {
+      pins(n, kInertia, Section::inertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n));
+    });
     std::vector<flow::continue_node<Msg>*> modules = {chain, pulley, inertia};
-    if (n == 0) modules.push_back(module(3, [this] { other_forces(m_, ws_); }));
+    if (n == 0) modules.push_back(module(3, [this] {
+      ScopedTimer tm(prof_, worker(0), Section::other);
+      other_forces(m_, ws_);
+    }));
     for (auto* mod : modules) flow::make_edge(*source, *mod);
     if (!whole_stage) return;
-    auto* gather = node([this, n] { pins(n, kGather, [this](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n)); });
-    auto* shafts = node([this] { gather_shafts(m_, ws_); });
+    auto* gather = node([this, n] {
+      pins(n, kGather, Section::accel, [this](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
+    });
+    auto* shafts = node([this] {
+      ScopedTimer tm(prof_, worker(0), Section::accel);
+      gather_shafts(m_, ws_);
+    });
     auto* accel = node([this, n] {
-      pins(n, kFinish, [this](int b, int e) { finish_joints(m_, ws_, dy_, op_, b, e); }, coarse(n));
-      finish_shafts(m_, ws_, dy_, op_);
+      pins(n, kFinish, Section::count, [this, n](int b, int e) { finish(n, b, e); }, coarse(n));
+      finish(n, -1, -1);
     });
     for (auto* mod : modules) {
       flow::make_edge(*mod, *gather);
@@ -281,7 +342,7 @@ class FlowGraphSchedule final : public Schedule {
   int grain_;
   numa::Topology topo_;
   std::unique_ptr<numa::NodeArenas> arenas_;
-  std::vector<int> bounds_;
+  std::vector<int> bounds_, offset_;
   std::vector<Part> parts_;
   double* dy_ = nullptr;
   const StageOp* op_ = nullptr;

@@ -31,28 +31,47 @@ class PaperOmpSchedule final : public Schedule {
     Workspace& ws = ws_;
     set_stage_input(m, ws, t, y);
     const int N = m.links;
-    link_kinematics(m, ws, 0, N);
+    Profiler* prof = prof_;
+    if (prof) {
+      for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
+        prof->call(s);
+      if (op) prof->call(Section::update);
+    }
+    {
+      ScopedTimer tm(prof, 0, Section::inertia);
+      link_kinematics(m, ws, 0, N);
+    }
 #pragma omp parallel num_threads(threads_)
     {
       const int th = omp_get_thread_num();
       const double t0 = omp_get_wtime();
+      const std::uint64_t c0 = prof ? Profiler::ticks() : 0;
       double* cb = cbuf_[th].data();
       double* pb = pbuf_[th].data();
       for (int i = 0; i < size_; ++i) cb[i] = 0.0;
       for (int i = 0; i < size_; ++i) pb[i] = 0.0;
       const double t1 = omp_get_wtime();
-#pragma omp for schedule(static)
+      const std::uint64_t c1 = prof ? Profiler::ticks() : 0;
+      // (nowait + barrier: the loops' implicit barriers, made explicit so that the busy
+      // time of each thread is timed without its wait.)
+#pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
         chain_forces(m, ws, j, j + 1);
         scatter_slot(m, ws.chain_slots[j], j, cb);
       }
-#pragma omp for schedule(static)
+      const std::uint64_t c2 = prof ? Profiler::ticks() : 0;
+#pragma omp barrier
+      const std::uint64_t c3 = prof ? Profiler::ticks() : 0;
+#pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
         pulley_contact(m, ws, j, j + 1);
         scatter_slot(m, ws.pulley_slots[j], j, pb);
       }
+      const std::uint64_t c4 = prof ? Profiler::ticks() : 0;
+#pragma omp barrier
       const double t2 = omp_get_wtime();
-#pragma omp for schedule(static)
+      const std::uint64_t c5 = prof ? Profiler::ticks() : 0;
+#pragma omp for schedule(static) nowait
       for (int i = 0; i < size_; ++i) {
         double c = 0.0, p = 0.0;
         for (int k = 0; k < threads_; ++k) c += cbuf_[k][i];
@@ -60,22 +79,48 @@ class PaperOmpSchedule final : public Schedule {
         csum_[i] = c;
         psum_[i] = p;
       }
+      const std::uint64_t c6 = prof ? Profiler::ticks() : 0;
+#pragma omp barrier
       const double t3 = omp_get_wtime();
       Times& tm = times_[th];
       tm.zero += t1 - t0;
       tm.compute += t2 - t1;
       tm.gather += t3 - t2;
+      if (prof) {
+        // The thread-local buffers' zeroing and reduction count as the gather (accelerations).
+        prof->add(th, Section::accel, (c1 - c0) + (c6 - c5));
+        prof->add(th, Section::chain, c2 - c1);
+        prof->add(th, Section::pulley, c4 - c3);
+      }
     }
-    other_forces(m, ws);
-    inertia_decomposition(m, ws, 0, N);
-    gather_joints_from_sums(m, ws, csum_.data(), psum_.data(), 0, N);
-    gather_shafts(m, ws);
-    finish_joints(m, ws, dy, op, 0, N);
-    finish_shafts(m, ws, dy, op);
+    {
+      ScopedTimer tm(prof, 0, Section::other);
+      other_forces(m, ws);
+    }
+    {
+      ScopedTimer tm(prof, 0, Section::inertia);
+      inertia_decomposition(m, ws, 0, N);
+    }
+    {
+      ScopedTimer tm(prof, 0, Section::accel);
+      gather_joints_from_sums(m, ws, csum_.data(), psum_.data(), 0, N);
+      gather_shafts(m, ws);
+      finish_joints(m, ws, dy, nullptr, 0, N);
+      finish_shafts(m, ws, dy, nullptr);
+    }
+    if (op) {
+      ScopedTimer tm(prof, 0, Section::update);
+      stage_update_joints(m, op, dy, 0, N);
+      stage_update_shafts(m, op, dy);
+    }
   }
 
   // The published code updated its contact events serially.
-  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y); }
+  void update_status(double t, const double* y) override {
+    if (prof_) prof_->call(Section::status);
+    ScopedTimer tm(prof_, 0, Section::status);
+    update_contact_status(m_, ws_, t, y);
+  }
 
   std::string describe() const override {
     return "paper-omp (" + std::to_string(threads_) + " OpenMP threads, static loops, thread-local buffers)";

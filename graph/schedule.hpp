@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/profile.hpp"
 #include "engine/rhs.hpp"
 
 namespace cvt {
@@ -66,6 +67,15 @@ class Schedule {
   // Tracing of the module nodes' start and end (flowgraph; others record nothing).
   virtual void set_tracing(bool) {}
   virtual std::vector<NodeSpan> last_spans() const { return {}; }
+  // Per-module timing (engine/profile.hpp) into p, which must have at least threads()
+  // workers; nullptr turns it off (the default).
+  void set_profiler(Profiler* p) { prof_ = p; }
+  Profiler* profiler() const { return prof_; }
+  // NUMA nodes the schedule spans (1 unless flowgraph found several).
+  virtual int numa_nodes() const { return 1; }
+
+ protected:
+  Profiler* prof_ = nullptr;
 };
 
 // Builds the schedule for model m over workspace ws (both must outlive it).

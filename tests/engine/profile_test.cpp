@@ -1,0 +1,117 @@
+// The end-of-run profile (issue 4 item 1): its rows add up to the run's wall time, count
+// what was called, are the same in the table, the JSON and the file's /profile group, and
+// timing a run does not change its bits.
+#include <gtest/gtest.h>
+
+#include <hdf5.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "engine/simulation.hpp"
+#include "tests/test_util.hpp"
+
+namespace cvt {
+namespace {
+
+namespace fs = std::filesystem;
+
+const std::vector<std::string> kRows = {"chain forces",   "pulley contact", "other forces", "inertia decomposition",
+                                        "accelerations",  "integrator update", "contact status", "scheduling",
+                                        "output",         "rest",           "total"};
+
+class ProfileTest : public ::testing::TestWithParam<SchedulerKind> {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("cvt_profile_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path dir_;
+};
+
+TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
+  const Model m = test::model("mini", {"run.t_end=2e-5", "run.sample_interval=2e-6"});
+  RunOptions o;
+  o.out_path = (dir_ / "run.h5").string();
+  o.profile_json = (dir_ / "profile.json").string();
+  o.progress = false;
+  o.schedule.kind = GetParam();
+  o.schedule.threads = GetParam() == SchedulerKind::serial ? 1 : 2;
+  const RunSummary r = run_simulation(m, o);
+  const Profiler::Report& p = r.profile;
+  const long steps = std::lround(2e-5 / m.cfg.integrator.step);
+  EXPECT_EQ(p.steps, steps);
+  EXPECT_EQ(p.threads, o.schedule.threads);
+  ASSERT_EQ(p.rows.size(), kRows.size());
+  double sum = 0;
+  for (std::size_t i = 0; i < kRows.size(); ++i) {
+    const auto& row = p.rows[i];
+    EXPECT_EQ(row.name, kRows[i]);
+    EXPECT_LE(row.busy_min_s, row.busy_avg_s * (1 + 1e-12)) << row.name;
+    EXPECT_LE(row.busy_avg_s, row.busy_max_s * (1 + 1e-12)) << row.name;
+    EXPECT_GE(row.wall_s, 0.0) << row.name;
+    if (row.name != "total") sum += row.wall_s;
+  }
+  // Four RHS per RK4 step, one status update per step, one sample per 2e-6 s plus the first.
+  EXPECT_EQ(p.rows[0].calls, 4 * steps);
+  EXPECT_EQ(p.rows[5].calls, 4 * steps);
+  EXPECT_EQ(p.rows[6].calls, steps);
+  EXPECT_GE(p.rows[8].calls, 11);
+  EXPECT_NEAR(sum, p.rows.back().wall_s, 1e-9 * p.rows.back().wall_s);
+  // The kernels did run: the chain forces are the largest module.
+  EXPECT_GT(p.rows[0].wall_s, 0.0);
+  EXPECT_GT(p.rows[0].wall_s, p.rows[2].wall_s);
+
+  // The same rows in the file's /profile group ...
+  const hid_t f = H5Fopen(o.out_path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const hid_t d = H5Dopen2(f, "/profile/wall_s", H5P_DEFAULT);
+  ASSERT_GE(d, 0);
+  std::vector<double> wall(kRows.size() + 1, -1);
+  const hid_t space = H5Dget_space(d);
+  EXPECT_EQ(H5Sget_simple_extent_npoints(space), static_cast<hssize_t>(kRows.size()));
+  H5Sclose(space);
+  H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, wall.data());
+  for (std::size_t i = 0; i < kRows.size(); ++i) EXPECT_EQ(wall[i], p.rows[i].wall_s);
+  H5Dclose(d);
+  const hid_t g = H5Gopen2(f, "/profile", H5P_DEFAULT);
+  const hid_t a = H5Aopen(g, "steps", H5P_DEFAULT);
+  double s = 0;
+  H5Aread(a, H5T_NATIVE_DOUBLE, &s);
+  EXPECT_EQ(s, static_cast<double>(steps));
+  H5Aclose(a), H5Gclose(g), H5Fclose(f);
+  // ... and in the JSON.
+  std::ifstream js(o.profile_json);
+  std::stringstream text;
+  text << js.rdbuf();
+  for (const auto& name : kRows) EXPECT_NE(text.str().find("\"name\": \"" + name + "\""), std::string::npos) << name;
+  EXPECT_NE(text.str().find("\"steps\": " + std::to_string(steps)), std::string::npos);
+}
+
+TEST_P(ProfileTest, TimingDoesNotChangeTheBits) {
+  const Model m = test::model("mini");
+  ScheduleOptions o;
+  o.kind = GetParam();
+  o.threads = GetParam() == SchedulerKind::serial ? 1 : 2;
+  Simulation plain(m, o), timed(m, o);
+  timed.enable_profiling();
+  for (int i = 0; i < 200; ++i) plain.step(m.cfg.integrator.step), timed.step(m.cfg.integrator.step);
+  ASSERT_EQ(plain.state().size(), timed.state().size());
+  EXPECT_EQ(std::memcmp(plain.state().data(), timed.state().data(), sizeof(double) * plain.state().size()), 0);
+  EXPECT_EQ(timed.profiler()->steps(), 200);
+}
+
+INSTANTIATE_TEST_SUITE_P(Schedules, ProfileTest,
+                         ::testing::Values(SchedulerKind::serial, SchedulerKind::flowgraph, SchedulerKind::paper_omp),
+                         [](const auto& i) {
+                           std::string n = scheduler_name(i.param);
+                           for (char& c : n)
+                             if (c == '-') c = '_';
+                           return n;
+                         });
+
+}  // namespace
+}  // namespace cvt
