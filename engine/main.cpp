@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <optional>
 
@@ -9,6 +10,7 @@
 #include "engine/config.hpp"
 #include "engine/h5_writer.hpp"
 #include "engine/model.hpp"
+#include "engine/scale.hpp"
 #include "engine/simulation.hpp"
 #include "graph/schedule.hpp"
 #include "numa/arenas.hpp"
@@ -57,6 +59,48 @@ int cmd_topology(const std::string& config_path, int threads) {
   if (threads < 1) threads = topo.total_cores();
   const numa::NodeArenas arenas(topo, threads);
   std::printf("%s", numa::describe(topo, &arenas, pins).c_str());
+  return kExitOk;
+}
+
+int cmd_scale(const std::string& config_path, const std::vector<std::string>& overrides, const std::vector<int>& threads,
+              const std::vector<std::string>& schedulers, const std::vector<std::string>& layouts, long steps, int repeat,
+              double warmup, int grain, const std::string& csv, const std::string& json) {
+  using namespace cvt;
+  const Model model = build_model(load_config(config_path, overrides));
+  ScaleOptions o;
+  o.threads = threads;
+  o.schedulers.clear();
+  for (const auto& s : schedulers) o.schedulers.push_back(parse_scheduler(s));
+  o.layouts = layouts;
+  o.steps = steps;
+  o.repeat = repeat;
+  o.warmup = warmup;
+  o.grain = grain;
+  const int cores = numa::discover_topology().total_cores();
+  std::printf("cvt-engine %s scale: %s, %d links, %ld steps x %d repeats per combination, %d cores here\n", CVT_VERSION,
+              config_path.c_str(), model.links, steps, repeat, cores);
+  for (int t : threads)
+    if (t > cores) std::printf("  note: %d threads on %d cores: oversubscribed, the figures show contention\n", t, cores);
+  std::fflush(stdout);
+  const auto rows = run_scaling_study(model, o, [](const std::string& line) {
+    std::fprintf(stderr, "  %s\n", line.c_str());
+  });
+  std::printf("\n%s", scale_table(rows).c_str());
+  std::printf("(medians over the repeats; speedups against the serial schedule in the same run; chain/pulley us:\n"
+              " the module's largest busy time over the threads per step; zero+gath, compute: per thread and step)\n");
+  const auto write = [](const std::string& path, const std::string& text) {
+    std::ofstream f(path);
+    f << text;
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+  };
+  if (!csv.empty()) write(csv, scale_csv(rows)), std::printf("wrote %s\n", csv.c_str());
+  if (!json.empty()) write(json, scale_json(rows, config_path)), std::printf("wrote %s\n", json.c_str());
+  for (const auto& r : rows)
+    if (!r.identical) {
+      std::fprintf(stderr, "cvt-engine: %s with %d threads (%s) did not give the serial bits\n", r.scheduler.c_str(),
+                   r.threads, r.layout.c_str());
+      return kExitFailure;
+    }
   return kExitOk;
 }
 
@@ -168,6 +212,32 @@ int main(int argc, char** argv) {
   graph->add_option("--set", graph_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(graph, graph_sched);
 
+  auto* scale = app.add_subcommand("scale", "scaling study: time per step per scheduler, thread count and NUMA layout");
+  std::string scale_config, scale_out, scale_json;
+  std::vector<std::string> scale_overrides, scale_layouts = {"native"};
+  std::vector<std::string> scale_schedulers = {"serial", "flowgraph", "paper-omp"};
+  std::vector<int> scale_threads = {1, 2};
+  long scale_steps = 200;
+  int scale_repeat = 5, scale_grain = 4;
+  double scale_warmup = 3e-4;
+  scale->add_option("CONFIG", scale_config, "TOML configuration")->required();
+  scale->add_option("--threads", scale_threads, "thread counts, comma-separated")->delimiter(',')
+      ->check(CLI::Range(1, 4096))->capture_default_str();
+  scale->add_option("--schedulers", scale_schedulers, "serial,flowgraph,paper-omp")->delimiter(',')
+      ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}))->capture_default_str();
+  scale->add_option("--layouts", scale_layouts,
+                    "NUMA layouts for the flow graph: native, or hwloc synthetic strings "
+                    "(e.g. 'package:2 numa:1 core:8 pu:1'), comma-separated")
+      ->delimiter(',')->capture_default_str();
+  scale->add_option("--steps", scale_steps, "RK4 steps per repeat")->check(CLI::Range(1L, 100000000L))->capture_default_str();
+  scale->add_option("--repeat", scale_repeat, "repeats (medians)")->check(CLI::Range(1, 100000))->capture_default_str();
+  scale->add_option("--warmup", scale_warmup, "model time run first, serially [s]")->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  scale->add_option("--grain", scale_grain, "pins per task (flowgraph)")->check(CLI::Range(1, 1000000))->capture_default_str();
+  scale->add_option("--out", scale_out, "CSV file");
+  scale->add_option("--json", scale_json, "JSON file");
+  scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
+
   auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
   std::string topo_config;
   int topo_threads = 0;
@@ -184,6 +254,9 @@ int main(int argc, char** argv) {
     return cvt::kExitUsage;
   }
   try {
+    if (*scale)
+      return cmd_scale(scale_config, scale_overrides, scale_threads, scale_schedulers, scale_layouts, scale_steps,
+                       scale_repeat, scale_warmup, scale_grain, scale_out, scale_json);
     if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched, run_args);
     if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
     if (*topology) return cmd_topology(topo_config, topo_threads);
