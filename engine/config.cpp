@@ -147,6 +147,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(run, snapshot_interval, real, "s", nonneg),
       CVT_KEY(run, tracked_pin, integer, "", nonneg),
       CVT_KEY(run, tracked_link, integer, "", nonneg),
+      CVT_KEY(run, efficiency_window, real, "s", positive),
   };
   return defs;
 }

@@ -129,6 +129,7 @@ struct Config {
     double snapshot_interval = 1.0e-4; // [s]; 0 turns snapshots off
     int tracked_pin = 0;
     int tracked_link = 0;
+    double efficiency_window = 1.0e-3;  // [s] of the running-mean efficiency channel
   } run;
 
   // The fully resolved configuration as TOML text (what /parameters/config stores).

@@ -1,5 +1,6 @@
 #include "engine/simulation.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cmath>
@@ -196,6 +197,16 @@ Sample Simulation::sample() {
       s.pin_end_friction[2 * h + e] = rep.end[h][e].friction;
     }
   s.link_tension = link_tension(m_, diag_, m_.cfg.run.tracked_link);
+  s.plate_tension.resize(m_.plate_zeta.size());
+  plate_tensions(m_, diag_, m_.cfg.run.tracked_link, s.plate_tension.data());
+  s.rocker_force = rocker_force(m_, diag_, jp);
+  s.chain_torsion_angle = chain_torsion_angle(m_, diag_, jp);
+  s.input_angle = q[p1];
+  s.output_angle = q[p2];
+  s.load_angle = q[m_.load_index()];
+  s.power_input = s.input_torque * s.input_speed;
+  s.power_output = s.output_torque * s.output_speed;
+  s.power_dissipated = dy_[2 * m_.ndof + kWorkDiss];
   const Energies e = energies(m_, t_, q, &ws_.status);
   s.energy_kinetic = e.kinetic;
   s.energy_elastic = e.elastic;
@@ -288,6 +299,16 @@ class Recorder {
     vector("pin_end_normal_force", "N", s.t, s.pin_end_normal, 4);
     vector("pin_end_friction_force", "N", s.t, s.pin_end_friction, 4);
     scalar("link_tension", "N", s.t, s.link_tension);
+    vector("plate_tension", "N", s.t, s.plate_tension.data(), static_cast<int>(s.plate_tension.size()));
+    scalar("rocker_force", "N", s.t, s.rocker_force);
+    scalar("chain_torsion_angle", "rad", s.t, s.chain_torsion_angle);
+    scalar("input_angle", "rad", s.t, s.input_angle);
+    scalar("output_angle", "rad", s.t, s.output_angle);
+    scalar("load_angle", "rad", s.t, s.load_angle);
+    scalar("power_input", "W", s.t, s.power_input);
+    scalar("power_output", "W", s.t, s.power_output);
+    scalar("power_dissipated", "W", s.t, s.power_dissipated);
+    scalar("running_efficiency", "1", s.t, s.running_efficiency);
     scalar("energy_kinetic", "J", s.t, s.energy_kinetic);
     scalar("energy_elastic", "J", s.t, s.energy_elastic);
     scalar("work_input", "J", s.t, s.work_input);
@@ -407,6 +428,14 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   auto record = [&]() {
     output([&] {
       samples.push_back(sim.sample());
+      // Running-mean efficiency: work out over work in across the last window (or since
+      // the first sample of this run while the run is shorter than the window).
+      Sample& s = samples.back();
+      const double t_from = s.t - c.run.efficiency_window;
+      const auto it = std::lower_bound(samples.begin(), samples.end(), t_from,
+                                       [](const Sample& x, double t) { return x.t < t; });
+      const double win = s.work_input - it->work_input;
+      s.running_efficiency = win > 0 ? (s.work_output - it->work_output) / win : 0.0;
       rec.record(samples.back());
     });
   };

@@ -41,6 +41,12 @@ struct Sample {
   double pin_end_normal[4] = {0, 0, 0, 0};
   double pin_end_friction[4] = {0, 0, 0, 0};
   double link_tension = 0;
+  std::vector<double> plate_tension;  // the tracked link's plates
+  double rocker_force = 0;            // the tracked pin's rocker joint (normal) [N]
+  double chain_torsion_angle = 0;     // tracked pin vs the next, about the chain direction [rad]
+  double input_angle = 0, output_angle = 0, load_angle = 0;  // phi [rad]
+  double power_input = 0, power_output = 0, power_dissipated = 0;  // [W]
+  double running_efficiency = 0;  // dW_out / dW_in over the last run.efficiency_window
   double energy_kinetic = 0, energy_elastic = 0;
   double work_input = 0, work_output = 0, work_dissipated = 0, work_clamping = 0, energy_residual = 0;
   double work_contact_switching = 0;  // energy added by contact status switches (4.4)

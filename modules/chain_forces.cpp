@@ -395,6 +395,43 @@ double link_tension(const Model& m, const Workspace& ws, int j) {
   return T;
 }
 
+void plate_tensions(const Model& m, const Workspace& ws, int j, double* out) {
+  const double* qb = ws.q + m.half_b(j);
+  const double* vb = ws.v + m.half_b(j);
+  const double* qn = ws.q + m.half_a(j + 1);
+  const double* vn = ws.v + m.half_a(j + 1);
+  for (std::size_t k = 0; k < m.plate_zeta.size(); ++k) {
+    const PlateEval e = plate_eval(m, qb, vb, qn, vn, ws.q[m.pack(j)], ws.v[m.pack(j)], m.plate_zeta[k]);
+    out[k] = e.stretch > 0 ? m.cfg.chain.plate_stiffness * e.stretch + m.cfg.chain.plate_damping * m.damp * e.rate : 0.0;
+  }
+}
+
+double rocker_force(const Model& m, const Workspace& ws, int j) {
+  const int nst = m.cfg.rocker.stations;
+  const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
+  double F = 0;
+  for (int st = 0; st < nst; ++st) {
+    if (!ws.status.rocker[j * nst + st]) continue;
+    const RockerEval r = rocker_eval(m, ws.kin, ws.q + m.half_a(j), ws.v + m.half_a(j), ws.q + m.half_b(j),
+                                     ws.v + m.half_b(j), m.wrap(j - 1), j, m.station_xi[st],
+                                     hermite(m.station_xi[st], m.L0));
+    if (r.pen > 0) F += hertz_force(crk, r.pen) + brk * r.pen_rate;
+  }
+  return F;
+}
+
+double chain_torsion_angle(const Model& m, const Workspace& ws, int j) {
+  const auto slope = [&](int pin, int axis) {
+    double s = 0;
+    for (int o : {m.half_a(pin), m.half_b(pin)})
+      s += (ws.q[o + half::kEnd + axis] - ws.q[o + axis]) / (ws.q[o + half::kEnd + half::kZ] - ws.q[o + half::kZ]);
+    return 0.5 * s;
+  };
+  const int n = m.wrap(j + 1);
+  const double nx = -ws.kin.ey[j], ny = ws.kin.ex[j];
+  return nx * (slope(n, half::kX) - slope(j, half::kX)) + ny * (slope(n, half::kY) - slope(j, half::kY));
+}
+
 double half_axial_force(const Model& m, const double* q, const double* v, int o) {
   const double eps = q[o + half::kEnd + half::kZ] - q[o + half::kZ] - m.L0;
   const double rate = v[o + half::kEnd + half::kZ] - v[o + half::kZ];

@@ -15,6 +15,15 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
 
 // Per-link plate tension sum (k (d - l0) + c ddot over stretched plates) [N].
 double link_tension(const Model& m, const Workspace& ws, int link);
+// Tension of each plate of link `link` (k (d - l0) + c ddot where stretched, else 0) [N],
+// into out[0 .. plates_per_link).
+void plate_tensions(const Model& m, const Workspace& ws, int link, double* out);
+// Normal force of rocker joint j: the sum over its active stations of Hertz + damping [N].
+double rocker_force(const Model& m, const Workspace& ws, int j);
+// Relative tilt of pins j+1 and j about the chain direction e_j (docs/model.md 6) [rad]:
+// n_j . (s_{j+1} - s_j), with s the mean chord slope d(x, y)/dz of a pin's two halves and
+// n_j = (-e_y, e_x) the in-plane normal of link j.
+double chain_torsion_angle(const Model& m, const Workspace& ws, int j);
 // Axial force in a half (EA strain + damping) [N], tensile positive.
 double half_axial_force(const Model& m, const double* q, const double* v, int half_offset);
 

@@ -22,6 +22,7 @@ namespace fs = std::filesystem;
 using test::shell_quote;
 
 constexpr int kLinks = 30;       // configs/mini.toml
+constexpr hsize_t kPlates = 4;    // configs/mini.toml chain.plates_per_link
 constexpr hsize_t kSamples = 31; // t = 0, 1e-6, ..., 3e-5
 constexpr hsize_t kSnapshots = 4;  // t = 0, 1e-5, 2e-5, 3e-5
 
@@ -254,7 +255,8 @@ TEST_F(OutputLayoutTest, Observables) {
       "input_speed",     "output_speed",  "input_torque",    "output_torque",  "speed_ratio",
       "geometric_ratio", "efficiency",    "clamping_force_driving", "clamping_force_driven", "link_tension",
       "energy_kinetic",  "energy_elastic", "work_input",     "work_output",    "work_dissipated",
-      "energy_residual"};
+      "energy_residual", "rocker_force",  "chain_torsion_angle", "input_angle", "output_angle", "load_angle",
+      "power_input",     "power_output",  "power_dissipated", "running_efficiency"};
   for (const auto& name : scalars) {
     const std::string base = "/observables/" + name;
     check_time(base + "/time", kSamples, 1e-6);
@@ -262,6 +264,29 @@ TEST_F(OutputLayoutTest, Observables) {
   }
   check_time("/observables/pin_axial_force/time", kSamples, 1e-6);
   check_value("/observables/pin_axial_force/value", kSamples, {2});
+  check_value("/observables/plate_tension/value", kSamples, {kPlates});
+}
+
+// The new channels against the ones they derive from.
+TEST_F(OutputLayoutTest, ChannelsAgreeWithEachOther) {
+  const auto plates = read_doubles("/observables/plate_tension/value");
+  const auto link = read_doubles("/observables/link_tension/value");
+  ASSERT_EQ(plates.size(), kPlates * link.size());
+  for (size_t i = 0; i < link.size(); ++i) {
+    double sum = 0;
+    for (hsize_t k = 0; k < kPlates; ++k) sum += plates[i * kPlates + k];
+    EXPECT_NEAR(sum, link[i], 1e-9 * (1 + std::abs(link[i]))) << i;
+  }
+  // Angles integrate speeds (trapezoid over 1 us samples; RK4 is far more accurate).
+  const auto phi = read_doubles("/observables/input_angle/value");
+  const auto w = read_doubles("/observables/input_speed/value");
+  for (size_t i = 1; i < phi.size(); ++i)
+    EXPECT_NEAR(phi[i] - phi[i - 1], 0.5e-6 * (w[i] + w[i - 1]), 1e-3 * 1e-6 * std::abs(w[i]) + 1e-12) << i;
+  const auto pin = read_doubles("/observables/power_input/value");
+  const auto M = read_doubles("/observables/input_torque/value");
+  for (size_t i = 0; i < pin.size(); ++i) EXPECT_NEAR(pin[i], M[i] * w[i], 1e-9 * (1 + std::abs(pin[i])));
+  for (double p : read_doubles("/observables/power_dissipated/value")) EXPECT_GE(p, 0.0);
+  for (double f : read_doubles("/observables/rocker_force/value")) EXPECT_GE(f, 0.0);
 }
 
 TEST_F(OutputLayoutTest, ChainSnapshots) {
