@@ -15,6 +15,7 @@
 #include "modules/beam.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/pulley_contact.hpp"
+#include "modules/inertia.hpp"
 
 namespace cvt {
 
@@ -124,18 +125,99 @@ double Simulation::spectral_radius(const Eigen::VectorXd& y, double t, const Con
   return rho;
 }
 
+// Penetration depth at which the Hertz force would be ten times the largest clamping
+// force: no physical state comes near it (docs/cli.md, exit 70).
+static double absurd_depth(double stiffness, const Config& c) {
+  const double F = 10.0 * std::max({c.clamping.driving, c.clamping.driven, 1e3});
+  return std::pow(F / stiffness, 2.0 / 3.0);
+}
+
+std::string Simulation::state_problem(const Eigen::VectorXd& y) const {
+  char buf[512];
+  for (int i = 0; i < m_.nstate; ++i)
+    if (!std::isfinite(y[i])) return describe_state_index(m_, i) + " is not finite";
+  int j = -1;
+  const double dp = max_pulley_penetration(m_, y.data(), &j);
+  const double lim_p = absurd_depth(m_.cfg.pulley_contact.stiffness, m_.cfg);
+  if (j >= 0 && dp > lim_p) {
+    std::snprintf(buf, sizeof buf,
+                  "absurd penetration: a pin end of joint %d is %.3g mm inside a sheave face (module pulley contact; "
+                  "limit %.3g mm, where the Hertz force would be 10x the largest clamping force)",
+                  j, 1e3 * dp, 1e3 * lim_p);
+    return buf;
+  }
+  const double dr = max_rocker_penetration(m_, y.data(), &j);
+  const double lim_r = absurd_depth(m_.cfg.rocker.stiffness, m_.cfg);
+  if (dr > lim_r) {
+    std::snprintf(buf, sizeof buf,
+                  "absurd penetration: the rocker faces of joint %d overlap by %.3g mm (module chain forces, rocker "
+                  "joint; limit %.3g mm, where the Hertz force would be 10x the largest clamping force)",
+                  j, 1e3 * dr, 1e3 * lim_r);
+    return buf;
+  }
+  return {};
+}
+
+// Replays the steps from the last good sample (bit-identical) to the first bad state, and
+// names what drove it: the coordinate with the largest acceleration in the step before,
+// its pin, and the module whose force on that pin is largest.
+std::string Simulation::replay_diagnosis(double h) {
+  if (good_y_.size() != m_.nstate || steps_ <= good_steps_) return {};
+  const Eigen::VectorXd bad_y = y_;
+  const ContactStatus bad_status = ws_.status;
+  const long bad_steps = steps_;
+  y_ = good_y_, ws_.status = good_status_, steps_ = good_steps_, t_ = good_t_;
+  std::string out;
+  char buf[768];
+  while (steps_ < bad_steps) {
+    const Eigen::VectorXd prev = y_;
+    const ContactStatus prev_status = ws_.status;
+    const double prev_t = t_;
+    step(h);
+    const std::string first = state_problem(y_);
+    if (first.empty()) continue;
+    diag_.status = prev_status;
+    rhs_serial(m_, diag_, prev_t, prev.data(), dy_.data());
+    const int n = m_.ndof;
+    int worst = 0;
+    for (int i = 1; i < m_.joint(m_.links); ++i)
+      if (!(std::abs(dy_[n + i]) <= std::abs(dy_[n + worst]))) worst = i;
+    const int joint = worst / kJointSize;
+    const auto norm = [](const JointSlot& sl) {
+      double s2 = 0;
+      for (double f : sl.f) s2 += f * f;
+      return std::sqrt(s2);
+    };
+    const double fc = norm(diag_.chain_slots[joint]), fp = norm(diag_.pulley_slots[joint]),
+                 fi = norm(diag_.inertia_slots[joint]);
+    const char* module = fc >= fp && fc >= fi ? "chain forces" : fp >= fi ? "pulley contact" : "inertia (velocity terms)";
+    std::snprintf(buf, sizeof buf,
+                  "replayed from t = %.9g s: the first bad state follows step %ld (t = %.9g s): %s; in the step "
+                  "before, the largest acceleration is %.3g on %s, pin %d, where %s dominate (|F| chain %.3g, "
+                  "pulley %.3g, inertia %.3g N)",
+                  good_t_, steps_, t_, first.c_str(), dy_[n + worst], describe_state_index(m_, n + worst).c_str(), joint, module, fc,
+                  fp, fi);
+    out = buf;
+    break;
+  }
+  y_ = bad_y, ws_.status = bad_status, steps_ = bad_steps, t_ = t0_ + (steps_ - steps0_) * h;
+  return out;
+}
+
 void Simulation::check_finite() {
-  int bad = -1;
-  for (int i = 0; i < m_.nstate && bad < 0; ++i)
-    if (!std::isfinite(y_[i])) bad = i;
-  if (bad < 0) {
+  const std::string problem = state_problem(y_);
+  if (problem.empty()) {
     if (first_y_.size() == 0) first_y_ = y_, first_t_ = t_, first_status_ = ws_.status;
     good_y_ = y_;
     good_t_ = t_;
+    good_steps_ = steps_;
     good_status_ = ws_.status;
     return;
   }
   const double h = m_.cfg.integrator.step;
+  const double t_bad = t_;
+  const long steps_bad = steps_;
+  const std::string replay = replay_diagnosis(h);
   std::string cause;
   char buf[1024];
   if (good_y_.size() == m_.nstate) {
@@ -155,9 +237,8 @@ void Simulation::check_finite() {
   } else {
     cause = "no good sample to analyse";
   }
-  std::snprintf(buf, sizeof buf, "numerical blow-up at t = %.9g s (step %ld): %s is not finite; ", t_, steps_,
-                describe_state_index(m_, bad).c_str());
-  throw BlowUpError(buf + cause);
+  std::snprintf(buf, sizeof buf, "numerical blow-up at t = %.9g s (step %ld): ", t_bad, steps_bad);
+  throw BlowUpError(buf + problem + "; " + (replay.empty() ? "" : replay + "; ") + cause);
 }
 
 Sample Simulation::sample() {

@@ -76,9 +76,11 @@ class Simulation {
   Sample sample();
   // Joint centres [N][3] and link tensions [N] of the current state.
   void snapshot(std::vector<double>& positions, std::vector<double>& tensions);
-  // Throws BlowUpError naming time, step, the coordinate and the likely cause when the
-  // state is not finite (with the stable RK4 step estimated at the last good state);
-  // otherwise remembers the state as the last good one.
+  // Throws BlowUpError when the state is not finite or a contact penetrates absurdly
+  // deep: names time, step, the coordinate or the contact, then replays the steps from
+  // the last good state to name the pin and the module that drove it, and gives the
+  // stable RK4 step estimated at the last good state. Otherwise remembers the state as the
+  // last good one.
   void check_finite();
   // Largest |eigenvalue| of the Jacobian of f at a state (power iteration on finite
   // differences, statuses as given) [1/s]; RK4 is stable for h up to about 2.8 / rho.
@@ -89,6 +91,10 @@ class Simulation {
   void restore(const Checkpoint& c);
 
  private:
+  // "" if y is fine; else what is wrong (non-finite coordinate, absurd penetration).
+  std::string state_problem(const Eigen::VectorXd& y) const;
+  std::string replay_diagnosis(double h);
+
   const Model& m_;
   Workspace ws_;     // the integrator's
   Workspace diag_;   // sampling
@@ -101,6 +107,7 @@ class Simulation {
   double energy0_ = 0;
   Eigen::VectorXd good_y_;  // last state that passed check_finite, with its time and statuses
   double good_t_ = 0;
+  long good_steps_ = 0;
   ContactStatus good_status_;
   Eigen::VectorXd first_y_;  // the first state that passed check_finite
   double first_t_ = 0;

@@ -432,6 +432,35 @@ double chain_torsion_angle(const Model& m, const Workspace& ws, int j) {
   return nx * (slope(n, half::kX) - slope(j, half::kX)) + ny * (slope(n, half::kY) - slope(j, half::kY));
 }
 
+double max_rocker_penetration(const Model& m, const double* q, int* joint) {
+  const Config& c = m.cfg;
+  double worst = -1e300;
+  *joint = 0;
+  const auto dir = [&](int i, double& ex, double& ey) {
+    const double* b = q + m.half_b(i);
+    const double* a = q + m.half_a(i + 1);
+    const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
+    const double l = std::sqrt(dx * dx + dy * dy);
+    ex = dx / l, ey = dy / l;
+  };
+  for (int j = 0; j < m.links; ++j) {
+    const double* qa = q + m.half_a(j);
+    const double* qb = q + m.half_b(j);
+    double pex, pey, cex, cey;
+    dir(m.wrap(j - 1), pex, pey);
+    dir(j, cex, cey);
+    for (int st = 0; st < c.rocker.stations; ++st) {
+      const HermiteWeights h = hermite(m.station_xi[st], m.L0);
+      const double cax = lateral(qa, h, 0) - m.kappa * pex, cay = lateral(qa, h, 1) - m.kappa * pey;
+      const double cbx = lateral(qb, h, 0) + m.kappa * cex, cby = lateral(qb, h, 1) + m.kappa * cey;
+      const double pen = 2 * c.rocker.radius - std::hypot(cax - cbx, cay - cby);
+      if (pen > worst || std::isnan(pen)) worst = pen, *joint = j;
+      if (std::isnan(pen)) return pen;
+    }
+  }
+  return worst;
+}
+
 double half_axial_force(const Model& m, const double* q, const double* v, int o) {
   const double eps = q[o + half::kEnd + half::kZ] - q[o + half::kZ] - m.L0;
   const double rate = v[o + half::kEnd + half::kZ] - v[o + half::kZ];

@@ -24,6 +24,9 @@ double rocker_force(const Model& m, const Workspace& ws, int j);
 // n_j . (s_{j+1} - s_j), with s the mean chord slope d(x, y)/dz of a pin's two halves and
 // n_j = (-e_y, e_x) the in-plane normal of link j.
 double chain_torsion_angle(const Model& m, const Workspace& ws, int j);
+// Largest rocker-face penetration delta over every joint and station, whatever its
+// status [m]; its joint in *joint.
+double max_rocker_penetration(const Model& m, const double* q, int* joint);
 // Axial force in a half (EA strain + damping) [N], tensile positive.
 double half_axial_force(const Model& m, const double* q, const double* v, int half_offset);
 

@@ -179,6 +179,24 @@ double pulley_energy(const Model& m, const double* q, const ContactStatus* statu
   return E;
 }
 
+double max_pulley_penetration(const Model& m, const double* q, int* joint) {
+  double worst = -1e300;
+  *joint = -1;
+  for (int j = 0; j < m.links; ++j)
+    for (int h = 0; h < 2; ++h) {
+      const double* hq = q + (h == 0 ? m.half_a(j) : m.half_b(j));
+      for (int k = 0; k < 2; ++k) {
+        if (!near_pulley(m, hq, k)) continue;
+        for (int e = 0; e < 2; ++e) {
+          const double pen = end_geometry(m, hq, e, k, q + m.shaft(k)).pen;
+          if (pen > worst || std::isnan(pen)) worst = pen, *joint = j;
+          if (std::isnan(pen)) return pen;
+        }
+      }
+    }
+  return *joint < 0 ? 0.0 : worst;
+}
+
 void update_pulley_status(const Model& m, Workspace& ws, int begin, int end) {
   const double cn = m.cfg.pulley_contact.stiffness, bn = m.cfg.pulley_contact.damping * m.damp;
   for (int j = begin; j < end; ++j)

@@ -27,6 +27,9 @@ double pulley_energy(const Model& m, const double* q, const ContactStatus* statu
 // Pin-end statuses of joints [begin, end); switched energy into ws.switch_slot[j].
 void update_pulley_status(const Model& m, Workspace& ws, int begin, int end);
 
+// Largest penetration Delta of any pin end near a pulley, whatever its status [m];
+// the joint it belongs to in *joint (-1 if no end is near a pulley).
+double max_pulley_penetration(const Model& m, const double* q, int* joint);
 // Mean radius of the joint centres in contact with pulley k (the running radius of the
 // current state, for the geometric ratio); 0 if none.
 double wrapped_radius(const Model& m, const Workspace& ws, int k);
