@@ -2,6 +2,7 @@
 #pragma once
 
 #include <type_traits>
+#include <vector>
 
 #include <Eigen/Dense>
 
@@ -43,6 +44,9 @@ class Rk4 {
   explicit Rk4(int size)
       : k_(Eigen::VectorXd::Zero(size)), acc_(Eigen::VectorXd::Zero(size)), s1_(Eigen::VectorXd::Zero(size)),
         s2_(Eigen::VectorXd::Zero(size)) {}
+
+  // The integrator's own state-sized vectors (for NUMA placement).
+  std::vector<double*> buffers() { return {k_.data(), acc_.data(), s1_.data(), s2_.data()}; }
 
   template <class F>
   void step(F&& f, double t, double h, Eigen::VectorXd& y) {

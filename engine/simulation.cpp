@@ -24,6 +24,9 @@ Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
   update_contact_status(m_, ws_, t_, y_.data());
   const Energies e = energies(m_, t_, y_.data(), &ws_.status);
   energy0_ = e.kinetic + e.elastic;
+  std::vector<double*> state = rk_.buffers();
+  state.push_back(y_.data());
+  schedule_->place_state(state);
 }
 
 Profiler& Simulation::enable_profiling() {

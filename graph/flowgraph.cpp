@@ -271,6 +271,26 @@ class FlowGraphSchedule final : public Schedule {
                  (why.empty() ? "" : " (" + why + ")");
   }
 
+  void place_state(const std::vector<double*>& vectors) override {
+    if (arenas_->nodes() < 2) return;
+    int moved = 0, tried = 0;
+    std::string why;
+    for (int n = 0; n < arenas_->nodes(); ++n) {
+      const int lo = m_.joint(bounds_[n]), len = kJointSize * (bounds_[n + 1] - bounds_[n]);
+      for (double* v : vectors)
+        for (int off : {lo, m_.ndof + lo}) {
+          const std::string r = numa::migrate_to_node(*arenas_, v + off, sizeof(double) * len, n);
+          if (r == "-") continue;
+          ++tried;
+          moved += r.empty();
+          if (!r.empty() && why.empty()) why = r;
+        }
+    }
+    placement_ += "; " + std::to_string(moved) + " of " + std::to_string(tried) +
+                  " per-node state segments (q, v of the integrator's vectors) moved to their node" +
+                  (why.empty() ? "" : " (" + why + ")");
+  }
+
   // Declares node n's graph; it reads like the DAG of a stage.
   void build(int n, bool whole_stage) {
     Part& p = parts_[n];

@@ -71,6 +71,10 @@ class Schedule {
   // workers; nullptr turns it off (the default).
   void set_profiler(Profiler* p) { prof_ = p; }
   Profiler* profiler() const { return prof_; }
+  // Places the given state-sized vectors (y = [q; v; aux]) so that each NUMA node's pin
+  // segment of positions and velocities lies in its own memory (flowgraph with several
+  // nodes; a no-op otherwise). Returns what was done, for describe().
+  virtual void place_state(const std::vector<double*>& vectors) {}
   // NUMA nodes the schedule spans (1 unless flowgraph found several).
   virtual int numa_nodes() const { return 1; }
 

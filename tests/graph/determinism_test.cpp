@@ -109,10 +109,17 @@ TEST(FlowGraphTest, TwoNodeLayoutMovesEachSegmentToItsNode) {
   ScheduleOptions o;
   o.kind = SchedulerKind::flowgraph;
   o.threads = 2;
-  const std::string d = make_schedule(m, ws, o)->describe();
+  // A simulation's schedule also places the integrator's state vectors.
+  Simulation sim(m, o);
+  const std::string d = sim.schedule().describe();
   unsetenv("HWLOC_SYNTHETIC");
   unsetenv("HWLOC_THISSYSTEM");
   std::printf("%s\n", d.c_str());
+  int sm = 0, st = 0;
+  const auto sat = d.find(" per-node state segments");
+  ASSERT_NE(sat, std::string::npos) << d;
+  ASSERT_EQ(std::sscanf(d.c_str() + d.rfind("; ", sat) + 2, "%d of %d", &sm, &st), 2) << d;
+  EXPECT_GE(sm, 5) << "node 0's state segments did not move: " << d;
   int moved = 0, tried = 0;
   const auto at = d.find(" per-node array segments");
   ASSERT_NE(at, std::string::npos) << d;
