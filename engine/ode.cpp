@@ -355,12 +355,18 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
   const double expo = 1.0 / (order() + 1) - 0.75 * beta;
   const double safe = 0.9, fac_min = 0.2, fac_max = implicit() ? 5.0 : 10.0;
   double err_old = 1e-4;
-  bool last_rejected = false;
+  bool last_rejected = false, last_newton_failed = false;
   double t = t0;
   while (t < t1) {
     if (stats.steps + stats.rejected >= opt_.max_steps) throw OdeError(t, h, "max_steps reached");
     const double h_min = std::max(opt_.h_min, 16 * kEps * std::abs(t));
-    if (h < h_min) throw OdeError(t, h, "step size below h_min (" + std::to_string(h_min) + ")");
+    if (h < h_min) {
+      std::ostringstream why;
+      why << "step size underflow: h < h_min = " << h_min << " after "
+          << (last_newton_failed ? "repeated Newton failures (singular or stiff beyond the Jacobian's reach?)"
+                                 : "repeated error test failures (a singularity or a discontinuity?)");
+      throw OdeError(t, h, why.str());
+    }
     bool last = false;
     // Stretch a step that would leave a sliver of less than 1 % before t1.
     if (t + 1.01 * h >= t1) h = t1 - t, last = true;
@@ -368,6 +374,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
     const double h_tried = h;
     const Attempt a = attempt(t, h, y, &err);
     if (h != h_tried) last = false;  // RKC shortened it
+    last_newton_failed = a == Attempt::NewtonFailed;
     if (a == Attempt::NewtonFailed) {
       ++stats.newton_failures;
       ++stats.rejected;

@@ -73,11 +73,15 @@ struct OdeOptions {
   std::function<double(double t, const double* y)> spectral_radius;
 
   // Newton (implicit methods). max iterations per stage; recompute the Jacobian at the next
-  // step when the observed contraction rate theta exceeds jac_theta; keep h (and the LU)
-  // when the controller proposes a ratio in [1, keep_h_ratio].
+  // step when the observed contraction rate theta exceeds jac_theta; keep h (RADAU5's
+  // quot1/quot2 rule) when the controller proposes a ratio in [1, keep_h_ratio] (1: off,
+  // since lu_rel_change below already saves the LU and free steps are cheaper).
   int newton_max_iter = 7;
   double jac_theta = 0.3;
-  double keep_h_ratio = 1.2;
+  double keep_h_ratio = 1.0;
+  // Keep the LU of I - dh' J while |dh / dh' - 1| <= lu_rel_change (0: refactorize at
+  // every change of h).
+  double lu_rel_change = 0.2;
 };
 
 struct OdeStats {

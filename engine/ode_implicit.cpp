@@ -119,7 +119,10 @@ void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y
     newton_->evaluate_jacobian(t, y, tmp_, stats);
     need_jac_ = false, jac_fresh_ = true;
   }
-  if (!newton_->factored() || newton_->factored_dh() != dh) newton_->factorize(dh, stats);
+  // Simplified Newton converges with a matrix for a somewhat different dh, only a little
+  // slower: refactorize when dh moved by more than lu_rel_change (or J is new).
+  if (!newton_->factored() || std::abs(dh / newton_->factored_dh() - 1) > opt_.lu_rel_change)
+    newton_->factorize(dh, stats);
   theta_max_ = 0;
 }
 
