@@ -26,6 +26,7 @@ class NewtonMatrix {
   double factored_dh() const { return dh_; }
   bool factored() const { return factored_; }
   int colors() const { return fd_.colors(); }
+  bool finite_differences() const { return sparse_ ? !sys_.sparse_jacobian : !sys_.dense_jacobian; }
 
  private:
   const OdeSystem& sys_;

@@ -115,7 +115,7 @@ void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y
     // Finite differences need f(t, y) to full precision: f0_ of an implicit step is the
     // stage formula's (z - psi) / dh, off by the Newton error over dh, which divided by a
     // difference increment of sqrt(eps) |y| would ruin the Jacobian.
-    eval(t, y, tmp_);
+    if (newton_->finite_differences()) eval(t, y, tmp_);
     newton_->evaluate_jacobian(t, y, tmp_, stats);
     need_jac_ = false, jac_fresh_ = true;
   }

@@ -135,6 +135,20 @@ TEST(OdeJacobian, SparseAndDenseNewtonAgree) {
               (ys - yd).lpNorm<Eigen::Infinity>());
   EXPECT_LT((ys - yd).lpNorm<Eigen::Infinity>(), 1e-6);
   EXPECT_LT(ss.rhs_evals, sd.rhs_evals);
+
+  // The same with an analytic sparse Jacobian: no f-evaluations for J at all.
+  OdeSystem analytic_sys = band.system(true);
+  analytic_sys.sparse_jacobian = [&band](double, const double* y, Eigen::SparseMatrix<double>& jac) {
+    const Eigen::MatrixXd j = band.jacobian(Eigen::Map<const Eigen::VectorXd>(y, band.n));  // test only: allocates
+    for (int c = 0; c < jac.outerSize(); ++c)
+      for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() = j(it.row(), c);
+  };
+  Eigen::VectorXd ya = y0;
+  const OdeStats sa = integrate(analytic_sys, OdeMethod::TrBdf2, 0, 2, ya, opt);
+  print_stats("trbdf2 band analytic", sa);
+  EXPECT_LT((ya - ys).lpNorm<Eigen::Infinity>(), 1e-6);
+  EXPECT_EQ(sa.colors, 0);
+  EXPECT_EQ(sa.rhs_evals, sa.newton_iterations + 2);  // + f0 and the starting-step guess
 }
 
 }  // namespace
