@@ -252,16 +252,22 @@ def cmd_history(a):
         if run is not None and len(run[0]):
             ax.plot(run[0] * 1e3, run[1], lw=1.4, color="C3", label=run[2].replace("_", " "))
             drawn = True
-            ref = run[1][np.isfinite(run[1])]
+            tr, ref = run[0], run[1]
+        elif drawn:
+            tr, ref, _ = read_channel(f, "efficiency", t0, t1)
         else:
-            ref = np.zeros(0)
-            if drawn:
-                _, v, _ = read_channel(f, "efficiency", t0, t1)
-                ref = v[np.isfinite(v)]
-        if ref.size:
-            lo, hi = np.percentile(ref, [2, 98])
-            pad = max(0.05, 0.25 * (hi - lo))
-            ax.set_ylim(max(lo - pad, -1.0), min(hi + pad, 2.0))
+            tr, ref = np.zeros(0), np.zeros(0)
+        # Scale to the second half of the window: during the start-up the ramped load and the
+        # spinning-up inertias store and release energy, and P_out / P_in means nothing.
+        late = np.isfinite(ref) & (tr >= tr[0] + 0.5 * (tr[-1] - tr[0])) if len(tr) else np.zeros(0, bool)
+        if np.any(late):
+            lo, hi = float(np.min(ref[late])), float(np.max(ref[late]))
+            pad = max(0.02, 0.15 * (hi - lo))
+            ax.set_ylim(lo - pad, hi + pad)
+            allf = ref[np.isfinite(ref)]
+            if np.any((allf < lo - pad) | (allf > hi + pad)):
+                ax.text(0.01, 0.97, "scaled to the second half; earlier values run off the axis",
+                        transform=ax.transAxes, fontsize=7, va="top", color="0.35")
         if drawn:
             ax.set_ylabel("efficiency [-]")
             ax.legend(fontsize=7, loc="lower right")
@@ -322,16 +328,26 @@ PROFILE_COLUMNS = ["calls", "wall_s", "us_per_step", "percent", "busy_min_s", "b
 HEADER_KEYS = ["steps", "us_per_step", "model_s_per_hour", "threads", "numa_nodes", "scheduler", "wall_s"]
 
 
+def _is_hdf5(path):
+    with open(path, "rb") as fh:
+        return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+
+
+def _looks_like_json(path):
+    with open(path, "rb") as fh:
+        return fh.read(64).lstrip()[:1] == b"{"
+
+
 def load_profile(path):
     """(header dict, list of row dicts) from a --profile-json file or a run's /profile group."""
     if not os.path.exists(path):
         raise UserError(f"{path}: no such file")
-    if path.endswith(".json"):
+    if not _is_hdf5(path):
         try:
             with open(path) as fh:
                 d = json.load(fh)
         except (OSError, json.JSONDecodeError) as e:
-            raise UserError(f"{path}: cannot read as JSON: {e}")
+            raise UserError(f"{path}: neither HDF5 nor JSON ({e})")
         if not isinstance(d, dict) or "rows" not in d or not isinstance(d["rows"], list):
             raise UserError(f"{path}: no 'rows' list (not a --profile-json file?)")
         header = d.get("header", {})
@@ -447,12 +463,17 @@ SCALING_COLUMNS = ["scheduler", "layout", "threads", "steps", "repeat", "us_per_
 _TEXT = {"scheduler", "layout"}
 
 
+def _num(x):
+    """A number of a study; an empty cell (not measured) is NaN and drops out of the lines."""
+    return float("nan") if x is None or (isinstance(x, str) and not x.strip()) else float(x)
+
+
 def load_scaling(path):
     if not os.path.exists(path):
         raise UserError(f"{path}: no such file")
     title = ""
     try:
-        if path.endswith(".json"):
+        if _looks_like_json(path):
             with open(path) as fh:
                 d = json.load(fh)
             if not isinstance(d, dict) or not isinstance(d.get("rows"), list):
@@ -472,9 +493,12 @@ def load_scaling(path):
     rows = []
     for i, r in enumerate(raw):
         try:
-            rows.append({k: (str(r[k]) if k in _TEXT else float(r[k])) for k in SCALING_COLUMNS})
+            rows.append({k: (str(r[k]) if k in _TEXT else _num(r[k])) for k in SCALING_COLUMNS})
         except (TypeError, ValueError) as e:
             raise UserError(f"{path}: row {i + 1}: {e}")
+    bad = [i + 1 for i, r in enumerate(rows) if not (np.isfinite(r["threads"]) and r["threads"] >= 1)]
+    if bad:
+        raise UserError(f"{path}: row(s) {', '.join(map(str, bad[:5]))}: threads must be a number >= 1")
     return title, rows
 
 
