@@ -372,6 +372,18 @@ def load_profile(path):
     return header, rows
 
 
+# tab10 without its grey (grey is the total bar), then tab20's light tones.
+_PALETTE = [plt.cm.tab10(i) for i in (0, 1, 2, 3, 4, 5, 6, 8, 9)] + [plt.cm.tab20(i) for i in (1, 3, 5, 7, 9, 11)]
+
+
+def _int(x):
+    """Counts come as doubles from the HDF5 attributes: 2.0 threads reads 2."""
+    try:
+        return int(x) if float(x) == int(x) else x
+    except (TypeError, ValueError):
+        return x
+
+
 def cmd_profile(a):
     header, rows = load_profile(a.file)
     if not rows:
@@ -385,7 +397,7 @@ def cmd_profile(a):
     bars = mods + total
     names = [r["name"] for r in bars]
     pct = [r["percent"] for r in bars]
-    colors = [plt.cm.tab10(i % 10) for i in range(len(mods))] + ["0.45"] * len(total)
+    colors = [_PALETTE[i % len(_PALETTE)] for i in range(len(mods))] + ["0.45"] * len(total)
     y = np.arange(len(bars))
     ax1.barh(y, pct, color=colors)
     for yi, p, r in zip(y, pct, bars):
@@ -447,7 +459,8 @@ def cmd_profile(a):
     if "model_s_per_hour" in h:
         parts.append(f"{float(h['model_s_per_hour']):.3g} model s/h")
     if "scheduler" in h:
-        parts.append(f"{h['scheduler']}, {h.get('threads', '?')} threads, {h.get('numa_nodes', '?')} NUMA node(s)")
+        th, nn = _int(h.get("threads", "?")), _int(h.get("numa_nodes", "?"))
+        parts.append(f"{h['scheduler']}, {th} thread{'' if th == 1 else 's'}, {nn} NUMA node{'' if nn == 1 else 's'}")
     if "wall_s" in h:
         parts.append(f"wall {float(h['wall_s']):.1f} s")
     fig.suptitle(f"{os.path.basename(a.file)}: run-time profile\n" + ", ".join(parts), fontsize=11)

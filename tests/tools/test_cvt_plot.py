@@ -132,7 +132,8 @@ def write_run(path, with_new=True, with_profile=True, fixed_strings=False):
         header, rows = profile_rows()
         p = f.create_group("profile")
         for k, v in header.items():
-            p.attrs[k] = v
+            # cvt-engine writes the counts as doubles; the fixed-string variant checks that too.
+            p.attrs[k] = float(v) if fixed_strings and not isinstance(v, str) else v
         names = [r["name"] for r in rows]
         if fixed_strings:
             p["name"] = np.array([n.encode() for n in names], dtype="S32")
