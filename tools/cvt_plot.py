@@ -163,12 +163,12 @@ def _lines(ax, t, v, unit, labels=None, what="", **kw):
     return fac, u
 
 
-def _running_efficiency(f, t0, t1, window):
-    """eta(t) = (W_out(t) - W_out(t - w)) / (W_in(t) - W_in(t - w)) from the work channels."""
-    t, wi, _ = read_channel(f, "work_input")
-    to, wo, _ = read_channel(f, "work_output")
-    n = min(len(t), len(to))
-    t, wi, wo = t[:n], wi[:n], wo[:n]
+def _windowed_ratio(f, num, den, t0, t1, window):
+    """(num(t) - num(t - w)) / (den(t) - den(t - w)) of two cumulative channels (works)."""
+    t, wd, _ = read_channel(f, den)
+    tn, wn, _ = read_channel(f, num)
+    n = min(len(t), len(tn))
+    t, wd, wn = t[:n], wd[:n], wn[:n]
     if n < 3:
         return None
     span = (t1 if t1 is not None else t[-1]) - (t0 if t0 is not None else t[0])
@@ -176,16 +176,16 @@ def _running_efficiency(f, t0, t1, window):
     w = max(w, 3 * float(np.median(np.diff(t))))
     j = np.searchsorted(t, t - w)  # start of each window
     ok = (t - t[0] >= w * 0.999) & (j < np.arange(n))
-    dwi = wi - wi[j]
-    dwo = wo - wo[j]
+    dd = wd - wd[j]
+    dn = wn - wn[j]
     with np.errstate(divide="ignore", invalid="ignore"):
-        eta = np.where(ok & (np.abs(dwi) > 0), dwo / dwi, np.nan)
+        r = np.where(ok & (np.abs(dd) > 0), dn / dd, np.nan)
     m = np.ones(n, dtype=bool)
     if t0 is not None:
         m &= t >= t0
     if t1 is not None:
         m &= t <= t1
-    return t[m], eta[m], w
+    return t[m], r[m], w
 
 
 def cmd_history(a):
@@ -234,44 +234,48 @@ def cmd_history(a):
     simple("Support forces", "support_force", "force", SUPPORT_LABELS)
 
     def draw_eff(ax):
-        drawn = False
+        curves = []  # (t, value) that set the axis range
         if has_channel(f, "efficiency"):
             t, v, _ = read_channel(f, "efficiency", t0, t1)
             if len(t):
                 ax.plot(t * 1e3, v, lw=0.6, color="0.6", alpha=0.6, label="instantaneous P_out / P_in")
-                drawn = True
+                curves.append((t, v))
         run = None
         if has_channel(f, "running_efficiency"):
             t, v, _ = read_channel(f, "running_efficiency", t0, t1)
-            run = (t, v, "running_efficiency")
+            run = (t, v, "running efficiency (engine)")
         elif has_channel(f, "work_input") and has_channel(f, "work_output"):
-            r = _running_efficiency(f, t0, t1, a.eff_window)
+            r = _windowed_ratio(f, "work_output", "work_input", t0, t1, a.eff_window)
             if r is not None:
-                t, v, w = r
-                run = (t, v, f"ΔW_out / ΔW_in over {w * 1e3:.3g} ms")
+                run = (r[0], r[1], f"ΔW_out / ΔW_in over {r[2] * 1e3:.3g} ms")
         if run is not None and len(run[0]):
-            ax.plot(run[0] * 1e3, run[1], lw=1.4, color="C3", label=run[2].replace("_", " "))
-            drawn = True
-            tr, ref = run[0], run[1]
-        elif drawn:
-            tr, ref, _ = read_channel(f, "efficiency", t0, t1)
-        else:
-            tr, ref = np.zeros(0), np.zeros(0)
+            ax.plot(run[0] * 1e3, run[1], lw=1.4, color="C3", label=run[2])
+            curves = [(run[0], run[1])]
+        # Losses alone: blind to energy moving in and out of the torsion springs and inertias.
+        if has_channel(f, "work_dissipated") and has_channel(f, "work_input"):
+            r = _windowed_ratio(f, "work_dissipated", "work_input", t0, t1, a.eff_window)
+            if r is not None and len(r[0]):
+                ax.plot(r[0] * 1e3, 1 - r[1], lw=1.2, ls="--", color="C0",
+                        label=f"1 - ΔW_dissipated / ΔW_in over {r[2] * 1e3:.3g} ms")
+                curves.append((r[0], 1 - r[1]))
+        if not curves:
+            return False
         # Scale to the second half of the window: during the start-up the ramped load and the
         # spinning-up inertias store and release energy, and P_out / P_in means nothing.
-        late = np.isfinite(ref) & (tr >= tr[0] + 0.5 * (tr[-1] - tr[0])) if len(tr) else np.zeros(0, bool)
-        if np.any(late):
-            lo, hi = float(np.min(ref[late])), float(np.max(ref[late]))
+        late = [v[np.isfinite(v) & (t >= t[0] + 0.5 * (t[-1] - t[0]))] for t, v in curves]
+        late = np.concatenate(late)
+        if late.size:
+            lo, hi = float(np.min(late)), float(np.max(late))
             pad = max(0.02, 0.15 * (hi - lo))
-            ax.set_ylim(lo - pad, hi + pad)
-            allf = ref[np.isfinite(ref)]
-            if np.any((allf < lo - pad) | (allf > hi + pad)):
-                ax.text(0.01, 0.97, "scaled to the second half; earlier values run off the axis",
-                        transform=ax.transAxes, fontsize=7, va="top", color="0.35")
-        if drawn:
-            ax.set_ylabel("efficiency [-]")
-            ax.legend(fontsize=7, loc="lower right")
-        return drawn
+            top = hi + pad + 0.6 * (hi - lo + 2 * pad)  # the top third stays free for the legend
+            ax.set_ylim(lo - pad, top)
+            allf = np.concatenate([v[np.isfinite(v)] for _, v in curves])
+            if np.any((allf < lo - pad) | (allf > top)):
+                ax.text(0.01, 0.03, "scaled to the second half of the window; earlier values run off the axis",
+                        transform=ax.transAxes, fontsize=7, va="bottom", color="0.35")
+        ax.set_ylabel("efficiency [-]")
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.9)
+        return True
     panels.append(("Efficiency", ["running_efficiency", "efficiency", "work_input"], draw_eff))
 
     group("Shaft speeds", ["input_speed", "output_speed", "load_speed"], "speed",
@@ -605,7 +609,7 @@ def cmd_spectrogram(a):
         raise UserError(f"--nperseg {n} is longer than the {len(v)} samples in the window")
     nover = int(a.overlap * n) if a.overlap is not None else (3 * n) // 4
     nover = min(max(nover, 0), n - 1)
-    P, freqs, tt = mlab.specgram(v, NFFT=n, Fs=fs, noverlap=nover, detrend="mean",
+    P, freqs, tt = mlab.specgram(v, NFFT=n, Fs=fs, noverlap=nover, detrend=a.detrend,
                                  window=mlab.window_hanning, mode="psd")
     tt = tt + t[0]
     khz = freqs[-1] > 2000
@@ -626,12 +630,12 @@ def cmd_spectrogram(a):
     edges_f = np.concatenate([freqs - df / 2, [freqs[-1] + df / 2]]) * fsc
     edges_f[0] = max(edges_f[0], 0)
     m = ax1.pcolormesh(edges_t, edges_f, db, vmin=vmin, vmax=vmax, cmap="magma", shading="flat")
-    cu = f"({unit})²/Hz" if unit and unit != "-" else "1/Hz"
+    cu = (f"({unit})²/Hz" if " " in unit else f"{unit}²/Hz") if unit and unit != "-" else "1/Hz"
     fig.colorbar(m, ax=ax1, label=f"power spectral density [dB re 1 {cu}]", pad=0.01)
     ax1.set_ylabel(f"frequency [{funit}]")
     ax1.set_xlabel("time [ms]")
-    ax1.set_title(f"STFT: Hann window of {n} samples ({n * dt * 1e3:.3g} ms, Δf = {df:.3g} Hz), "
-                  f"{nover} overlap, fs = {fs * fsc:.4g} {funit}", fontsize=10)
+    ax1.set_title(f"STFT: Hann window of {n} samples ({n * dt * 1e3:.3g} ms, Δf = {df * fsc:.3g} {funit}), "
+                  f"{nover} overlap, {a.detrend} trend removed, fs = {fs * fsc:.4g} {funit}", fontsize=10)
     if a.fmax:
         ax1.set_ylim(0, a.fmax * fsc)
     # Align the signal panel with the spectrogram (the colorbar takes width from ax1 only).
@@ -822,6 +826,8 @@ def build_parser():
     p.add_argument("--overlap", type=float, default=None, metavar="F", help="overlap as a fraction of a segment (default 0.75)")
     p.add_argument("--fmax", type=float, default=None, metavar="HZ", help="upper end of the frequency axis [Hz]")
     p.add_argument("--range-db", type=float, default=80.0, metavar="DB", help="dynamic range of the colour scale (default 80 dB)")
+    p.add_argument("--detrend", choices=["linear", "mean", "none"], default="linear",
+                   help="removed from each segment before the FFT (default linear: a ramp leaks less)")
     window(p)
     p.add_argument("--out", default=None, help="output image (default spectrogram-CHANNEL.png)")
     p.set_defaults(func=cmd_spectrogram)
