@@ -149,16 +149,39 @@ SUPPORT_LABELS = ["shaft 1, bearing at -l_b", "shaft 1, bearing at +l_b",
                   "shaft 2, bearing at -l_b", "shaft 2, bearing at +l_b"]
 
 
+# Time axis of the history: (factor from s, unit), ms unless the window spans 2 s or more.
+TIME = [1e3, "ms"]
+
+
+def _envelope(t, v, most=20000):
+    """At most `most` points: the min and max of each bucket in time order, so that peaks of
+    a long run (10^5-10^6 samples) still show without drawing every sample."""
+    n = len(t)
+    if n <= most:
+        return t, v
+    k = math.ceil(n / (most // 2))
+    m = (n // k) * k
+    tb, vb = t[:m].reshape(-1, k), v[:m].reshape(-1, k)
+    i = np.arange(len(tb))
+    fin = np.isfinite(vb)
+    lo = np.argmin(np.where(fin, vb, np.inf), axis=1)
+    hi = np.argmax(np.where(fin, vb, -np.inf), axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    tt = np.stack([tb[i, first], tb[i, second]], axis=1).ravel()
+    vv = np.stack([vb[i, first], vb[i, second]], axis=1).ravel()
+    return np.concatenate([tt, t[m:]]), np.concatenate([vv, v[m:]])
+
+
 def _lines(ax, t, v, unit, labels=None, what="", **kw):
     fac, u = scaled(v, unit)
     if v.ndim == 1:
-        ax.plot(t * 1e3, v * fac, lw=0.9, label=labels[0] if labels else None, **kw)
+        ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[0] if labels else None, **kw)
     else:
         k = v.shape[1]
         colors = plt.cm.viridis(np.linspace(0, 0.9, k)) if k > 4 else [None] * k
         for j in range(k):
             lab = labels[j] if labels and j < len(labels) else f"{j + 1}"
-            ax.plot(t * 1e3, v[:, j] * fac, lw=0.9, color=colors[j], label=lab, **kw)
+            ax.plot(*_envelope(t * TIME[0], v[:, j] * fac), lw=0.9, color=colors[j], label=lab, **kw)
     ax.set_ylabel(ylabel(what, u))
     return fac, u
 
@@ -201,8 +224,12 @@ def cmd_history(a):
             if len(t) == 0:
                 return False
             _lines(ax, t, v, u, labels, what)
-            if v.ndim == 2 and v.shape[1] > 1:
-                ax.legend(fontsize=7, ncol=min(v.shape[1], 6 if v.shape[1] > 4 else 2), loc="best")
+            if v.ndim == 2 and 1 < v.shape[1] <= 6:
+                ax.legend(fontsize=7, ncol=2, loc="best")
+            elif v.ndim == 2:  # many lines: name the first and the last, the colours run between
+                h = ax.get_lines()
+                ax.legend([h[0], h[-1]], [h[0].get_label(), h[-1].get_label()], fontsize=7, ncol=2,
+                          loc="best", title=f"{v.shape[1]} lines, dark to light", title_fontsize=7)
             return True
         panels.append((title, [name], draw))
 
@@ -218,7 +245,7 @@ def cmd_history(a):
                     continue
                 if fac is None:
                     fac, uu = scaled(allv, u)
-                ax.plot(t * 1e3, v * fac, lw=0.9, label=labels[names.index(n)])
+                ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[names.index(n)])
                 ax.set_ylabel(ylabel(what, uu))
                 drawn = True
             if drawn:
@@ -238,7 +265,7 @@ def cmd_history(a):
         if has_channel(f, "efficiency"):
             t, v, _ = read_channel(f, "efficiency", t0, t1)
             if len(t):
-                ax.plot(t * 1e3, v, lw=0.6, color="0.6", alpha=0.6, label="instantaneous P_out / P_in")
+                ax.plot(*_envelope(t * TIME[0], v), lw=0.6, color="0.6", alpha=0.6, label="instantaneous P_out / P_in")
                 curves.append((t, v))
         run = None
         if has_channel(f, "running_efficiency"):
@@ -249,13 +276,13 @@ def cmd_history(a):
             if r is not None:
                 run = (r[0], r[1], f"ΔW_out / ΔW_in over {r[2] * 1e3:.3g} ms")
         if run is not None and len(run[0]):
-            ax.plot(run[0] * 1e3, run[1], lw=1.4, color="C3", label=run[2])
+            ax.plot(run[0] * TIME[0], run[1], lw=1.4, color="C3", label=run[2])
             curves = [(run[0], run[1])]
         # Losses alone: blind to energy moving in and out of the torsion springs and inertias.
         if has_channel(f, "work_dissipated") and has_channel(f, "work_input"):
             r = _windowed_ratio(f, "work_dissipated", "work_input", t0, t1, a.eff_window)
             if r is not None and len(r[0]):
-                ax.plot(r[0] * 1e3, 1 - r[1], lw=1.2, ls="--", color="C0",
+                ax.plot(r[0] * TIME[0], 1 - r[1], lw=1.2, ls="--", color="C0",
                         label=f"1 - ΔW_dissipated / ΔW_in over {r[2] * 1e3:.3g} ms")
                 curves.append((r[0], 1 - r[1]))
         if not curves:
@@ -284,6 +311,9 @@ def cmd_history(a):
           ["input (drive spring)", "output (load spring)", "load"])
 
     avail = [p for p in panels if any(has_channel(f, n) for n in p[1])]
+    span = [read_channel(f, n, t0, t1)[0] for p in avail for n in p[1][:1] if has_channel(f, n)]
+    span = max((float(x[-1] - x[0]) for x in span if len(x)), default=0.0)
+    TIME[:] = [1e3, "ms"] if span < 2.0 else [1.0, "s"]
     for title, names, _ in panels:
         if not any(has_channel(f, n) for n in names):
             warn(f"history: skipping panel '{title}': channel {names[0]} not in {a.file}")
@@ -303,10 +333,10 @@ def cmd_history(a):
     for ax in axes.ravel()[len(avail):]:
         ax.set_visible(False)
     for ax in axes[-1]:
-        ax.set_xlabel("time [ms]")
+        ax.set_xlabel(f"time [{TIME[1]}]")
         ax.xaxis.set_tick_params(labelbottom=True)
     if len(avail) % ncol:
-        axes[-2][-1].set_xlabel("time [ms]")
+        axes[-2][-1].set_xlabel(f"time [{TIME[1]}]")
         axes[-2][-1].xaxis.set_tick_params(labelbottom=True)
     if not drawn_any:
         raise UserError(f"{a.file}: no samples in the window [{t0}, {t1}] s")

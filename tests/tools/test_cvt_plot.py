@@ -229,6 +229,22 @@ class CvtPlotTest(unittest.TestCase):
     def test_history_window(self):
         self.ok("history_window.png", "history", self.run_h5, "--from", "1e-3", "--to", "4e-3")
 
+    def test_history_long_run(self):
+        # 3 s of samples (3e5 rows), 12 plates: drawn as a min/max envelope, time axis in s.
+        path = os.path.join(self.dir, "long.h5")
+        T = 300000
+        t = np.arange(T) * 1e-5
+        osc = np.sin(2 * np.pi * 40 * t) + 0.2 * np.sin(2 * np.pi * 1500 * t)
+        with h5py.File(path, "w") as f:
+            for name, value, unit in [("link_tension", 3000 + 1000 * osc, "N"),
+                                      ("plate_tension", np.stack([250 + 10 * k + 80 * osc for k in range(12)], 1), "N"),
+                                      ("work_input", np.cumsum(2000 * (1 + 0.1 * osc)) * 1e-5, "J"),
+                                      ("work_output", np.cumsum(1900 * (1 + 0.1 * osc)) * 1e-5, "J")]:
+                f[f"observables/{name}/time"] = t
+                f[f"observables/{name}/value"] = value
+                f[f"observables/{name}/value"].attrs["unit"] = unit
+        self.ok("history_long.png", "history", path)
+
     def test_history_skips_absent_channels(self):
         p = self.ok("history_old.png", "history", self.old_h5)
         for name in ("plate_tension", "chain_torsion_angle"):
