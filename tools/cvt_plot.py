@@ -588,7 +588,8 @@ def cmd_scaling(a):
         ax.set_xlabel("threads")
         ax.set_xticks(ticks if len(ticks) <= 16 else ticks[:: math.ceil(len(ticks) / 16)])
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
+        # Above the ideal line there is room on the speedup panels.
+        ax.legend(fontsize=7, loc="upper left" if ax is not ax3 else "best")
     ax1.set_ylabel("speedup of a whole step [-]")
     ax1.set_title("Whole RK4 step", fontsize=10)
     ax2.set_ylabel("speedup of the module [-]")

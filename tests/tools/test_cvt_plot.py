@@ -158,11 +158,12 @@ def scaling_rows():
                 noise = 1 + 0.02 * (rep - 1)
                 sp = 1 / (s + (1 - s) / n) * noise
                 base = 230.0
+                eff_c, eff_p = 1 / (1 + s * 0.1 * (n - 1)), 1 / (1 + s * 0.3 * (n - 1))  # worse with s
                 rows.append(dict(scheduler=sched, layout=layout, threads=n, steps=2000, repeat=rep,
-                                 us_per_step=base / sp, speedup=sp, efficiency=sp / n, chain_us=170 / (0.95 * n),
-                                 chain_speedup=0.95 * n if n > 1 else 1.0, pulley_us=20 / (0.8 * n),
-                                 pulley_speedup=0.8 * n if n > 1 else 1.0, zero_gather_us=zg * (2 + 1.5 * n),
-                                 compute_us=170 * (1 + 0.02 * n), amdahl_serial_fraction=s))
+                                 us_per_step=base / sp, speedup=sp, efficiency=sp / n, chain_us=170 / (eff_c * n),
+                                 chain_speedup=eff_c * n, pulley_us=20 / (eff_p * n), pulley_speedup=eff_p * n,
+                                 zero_gather_us=zg * (2 + 1.5 * n), compute_us=170 * (1 + 0.02 * n + s * 0.05 * n),
+                                 amdahl_serial_fraction=s))
     return rows
 
 
