@@ -19,18 +19,22 @@ group, channel or column; a message on stderr names it).
 """
 import argparse
 import csv
+import importlib.util
 import json
 import math
 import os
 import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
 PROG = "cvt_plot"
+
+try:
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+except ImportError as e:  # matplotlib >= 3.3 needs Pillow as well
+    sys.exit(f"{PROG}: {e}: install Debian's python3-numpy and python3-matplotlib (with python3-pil) "
+             "and run this with /usr/bin/python3")
 
 
 class UserError(Exception):
@@ -787,11 +791,7 @@ def cmd_animate(a):
 
     fig.tight_layout()
     frame(0)
-    try:
-        import PIL  # noqa: F401
-        have_pil = True
-    except ImportError:
-        have_pil = False
+    have_pil = importlib.util.find_spec("PIL") is not None
     if have_pil and a.out.lower().endswith(".gif"):
         d = os.path.dirname(os.path.abspath(a.out))
         if not os.path.isdir(d):
