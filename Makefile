@@ -13,7 +13,7 @@ PACKAGES = cmake g++ make pkg-config \
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: deps configure build run test test-slow bench clean
+.PHONY: deps configure build run test test-slow bench plots clean
 
 deps:
 	@missing=$$(for p in $(PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "install ok installed" || echo $$p; done); \
@@ -46,6 +46,29 @@ test-slow: build
 
 bench: build
 	@for b in $(BUILD)/*_bench; do echo "== $$b"; $$b --benchmark_min_time=0.2; done
+
+# Figures of the last run ($(OUT)) into $(PLOTS): time histories, spectrogram of the output
+# torque, run-time profile (if the run was profiled), chain animation, and the scaling study
+# if $(STUDY) exists. docs/plots.md says what each shows.
+PLOTS ?= plots
+STUDY ?= study.csv
+PLOT   = $(PYTHON) tools/cvt_plot.py
+HAS    = $(PYTHON) -c 'import h5py, sys; sys.exit(sys.argv[2] not in h5py.File(sys.argv[1], "r"))'
+
+plots: deps
+	@test -f $(OUT) || { echo "make plots: $(OUT) not found: make run first, or OUT=FILE"; exit 2; }
+	@mkdir -p $(PLOTS)
+	$(PLOT) history $(OUT) --out $(PLOTS)/history.png
+	$(PLOT) spectrogram $(OUT) output_torque --out $(PLOTS)/spectrogram-output_torque.png
+	@if $(HAS) $(OUT) profile; then echo "$(PLOT) profile $(OUT) --out $(PLOTS)/profile.png"; \
+	  $(PLOT) profile $(OUT) --out $(PLOTS)/profile.png; \
+	else echo "make plots: $(OUT) has no /profile (run not profiled): no profile.png"; fi
+	@if $(HAS) $(OUT) particles/chain/position; then echo "$(PLOT) animate $(OUT) --out $(PLOTS)/chain.gif"; \
+	  $(PLOT) animate $(OUT) --out $(PLOTS)/chain.gif; \
+	else echo "make plots: $(OUT) has no snapshots (run.snapshot_interval = 0): no chain.gif"; fi
+	@if [ -f $(STUDY) ]; then echo "$(PLOT) scaling $(STUDY) --out $(PLOTS)/scaling.png"; \
+	  $(PLOT) scaling $(STUDY) --out $(PLOTS)/scaling.png; \
+	else echo "make plots: no $(STUDY): no scaling.png"; fi
 
 clean:
 	rm -rf $(BUILD)

@@ -1,0 +1,901 @@
+#!/usr/bin/python3
+"""Plots of cvt-engine results (Debian's python3-h5py, python3-matplotlib, python3-numpy).
+
+    /usr/bin/python3 tools/cvt_plot.py history RUN.h5 [--from T0] [--to T1] [--out history.png]
+    /usr/bin/python3 tools/cvt_plot.py profile RUN.h5|PROFILE.json [--out profile.png]
+    /usr/bin/python3 tools/cvt_plot.py scaling STUDY.csv|STUDY.json [--out scaling.png]
+    /usr/bin/python3 tools/cvt_plot.py spectrogram RUN.h5 CHANNEL [--column K] [--nperseg N] [--out FILE.png]
+    /usr/bin/python3 tools/cvt_plot.py animate RUN.h5 [--every K] [--fps F] [--out chain.gif]
+
+history: time histories of the tracked link and pin, chain torsion, supports, efficiency,
+speeds and torques (like Fig. 8 of Orlov et al. 2015). profile: share of each module in
+the run time (their Fig. 5) with the spread of busy time over threads. scaling: speedup
+against threads with the ideal line and the fitted Amdahl curve, per-module speedups and
+buffer zero+gather against compute time (their Fig. 9; Orlov et al. 2016, Figs. 8-11).
+spectrogram: short-time Fourier transform of one output channel. animate: the chain in
+the plane of the pulleys from the snapshots, links coloured by tension, as a GIF.
+docs/plots.md describes every panel. Exit codes: 0 success, 2 bad input (missing file,
+group, channel or column; a message on stderr names it).
+"""
+import argparse
+import csv
+import importlib.util
+import json
+import math
+import os
+import sys
+
+PROG = "cvt_plot"
+
+try:
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+except ImportError as e:  # matplotlib >= 3.3 needs Pillow as well
+    sys.exit(f"{PROG}: {e}: install Debian's python3-numpy and python3-matplotlib (with python3-pil) "
+             "and run this with /usr/bin/python3")
+
+
+class UserError(Exception):
+    """Bad input from the user: reported as one line on stderr, exit code 2."""
+
+
+def warn(msg):
+    print(f"{PROG}: {msg}", file=sys.stderr)
+
+
+# ---------------------------------------------------------------------------- input
+
+def as_str(x):
+    if isinstance(x, bytes):
+        return x.decode("utf-8", "replace")
+    if isinstance(x, np.ndarray) and x.shape == ():
+        return as_str(x[()])
+    if isinstance(x, np.bytes_):
+        return bytes(x).decode("utf-8", "replace")
+    return str(x)
+
+
+def open_h5(path):
+    try:
+        import h5py
+    except ImportError:
+        raise UserError("h5py is missing: install Debian's python3-h5py and use /usr/bin/python3")
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no such file")
+    try:
+        return h5py.File(path, "r")
+    except OSError as e:
+        # A run in progress or killed: the file is still open for writing (SWMR).
+        try:
+            return h5py.File(path, "r", swmr=True)
+        except OSError:
+            raise UserError(f"{path}: cannot open as HDF5: {e}")
+
+
+def channels(f):
+    g = f.get("observables")
+    return sorted(g.keys()) if g is not None else []
+
+
+def has_channel(f, name):
+    return f"observables/{name}/value" in f and f"observables/{name}/time" in f
+
+
+def read_channel(f, name, t0=None, t1=None):
+    """(time [s], value [T] or [T][k], unit) of /observables/NAME, cut to [t0, t1]."""
+    if not has_channel(f, name):
+        avail = ", ".join(channels(f)) or "none"
+        raise UserError(f"{f.filename}: no channel '{name}' (channels: {avail})")
+    t = np.asarray(f[f"observables/{name}/time"][:], dtype=float)
+    d = f[f"observables/{name}/value"]
+    v = np.asarray(d[:], dtype=float)
+    n = min(len(t), len(v))  # a file still being written may differ by a row
+    t, v = t[:n], v[:n]
+    unit = as_str(d.attrs.get("unit", "")) if "unit" in d.attrs else ""
+    m = np.ones(n, dtype=bool)
+    if t0 is not None:
+        m &= t >= t0
+    if t1 is not None:
+        m &= t <= t1
+    return t[m], v[m], unit
+
+
+def read_config(f):
+    """The resolved TOML of the run as a dict ({} if absent or unreadable)."""
+    import tomllib
+    if "parameters/config" not in f:
+        return {}
+    text = as_str(f["parameters/config"][()])
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        warn(f"{f.filename}: /parameters/config is not valid TOML ({e}); using defaults")
+        return {}
+
+
+# SI prefixes so that axes read "kN" or "mrad" instead of 1e4 or 2e-3.
+_PREFIXABLE = {"N", "m", "rad", "J", "W", "s"}
+
+
+def scaled(values, unit):
+    """(factor, unit label) so that values * factor lie around 1..1000."""
+    if unit not in _PREFIXABLE:
+        return 1.0, unit
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    m = float(np.max(np.abs(v))) if v.size else 0.0
+    if m == 0.0:
+        return 1.0, unit
+    for f, p in ((1e-6, "M"), (1e-3, "k"), (1.0, ""), (1e3, "m"), (1e6, "µ")):
+        if m * f >= 1.0:
+            return f, p + unit
+    return 1e6, "µ" + unit
+
+
+def ylabel(what, unit):
+    return f"{what} [{unit}]" if unit and unit != "-" else what
+
+
+def save(fig, out):
+    d = os.path.dirname(os.path.abspath(out))
+    if not os.path.isdir(d):
+        raise UserError(f"{out}: directory {d} does not exist")
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    print(f"{PROG}: wrote {out}")
+
+
+# -------------------------------------------------------------------------- history
+
+SUPPORT_LABELS = ["shaft 1, bearing at -l_b", "shaft 1, bearing at +l_b",
+                  "shaft 2, bearing at -l_b", "shaft 2, bearing at +l_b"]
+
+
+# Time axis of the history: (factor from s, unit), ms unless the window spans 2 s or more.
+TIME = [1e3, "ms"]
+
+
+def _envelope(t, v, most=20000):
+    """At most `most` points: the min and max of each bucket in time order, so that peaks of
+    a long run (10^5-10^6 samples) still show without drawing every sample."""
+    n = len(t)
+    if n <= most:
+        return t, v
+    k = math.ceil(n / (most // 2))
+    m = (n // k) * k
+    tb, vb = t[:m].reshape(-1, k), v[:m].reshape(-1, k)
+    i = np.arange(len(tb))
+    fin = np.isfinite(vb)
+    lo = np.argmin(np.where(fin, vb, np.inf), axis=1)
+    hi = np.argmax(np.where(fin, vb, -np.inf), axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    tt = np.stack([tb[i, first], tb[i, second]], axis=1).ravel()
+    vv = np.stack([vb[i, first], vb[i, second]], axis=1).ravel()
+    return np.concatenate([tt, t[m:]]), np.concatenate([vv, v[m:]])
+
+
+def _lines(ax, t, v, unit, labels=None, what="", **kw):
+    fac, u = scaled(v, unit)
+    if v.ndim == 1:
+        ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[0] if labels else None, **kw)
+    else:
+        k = v.shape[1]
+        colors = plt.cm.viridis(np.linspace(0, 0.9, k)) if k > 4 else [None] * k
+        for j in range(k):
+            lab = labels[j] if labels and j < len(labels) else f"{j + 1}"
+            ax.plot(*_envelope(t * TIME[0], v[:, j] * fac), lw=0.9, color=colors[j], label=lab, **kw)
+    ax.set_ylabel(ylabel(what, u))
+    return fac, u
+
+
+def _windowed_ratio(f, num, den, t0, t1, window):
+    """(num(t) - num(t - w)) / (den(t) - den(t - w)) of two cumulative channels (works)."""
+    t, wd, _ = read_channel(f, den)
+    tn, wn, _ = read_channel(f, num)
+    n = min(len(t), len(tn))
+    t, wd, wn = t[:n], wd[:n], wn[:n]
+    if n < 3:
+        return None
+    span = (t1 if t1 is not None else t[-1]) - (t0 if t0 is not None else t[0])
+    w = window if window else 0.2 * span
+    w = max(w, 3 * float(np.median(np.diff(t))))
+    j = np.searchsorted(t, t - w)  # start of each window
+    ok = (t - t[0] >= w * 0.999) & (j < np.arange(n))
+    dd = wd - wd[j]
+    dn = wn - wn[j]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(ok & (np.abs(dd) > 0), dn / dd, np.nan)
+    m = np.ones(n, dtype=bool)
+    if t0 is not None:
+        m &= t >= t0
+    if t1 is not None:
+        m &= t <= t1
+    return t[m], r[m], w
+
+
+def cmd_history(a):
+    f = open_h5(a.file)
+    if not channels(f):
+        raise UserError(f"{a.file}: no /observables group (not a cvt-engine run?)")
+    t0, t1 = a.t0, a.t1
+    panels = []  # (title, draw(ax) -> bool)
+
+    def simple(title, name, what, labels=None):
+        def draw(ax):
+            t, v, u = read_channel(f, name, t0, t1)
+            if len(t) == 0:
+                return False
+            _lines(ax, t, v, u, labels, what)
+            if v.ndim == 2 and 1 < v.shape[1] <= 6:
+                ax.legend(fontsize=7, ncol=2, loc="best")
+            elif v.ndim == 2:  # many lines: name the first and the last, the colours run between
+                h = ax.get_lines()
+                ax.legend([h[0], h[-1]], [h[0].get_label(), h[-1].get_label()], fontsize=7, ncol=2,
+                          loc="best", title=f"{v.shape[1]} lines, dark to light", title_fontsize=7)
+            return True
+        panels.append((title, [name], draw))
+
+    def group(title, names, what, labels):
+        def draw(ax):
+            fac = None
+            drawn = False
+            present = [n for n in names if has_channel(f, n)]
+            vals = [read_channel(f, n, t0, t1) for n in present]
+            allv = np.concatenate([v.ravel() for _, v, _ in vals]) if vals else np.zeros(0)
+            for (t, v, u), n in zip(vals, present):
+                if len(t) == 0:
+                    continue
+                if fac is None:
+                    fac, uu = scaled(allv, u)
+                ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[names.index(n)])
+                ax.set_ylabel(ylabel(what, uu))
+                drawn = True
+            if drawn:
+                ax.legend(fontsize=7, loc="best")
+            return drawn
+        panels.append((title, names, draw))
+
+    simple("Link tension (tracked link)", "link_tension", "tension")
+    simple("Plate tension (plates of the tracked link)", "plate_tension", "tension",
+           labels=[f"plate {j + 1}" for j in range(64)])
+    simple("Pin axial force (tracked pin)", "pin_axial_force", "axial force", ["half a", "half b"])
+    simple("Chain torsion angle", "chain_torsion_angle", "angle")
+    simple("Support forces", "support_force", "force", SUPPORT_LABELS)
+
+    def draw_eff(ax):
+        curves = []  # (t, value) that set the axis range
+        if has_channel(f, "efficiency"):
+            t, v, _ = read_channel(f, "efficiency", t0, t1)
+            if len(t):
+                ax.plot(*_envelope(t * TIME[0], v), lw=0.6, color="0.6", alpha=0.6, label="instantaneous P_out / P_in")
+                curves.append((t, v))
+        run = None
+        if has_channel(f, "running_efficiency"):
+            t, v, _ = read_channel(f, "running_efficiency", t0, t1)
+            run = (t, v, "running efficiency (engine)")
+        elif has_channel(f, "work_input") and has_channel(f, "work_output"):
+            r = _windowed_ratio(f, "work_output", "work_input", t0, t1, a.eff_window)
+            if r is not None:
+                run = (r[0], r[1], f"ΔW_out / ΔW_in over {r[2] * 1e3:.3g} ms")
+        if run is not None and len(run[0]):
+            ax.plot(run[0] * TIME[0], run[1], lw=1.4, color="C3", label=run[2])
+            curves = [(run[0], run[1])]
+        # Losses alone: blind to energy moving in and out of the torsion springs and inertias.
+        if has_channel(f, "work_dissipated") and has_channel(f, "work_input"):
+            r = _windowed_ratio(f, "work_dissipated", "work_input", t0, t1, a.eff_window)
+            if r is not None and len(r[0]):
+                ax.plot(r[0] * TIME[0], 1 - r[1], lw=1.2, ls="--", color="C0",
+                        label=f"1 - ΔW_dissipated / ΔW_in over {r[2] * 1e3:.3g} ms")
+                curves.append((r[0], 1 - r[1]))
+        if not curves:
+            return False
+        # Scale to the second half of the window: during the start-up the ramped load and the
+        # spinning-up inertias store and release energy, and P_out / P_in means nothing.
+        late = [v[np.isfinite(v) & (t >= t[0] + 0.5 * (t[-1] - t[0]))] for t, v in curves]
+        late = np.concatenate(late)
+        if late.size:
+            lo, hi = float(np.min(late)), float(np.max(late))
+            pad = max(0.02, 0.15 * (hi - lo))
+            top = hi + pad + 0.6 * (hi - lo + 2 * pad)  # the top third stays free for the legend
+            ax.set_ylim(lo - pad, top)
+            allf = np.concatenate([v[np.isfinite(v)] for _, v in curves])
+            if np.any((allf < lo - pad) | (allf > top)):
+                ax.text(0.01, 0.03, "scaled to the second half of the window; earlier values run off the axis",
+                        transform=ax.transAxes, fontsize=7, va="bottom", color="0.35")
+        ax.set_ylabel("efficiency [-]")
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.9)
+        return True
+    panels.append(("Efficiency", ["running_efficiency", "efficiency", "work_input"], draw_eff))
+
+    group("Shaft speeds", ["input_speed", "output_speed", "load_speed"], "speed",
+          ["input (shaft 1)", "output (shaft 2)", "load"])
+    group("Torques", ["input_torque", "output_torque", "load_torque"], "torque",
+          ["input (drive spring)", "output (load spring)", "load"])
+
+    avail = [p for p in panels if any(has_channel(f, n) for n in p[1])]
+    span = [read_channel(f, n, t0, t1)[0] for p in avail for n in p[1][:1] if has_channel(f, n)]
+    span = max((float(x[-1] - x[0]) for x in span if len(x)), default=0.0)
+    TIME[:] = [1e3, "ms"] if span < 2.0 else [1.0, "s"]
+    for title, names, _ in panels:
+        if not any(has_channel(f, n) for n in names):
+            warn(f"history: skipping panel '{title}': channel {names[0]} not in {a.file}")
+    if not avail:
+        raise UserError(f"{a.file}: none of the history channels is present")
+    ncol = 2
+    nrow = math.ceil(len(avail) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.7 * nrow + 0.8), sharex=True, squeeze=False)
+    drawn_any = False
+    for ax, (title, _, draw) in zip(axes.ravel(), avail):
+        ok = draw(ax)
+        drawn_any |= ok
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+        if not ok:
+            ax.text(0.5, 0.5, "no samples in the window", ha="center", va="center", transform=ax.transAxes)
+    for ax in axes.ravel()[len(avail):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel(f"time [{TIME[1]}]")
+        ax.xaxis.set_tick_params(labelbottom=True)
+    if len(avail) % ncol:
+        axes[-2][-1].set_xlabel(f"time [{TIME[1]}]")
+        axes[-2][-1].xaxis.set_tick_params(labelbottom=True)
+    if not drawn_any:
+        raise UserError(f"{a.file}: no samples in the window [{t0}, {t1}] s")
+    fig.suptitle(f"{os.path.basename(a.file)}: time histories" + _cfg_note(f), fontsize=12)
+    fig.tight_layout()
+    save(fig, a.out)
+
+
+def _cfg_note(f):
+    c = read_config(f)
+    try:
+        return (f"  ({c['chain']['links']} links, load {c['load']['torque']:g} N m, "
+                f"clamping {c['clamping']['driving'] / 1e3:g}/{c['clamping']['driven'] / 1e3:g} kN, "
+                f"tracked link {c['run'].get('tracked_link', 0)}, pin {c['run'].get('tracked_pin', 0)})")
+    except (KeyError, TypeError):
+        return ""
+
+
+# -------------------------------------------------------------------------- profile
+
+PROFILE_COLUMNS = ["calls", "wall_s", "us_per_step", "percent", "busy_min_s", "busy_avg_s",
+                   "busy_max_s", "imbalance_percent"]
+HEADER_KEYS = ["steps", "us_per_step", "model_s_per_hour", "threads", "numa_nodes", "scheduler", "wall_s"]
+
+
+def _is_hdf5(path):
+    with open(path, "rb") as fh:
+        return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+
+
+def _looks_like_json(path):
+    with open(path, "rb") as fh:
+        return fh.read(64).lstrip()[:1] == b"{"
+
+
+def load_profile(path):
+    """(header dict, list of row dicts) from a --profile-json file or a run's /profile group."""
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no such file")
+    if not _is_hdf5(path):
+        try:
+            with open(path) as fh:
+                d = json.load(fh)
+        except (OSError, json.JSONDecodeError) as e:
+            raise UserError(f"{path}: neither HDF5 nor JSON ({e})")
+        if not isinstance(d, dict) or "rows" not in d or not isinstance(d["rows"], list):
+            raise UserError(f"{path}: no 'rows' list (not a --profile-json file?)")
+        header = d.get("header", {})
+        rows = d["rows"]
+        for i, r in enumerate(rows):
+            miss = [k for k in ["name"] + PROFILE_COLUMNS if k not in r]
+            if miss:
+                raise UserError(f"{path}: row {i} lacks {', '.join(miss)}")
+        return header, rows
+    f = open_h5(path)
+    g = f.get("profile")
+    if g is None:
+        raise UserError(f"{path}: no /profile group (was the run profiled?)")
+    header = {k: (as_str(g.attrs[k]) if k == "scheduler" else g.attrs[k].item() if hasattr(g.attrs[k], "item") else g.attrs[k])
+              for k in HEADER_KEYS if k in g.attrs}
+    miss = [k for k in ["name"] + PROFILE_COLUMNS if k not in g]
+    if miss:
+        raise UserError(f"{path}: /profile lacks {', '.join(miss)}")
+    names = [as_str(x) for x in g["name"][:]]
+    cols = {k: np.asarray(g[k][:], dtype=float) for k in PROFILE_COLUMNS}
+    rows = [dict(name=n, **{k: float(cols[k][i]) for k in PROFILE_COLUMNS}) for i, n in enumerate(names)]
+    return header, rows
+
+
+# tab10 without its grey (grey is the total bar), then tab20's light tones.
+_PALETTE = [plt.cm.tab10(i) for i in (0, 1, 2, 3, 4, 5, 6, 8, 9)] + [plt.cm.tab20(i) for i in (1, 3, 5, 7, 9, 11)]
+
+
+def _int(x):
+    """Counts come as doubles from the HDF5 attributes: 2.0 threads reads 2."""
+    try:
+        return int(x) if float(x) == int(x) else x
+    except (TypeError, ValueError):
+        return x
+
+
+def cmd_profile(a):
+    header, rows = load_profile(a.file)
+    if not rows:
+        raise UserError(f"{a.file}: the profile has no rows")
+    total = [r for r in rows if r["name"] == "total"]
+    mods = [r for r in rows if r["name"] != "total"]
+    fig = plt.figure(figsize=(14, 10))
+    gs = fig.add_gridspec(2, 2, width_ratios=[1.2, 1.0], height_ratios=[1.0, 0.85])
+    ax1, ax2, ax3 = fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1]), fig.add_subplot(gs[1, :])
+    # Fig. 5 of the paper: one bar per module, percent of the whole run, "Rk4Step" = 100 %.
+    bars = mods + total
+    names = [r["name"] for r in bars]
+    pct = [r["percent"] for r in bars]
+    colors = [_PALETTE[i % len(_PALETTE)] for i in range(len(mods))] + ["0.45"] * len(total)
+    y = np.arange(len(bars))
+    ax1.barh(y, pct, color=colors)
+    for yi, p, r in zip(y, pct, bars):
+        ax1.text(p + 1, yi, f"{p:.1f} %  ({r['us_per_step']:.3g} µs/step)", va="center", fontsize=8)
+    ax1.set_yticks(y, names)
+    ax1.invert_yaxis()
+    ax1.set_xlim(0, max(max(pct), 100) * 1.45)
+    ax1.set_xlabel("share of the run's wall time [%]")
+    ax1.set_title("Load distribution between modules", fontsize=10)
+    ax1.grid(axis="x", alpha=0.3)
+
+    share = np.array([max(r["percent"], 0.0) for r in mods])
+    if share.sum() > 0:
+        frac = 100 * share / share.sum()
+        wedges, _ = ax2.pie(share, colors=colors[:len(mods)], startangle=90, counterclock=False,
+                            wedgeprops=dict(ec="w", lw=0.8))
+        for w, p in zip(wedges, frac):
+            if p >= 4:
+                ang = np.deg2rad((w.theta1 + w.theta2) / 2)
+                ax2.text(0.7 * np.cos(ang), 0.7 * np.sin(ang), f"{p:.0f} %", ha="center", va="center",
+                         fontsize=9, color="w", weight="bold")
+        ax2.legend(wedges, [f"{r['name']} ({p:.1f} %)" for r, p in zip(mods, frac)], fontsize=8,
+                   loc="center left", bbox_to_anchor=(1.0, 0.5), frameon=False)
+        ax2.set_title("Shares of the modules (without total)", fontsize=10)
+    else:
+        ax2.set_visible(False)
+
+    # Spread of busy time over the threads: min / avg / max, in µs per step.
+    steps = float(header.get("steps", 0) or 0)
+    per = 1e6 / steps if steps > 0 else 1.0
+    unit = "µs per step" if steps > 0 else "s"
+    busy = [r for r in mods if r["busy_max_s"] > 0]
+    if busy:
+        yb = np.arange(len(busy))
+        avg = np.array([r["busy_avg_s"] for r in busy]) * per
+        lo = avg - np.array([r["busy_min_s"] for r in busy]) * per
+        hi = np.array([r["busy_max_s"] for r in busy]) * per - avg
+        ax3.barh(yb, avg, color=[colors[mods.index(r)] for r in busy], alpha=0.8, label="average over threads")
+        ax3.errorbar(avg, yb, xerr=[lo, hi], fmt="none", ecolor="k", capsize=4, lw=1, label="min .. max")
+        for yi, r, v, h in zip(yb, busy, avg, hi):
+            ax3.text(v + h + 0.02 * (avg + hi).max(), yi, f"imbalance {r['imbalance_percent']:.1f} %",
+                     va="center", fontsize=8)
+        ax3.set_yticks(yb, [r["name"] for r in busy])
+        ax3.invert_yaxis()
+        ax3.set_xlim(0, (avg + hi).max() * 1.5)
+        ax3.set_xlabel(f"busy time per thread [{unit}]")
+        ax3.legend(fontsize=8, loc="lower right")
+    else:
+        ax3.text(0.5, 0.5, "no busy times in the profile", ha="center", va="center", transform=ax3.transAxes)
+    ax3.set_title("Busy time per thread: min / avg / max", fontsize=10)
+    ax3.grid(axis="x", alpha=0.3)
+
+    h = header
+    parts = []
+    if "steps" in h:
+        parts.append(f"{int(h['steps'])} steps")
+    if "us_per_step" in h:
+        parts.append(f"{float(h['us_per_step']):.1f} µs/step")
+    if "model_s_per_hour" in h:
+        parts.append(f"{float(h['model_s_per_hour']):.3g} model s/h")
+    if "scheduler" in h:
+        th, nn = _int(h.get("threads", "?")), _int(h.get("numa_nodes", "?"))
+        parts.append(f"{h['scheduler']}, {th} thread{'' if th == 1 else 's'}, {nn} NUMA node{'' if nn == 1 else 's'}")
+    if "wall_s" in h:
+        parts.append(f"wall {float(h['wall_s']):.1f} s")
+    fig.suptitle(f"{os.path.basename(a.file)}: run-time profile\n" + ", ".join(parts), fontsize=11)
+    fig.tight_layout()
+    save(fig, a.out)
+
+
+# -------------------------------------------------------------------------- scaling
+
+SCALING_COLUMNS = ["scheduler", "layout", "threads", "steps", "repeat", "us_per_step", "speedup", "efficiency",
+                   "chain_us", "chain_speedup", "pulley_us", "pulley_speedup", "zero_gather_us", "compute_us",
+                   "amdahl_serial_fraction"]
+_TEXT = {"scheduler", "layout"}
+
+
+def _num(x):
+    """A number of a study; an empty cell (not measured) is NaN and drops out of the lines."""
+    return float("nan") if x is None or (isinstance(x, str) and not x.strip()) else float(x)
+
+
+def load_scaling(path):
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no such file")
+    title = ""
+    try:
+        if _looks_like_json(path):
+            with open(path) as fh:
+                d = json.load(fh)
+            if not isinstance(d, dict) or not isinstance(d.get("rows"), list):
+                raise UserError(f"{path}: no 'rows' list (not a scaling study?)")
+            raw = d["rows"]
+            title = str(d.get("config", ""))
+        else:
+            with open(path, newline="") as fh:
+                raw = list(csv.DictReader(fh))
+    except (OSError, json.JSONDecodeError, csv.Error, UnicodeDecodeError) as e:
+        raise UserError(f"{path}: cannot read: {e}")
+    if not raw:
+        raise UserError(f"{path}: no rows")
+    miss = [k for k in SCALING_COLUMNS if k not in raw[0]]
+    if miss:
+        raise UserError(f"{path}: missing column(s) {', '.join(miss)}")
+    rows = []
+    for i, r in enumerate(raw):
+        try:
+            rows.append({k: (str(r[k]) if k in _TEXT else _num(r[k])) for k in SCALING_COLUMNS})
+        except (TypeError, ValueError) as e:
+            raise UserError(f"{path}: row {i + 1}: {e}")
+    bad = [i + 1 for i, r in enumerate(rows) if not (np.isfinite(r["threads"]) and r["threads"] >= 1)]
+    if bad:
+        raise UserError(f"{path}: row(s) {', '.join(map(str, bad[:5]))}: threads must be a number >= 1")
+    return title, rows
+
+
+def _median_by_threads(rows, key):
+    th = sorted({r["threads"] for r in rows})
+    return np.array(th), np.array([np.median([r[key] for r in rows if r["threads"] == n]) for n in th])
+
+
+def cmd_scaling(a):
+    title, rows = load_scaling(a.file)
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["scheduler"], r["layout"]), []).append(r)
+    nmax = max(r["threads"] for r in rows)
+    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(17, 5.5))
+    xs = np.linspace(1, nmax, 200)
+    for ax in (ax1, ax2):
+        ax.plot([1, nmax], [1, nmax], color="0.5", ls=":", lw=1, label="ideal")
+    for i, ((sched, layout), g) in enumerate(sorted(groups.items())):
+        c = plt.cm.tab10(i % 10)
+        name = sched if layout in ("", "-", "default") else f"{sched} / {layout}"
+        th, sp = _median_by_threads(g, "speedup")
+        ax1.plot(th, sp, "o-", color=c, label=name)
+        if len({r["repeat"] for r in g}) > 1:
+            ax1.plot([r["threads"] for r in g], [r["speedup"] for r in g], ".", color=c, alpha=0.35, ms=4)
+        s = g[0]["amdahl_serial_fraction"]
+        if np.isfinite(s) and 0 <= s <= 1:
+            ax1.plot(xs, 1 / (s + (1 - s) / xs), "--", color=c, lw=1, label=f"Amdahl fit, serial fraction {s:.3f}")
+        th, cs = _median_by_threads(g, "chain_speedup")
+        ax2.plot(th, cs, "o-", color=c, label=f"{name}: chain forces")
+        th, ps = _median_by_threads(g, "pulley_speedup")
+        ax2.plot(th, ps, "s--", color=c, mfc="none", label=f"{name}: pulley contact")
+        th, zg = _median_by_threads(g, "zero_gather_us")
+        th, cu = _median_by_threads(g, "compute_us")
+        ax3.plot(th, cu, "o-", color=c, label=f"{name}: compute")
+        if np.any(zg > 0):
+            ax3.plot(th, zg, "s--", color=c, mfc="none", label=f"{name}: buffer zero + gather")
+    ticks = sorted({int(r["threads"]) for r in rows})
+    for ax in (ax1, ax2, ax3):
+        ax.set_xlabel("threads")
+        ax.set_xticks(ticks if len(ticks) <= 16 else ticks[:: math.ceil(len(ticks) / 16)])
+        ax.grid(alpha=0.3)
+        # Above the ideal line there is room on the speedup panels.
+        ax.legend(fontsize=7, loc="upper left" if ax is not ax3 else "best")
+    ax1.set_ylabel("speedup of a whole step [-]")
+    ax1.set_title("Whole RK4 step", fontsize=10)
+    ax2.set_ylabel("speedup of the module [-]")
+    ax2.set_title("Modules: chain forces, pulley contact", fontsize=10)
+    ax3.set_ylabel("time per step [µs]")
+    ax3.set_title("Thread-local buffers: zero + gather vs compute", fontsize=10)
+    pos = [r[k] for r in rows for k in ("zero_gather_us", "compute_us") if r[k] > 0]
+    if pos and max(pos) / min(pos) > 30:
+        ax3.set_yscale("log")
+    else:
+        ax3.set_ylim(bottom=0)
+    ax1.set_ylim(bottom=0)
+    ax2.set_ylim(bottom=0)
+    base = os.path.basename(a.file)
+    fig.suptitle(f"{base}: scaling" + (f" ({title})" if title else "")
+                 + "  (lines: median over repeats, dots: single repeats)", fontsize=11)
+    fig.tight_layout()
+    save(fig, a.out)
+
+
+# ---------------------------------------------------------------------- spectrogram
+
+def cmd_spectrogram(a):
+    from matplotlib import mlab
+    f = open_h5(a.file)
+    t, v, unit = read_channel(f, a.channel, a.t0, a.t1)
+    if v.ndim == 2:
+        k = v.shape[1]
+        col = 0 if a.column is None else a.column
+        if not 0 <= col < k:
+            raise UserError(f"{a.channel} has {k} columns (0..{k - 1}); --column {col} is out of range")
+        v = v[:, col]
+        label = f"{a.channel}[{col}]"
+    else:
+        if a.column not in (None, 0):
+            raise UserError(f"{a.channel} has one column; --column {a.column} is out of range")
+        label = a.channel
+    good = np.isfinite(v)
+    t, v = t[good], v[good]
+    if len(t) < 16:
+        raise UserError(f"{a.channel}: {len(t)} samples in the window, too few for a spectrogram (need 16)")
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0:
+        raise UserError(f"{a.channel}: time is not increasing")
+    fs = 1.0 / dt
+    n = a.nperseg or max(16, min(256, 2 ** int(math.log2(len(v) / 8))))
+    if n > len(v):
+        raise UserError(f"--nperseg {n} is longer than the {len(v)} samples in the window")
+    nover = int(a.overlap * n) if a.overlap is not None else (3 * n) // 4
+    nover = min(max(nover, 0), n - 1)
+    P, freqs, tt = mlab.specgram(v, NFFT=n, Fs=fs, noverlap=nover, detrend=a.detrend,
+                                 window=mlab.window_hanning, mode="psd")
+    tt = tt + t[0]
+    khz = freqs[-1] > 2000
+    fsc, funit = (1e-3, "kHz") if khz else (1.0, "Hz")
+    db = 10 * np.log10(np.maximum(P, np.max(P) * 1e-30 if np.max(P) > 0 else 1e-300))
+    vmax = float(np.max(db))
+    vmin = vmax - a.range_db
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(11, 7.5), sharex=True,
+                                   gridspec_kw=dict(height_ratios=[1, 2.2]))
+    fac, u = scaled(v, unit)
+    ax0.plot(t * 1e3, v * fac, lw=0.8)
+    ax0.set_ylabel(ylabel(label, u))
+    ax0.grid(alpha=0.3)
+    ax0.set_title(f"{os.path.basename(a.file)}: {label}", fontsize=11)
+    dtt = (tt[1] - tt[0]) if len(tt) > 1 else n * dt
+    edges_t = np.concatenate([tt - dtt / 2, [tt[-1] + dtt / 2]]) * 1e3
+    df = freqs[1] - freqs[0]
+    edges_f = np.concatenate([freqs - df / 2, [freqs[-1] + df / 2]]) * fsc
+    edges_f[0] = max(edges_f[0], 0)
+    m = ax1.pcolormesh(edges_t, edges_f, db, vmin=vmin, vmax=vmax, cmap="magma", shading="flat")
+    cu = (f"({unit})²/Hz" if " " in unit else f"{unit}²/Hz") if unit and unit != "-" else "1/Hz"
+    fig.colorbar(m, ax=ax1, label=f"power spectral density [dB re 1 {cu}]", pad=0.01)
+    ax1.set_ylabel(f"frequency [{funit}]")
+    ax1.set_xlabel("time [ms]")
+    ax1.set_title(f"STFT: Hann window of {n} samples ({n * dt * 1e3:.3g} ms, Δf = {df * fsc:.3g} {funit}), "
+                  f"{nover} overlap, {a.detrend} trend removed, fs = {fs * fsc:.4g} {funit}", fontsize=10)
+    if a.fmax:
+        ax1.set_ylim(0, a.fmax * fsc)
+    # Align the signal panel with the spectrogram (the colorbar takes width from ax1 only).
+    fig.tight_layout()
+    p0, p1 = ax0.get_position(), ax1.get_position()
+    ax0.set_position([p1.x0, p0.y0, p1.width, p0.height])
+    save(fig, a.out)
+
+
+# -------------------------------------------------------------------------- animate
+
+def _wrap_radius(P, cx):
+    """Mean distance of the joints on the far side of a pulley centre (cx, 0) from it."""
+    x, y = P[:, 0], P[:, 1]
+    side = x < cx if cx <= 0 else x > cx
+    if not np.any(side):
+        return float("nan")
+    return float(np.mean(np.hypot(x[side] - cx, y[side])))
+
+
+def cmd_animate(a):
+    from matplotlib import animation
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Circle
+    f = open_h5(a.file)
+    if "particles/chain/position/value" not in f:
+        raise UserError(f"{a.file}: no /particles/chain/position snapshots (run with run.snapshot_interval > 0)")
+    ts = np.asarray(f["particles/chain/position/time"][:], dtype=float)
+    P = f["particles/chain/position/value"]
+    if P.ndim != 3 or P.shape[2] < 2:
+        raise UserError(f"{a.file}: /particles/chain/position/value has shape {P.shape}, expected [S][N][3]")
+    S = min(len(ts), P.shape[0])
+    T = None
+    if "particles/chain/link_tension/value" in f:
+        T = f["particles/chain/link_tension/value"]
+        S = min(S, T.shape[0])
+    if S == 0:
+        raise UserError(f"{a.file}: no snapshots")
+    idx = np.arange(0, S, max(1, a.every))
+    if a.t0 is not None:
+        idx = idx[ts[idx] >= a.t0]
+    if a.t1 is not None:
+        idx = idx[ts[idx] <= a.t1]
+    if len(idx) == 0:
+        raise UserError(f"no snapshot in the window [{a.t0}, {a.t1}] s")
+    pos = np.asarray(P[idx.tolist()], dtype=float)
+    ten = np.asarray(T[idx.tolist()], dtype=float) if T is not None else None
+    cfg = read_config(f)
+    geo = cfg.get("geometry", {})
+    sh = cfg.get("sheave", {})
+    if "centre_distance" in geo:
+        dist = float(geo["centre_distance"])
+    else:
+        dist = float(np.ptp(pos[0][:, 0])) - 2 * _wrap_radius(pos[0], float(np.min(pos[0][:, 0])))
+        warn(f"{a.file}: no geometry.centre_distance in /parameters/config; estimated {dist * 1e3:.1f} mm")
+    r_out = float(sh.get("outer_radius", np.nan))
+    r_hub = float(sh.get("hub_radius", np.nan))
+    centres = [(0.0, 0.0), (dist, 0.0)]
+
+    fig, ax = plt.subplots(figsize=(9, 5.2))
+    ax.set_aspect("equal")
+    mm = 1e3
+    for (cx, cy), name in zip(centres, ("driving", "driven")):
+        if np.isfinite(r_out):
+            ax.add_patch(Circle((cx * mm, cy * mm), r_out * mm, fc="0.85", ec="0.55", lw=0.8, alpha=0.45,
+                                label="sheave outer radius" if name == "driving" else None))
+        if np.isfinite(r_hub):
+            ax.add_patch(Circle((cx * mm, cy * mm), r_hub * mm, fc="0.7", ec="0.45", lw=0.8, alpha=0.6,
+                                label="hub" if name == "driving" else None))
+        ax.plot(cx * mm, cy * mm, "k+", ms=10)
+        ax.text(cx * mm, cy * mm - 0.35 * (r_hub if np.isfinite(r_hub) else 0.01) * mm - 1.0, name,
+                ha="center", va="top", fontsize=8)
+    wraps = [Circle((cx * mm, cy * mm), 1, fill=False, ls="--", ec="C0", lw=1,
+                    label="wrap radius (mean over the joints beyond the centre)" if i == 0 else None)
+             for i, (cx, cy) in enumerate(centres)]
+    for w in wraps:
+        ax.add_patch(w)
+    if ten is not None:
+        lo, hi = np.nanpercentile(ten, [1, 99])
+        if not hi > lo:
+            hi = lo + 1
+        tfac, tunit = scaled(np.array([lo, hi]), "N")
+        norm = plt.Normalize(lo * tfac, hi * tfac)
+    lc = LineCollection([], lw=3, cmap="plasma", norm=norm if ten is not None else None,
+                        color=None if ten is not None else "k")
+    ax.add_collection(lc)
+    joints, = ax.plot([], [], "o", ms=2.2, color="k")
+    tracked, = ax.plot([], [], "o", ms=7, mfc="none", mec="C2", mew=2, label="joint 0")
+    if ten is not None:
+        fig.colorbar(lc, ax=ax, label=f"link tension [{tunit}]", shrink=0.8, pad=0.02)
+    allp = pos[:, :, :2].reshape(-1, 2)
+    pad = 0.08 * dist
+    xr = [min(allp[:, 0].min(), -r_out if np.isfinite(r_out) else 0) - pad,
+          max(allp[:, 0].max(), dist + r_out if np.isfinite(r_out) else dist) + pad]
+    yr = [min(allp[:, 1].min(), -r_out if np.isfinite(r_out) else 0) - pad,
+          max(allp[:, 1].max(), r_out if np.isfinite(r_out) else 0) + pad]
+    ax.set_xlim(xr[0] * mm, xr[1] * mm)
+    ax.set_ylim(yr[0] * mm, yr[1] * mm)
+    ax.set_xlabel("x [mm] (driving pulley at 0, driven pulley at the centre distance)")
+    ax.set_ylabel("y [mm]")
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.13), ncol=4, fontsize=7, frameon=False)
+    ttl = ax.set_title("")
+
+    def frame(i):
+        p = pos[i][:, :2] * mm
+        seg = np.stack([p, np.roll(p, -1, axis=0)], axis=1)  # link i joins joint i and i+1
+        lc.set_segments(seg)
+        if ten is not None:
+            lc.set_array(ten[i] * tfac)
+        joints.set_data(p[:, 0], p[:, 1])
+        tracked.set_data([p[0, 0]], [p[0, 1]])
+        r = [_wrap_radius(pos[i], cx) for cx, _ in centres]
+        for w, ri in zip(wraps, r):
+            w.set_radius(ri * mm if np.isfinite(ri) else 0)
+        ttl.set_text(f"{os.path.basename(a.file)}: t = {ts[idx[i]] * 1e3:.3f} ms   "
+                     f"wrap radii R1 = {r[0] * mm:.2f} mm, R2 = {r[1] * mm:.2f} mm")
+        return lc, joints, tracked, ttl, *wraps
+
+    fig.tight_layout()
+    frame(0)
+    have_pil = importlib.util.find_spec("PIL") is not None
+    if have_pil and a.out.lower().endswith(".gif"):
+        d = os.path.dirname(os.path.abspath(a.out))
+        if not os.path.isdir(d):
+            raise UserError(f"{a.out}: directory {d} does not exist")
+        anim = animation.FuncAnimation(fig, frame, frames=len(idx), blit=False)
+        anim.save(a.out, writer=animation.PillowWriter(fps=a.fps), dpi=a.dpi)
+        plt.close(fig)
+        print(f"{PROG}: wrote {a.out} ({len(idx)} frames)")
+        return
+    if not have_pil:
+        warn("Pillow (Debian's python3-pil) is missing: writing PNG frames instead of a GIF")
+    stem = os.path.splitext(a.out)[0]
+    os.makedirs(stem + "_frames", exist_ok=True)
+    for i in range(len(idx)):
+        frame(i)
+        fig.savefig(os.path.join(stem + "_frames", f"frame_{i:05d}.png"), dpi=a.dpi)
+    plt.close(fig)
+    print(f"{PROG}: wrote {len(idx)} frames to {stem}_frames/")
+
+
+# ----------------------------------------------------------------------------- main
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser():
+    ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0],
+                epilog="See docs/plots.md for what every panel shows.")
+    sub = ap.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=Parser)
+    sub.required = True
+
+    def window(p):
+        p.add_argument("--from", dest="t0", type=float, default=None, metavar="T0", help="start of the window [s]")
+        p.add_argument("--to", dest="t1", type=float, default=None, metavar="T1", help="end of the window [s]")
+
+    p = sub.add_parser("history", help="time histories (tensions, pin force, torsion, supports, efficiency, speeds, torques)")
+    p.add_argument("file", metavar="RUN.h5")
+    window(p)
+    p.add_argument("--eff-window", type=float, default=None, metavar="S",
+                   help="window of the running efficiency from the works [s] (default 20 %% of the plotted span)")
+    p.add_argument("--out", default="history.png", help="output image (default history.png)")
+    p.set_defaults(func=cmd_history)
+
+    p = sub.add_parser("profile", help="module shares of the run time (a run's /profile or --profile-json)")
+    p.add_argument("file", metavar="PROFILE", help="RUN.h5 with a /profile group, or PROFILE.json")
+    p.add_argument("--out", default="profile.png", help="output image (default profile.png)")
+    p.set_defaults(func=cmd_profile)
+
+    p = sub.add_parser("scaling", help="speedup against threads from a scaling study (CSV or JSON)")
+    p.add_argument("file", metavar="STUDY", help="STUDY.csv or STUDY.json")
+    p.add_argument("--out", default="scaling.png", help="output image (default scaling.png)")
+    p.set_defaults(func=cmd_scaling)
+
+    p = sub.add_parser("spectrogram", help="short-time Fourier transform of one channel")
+    p.add_argument("file", metavar="RUN.h5")
+    p.add_argument("channel", metavar="CHANNEL", help="name under /observables, e.g. output_torque")
+    p.add_argument("--column", type=int, default=None, metavar="K", help="column of a [T][k] channel (default 0)")
+    p.add_argument("--nperseg", type=int, default=None, metavar="N",
+                   help="samples per FFT segment (default: a power of 2, at most 256 and 1/8 of the samples)")
+    p.add_argument("--overlap", type=float, default=None, metavar="F", help="overlap as a fraction of a segment (default 0.75)")
+    p.add_argument("--fmax", type=float, default=None, metavar="HZ", help="upper end of the frequency axis [Hz]")
+    p.add_argument("--range-db", type=float, default=80.0, metavar="DB", help="dynamic range of the colour scale (default 80 dB)")
+    p.add_argument("--detrend", choices=["linear", "mean", "none"], default="linear",
+                   help="removed from each segment before the FFT (default linear: a ramp leaks less)")
+    window(p)
+    p.add_argument("--out", default=None, help="output image (default spectrogram-CHANNEL.png)")
+    p.set_defaults(func=cmd_spectrogram)
+
+    p = sub.add_parser("animate", help="the chain and pulleys from the snapshots, as a GIF")
+    p.add_argument("file", metavar="RUN.h5")
+    p.add_argument("--every", type=int, default=1, metavar="K", help="every K-th snapshot (default 1)")
+    p.add_argument("--fps", type=float, default=10.0, metavar="F", help="frames per second of the GIF (default 10)")
+    p.add_argument("--dpi", type=int, default=80, help="resolution of the frames (default 80)")
+    window(p)
+    p.add_argument("--out", default="chain.gif", help="output GIF (default chain.gif; PNG frames without Pillow)")
+    p.set_defaults(func=cmd_animate)
+    return ap
+
+
+def main(argv=None):
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    if a.cmd == "spectrogram" and a.out is None:
+        a.out = f"spectrogram-{a.channel}.png"
+    for k in ("every", "nperseg"):
+        if getattr(a, k, None) is not None and getattr(a, k) < 1:
+            ap.error(f"--{k} must be at least 1")
+    if getattr(a, "fps", 1) <= 0:
+        ap.error("--fps must be positive")
+    try:
+        a.func(a)
+    except UserError as e:
+        warn(f"{a.cmd}: {e}")
+        return 2
+    except OSError as e:  # I/O while reading or writing (disk full, permissions)
+        warn(f"{a.cmd}: {e}")
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
