@@ -138,8 +138,8 @@ TEST(OdeTestSet, OregonatorTrBdf2) { check_problem(orego(), OdeMethod::TrBdf2, 1
 
 // ESDIRK3 propagates its third-order solution while the step control watches the
 // second-order embedding (local extrapolation), so its global error stays near tol
-// itself: checked as the digits of tol less 1.5 (the worst measured loss is 1.13, OREGO
-// at tol 1e-9).
+// itself: checked as the digits of tol less 1.5 (the worst measured loss is 1.15, OREGO
+// at tol 1e-5).
 void check_esdirk3(const TestSetProblem& p, double atol_factor, double max_loss) {
   for (double tol : {1e-5, 1e-7, 1e-9}) {
     const RunResult r = run(p, OdeMethod::Esdirk3, tol, tol * atol_factor);
