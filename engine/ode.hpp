@@ -2,10 +2,10 @@
 //
 // The engine's production path keeps the fixed-step Rk4 of engine/integrator.hpp, whose
 // fused stage update the parallel runtime relies on bit for bit. This library sits beside
-// it: explicit (RK4, DOPRI5(4), RKC), implicit (trapezoid, TR-BDF2, ESDIRK3) methods behind one
-// driver, with error control, Newton with a reused Jacobian and factorization, and a
-// finite-difference Jacobian that needs one right-hand side per column colour when the
-// sparsity pattern is known.
+// it: explicit (RK4, DOPRI5(4), RKC) and implicit (trapezoid, TR-BDF2, ESDIRK3) methods
+// behind one driver, with error control, Newton with a reused Jacobian and factorization,
+// and a finite-difference Jacobian that needs one right-hand side per column colour when
+// the sparsity pattern is known.
 #pragma once
 
 #include <cstdint>
@@ -154,6 +154,7 @@ class FdJacobian {
 class OdeSolverImpl;
 
 // Owns the workspace of one method for one system: construct once, integrate many times.
+// Keeps a reference to sys, which must outlive it.
 class OdeSolver {
  public:
   OdeSolver(const OdeSystem& sys, OdeMethod method, const OdeOptions& options = {});
