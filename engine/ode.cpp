@@ -29,6 +29,7 @@ const char* to_string(OdeMethod method) {
     case OdeMethod::Rkc: return "rkc";
     case OdeMethod::Trapezoid: return "trapezoid";
     case OdeMethod::TrBdf2: return "trbdf2";
+    case OdeMethod::Esdirk3: return "esdirk3";
   }
   return "?";
 }
@@ -201,6 +202,8 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       break;
     case OdeMethod::Trapezoid:
     case OdeMethod::TrBdf2:
+    case OdeMethod::Esdirk3:
+      if (method_ == OdeMethod::Esdirk3) k2_.setZero(n_), k3_.setZero(n_);
       newton_.emplace(sys_);
       for (auto* v : {&z_, &zg_, &fg_, &psi_, &delta_, &scale_, &f_prev_}) v->setZero(n_);
       stats.colors = sys.is_sparse() && !sys.sparse_jacobian ? newton_->colors() : 0;
@@ -212,7 +215,7 @@ int OdeSolverImpl::order() const {
   switch (method_) {
     case OdeMethod::Rk4: return 4;
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
-    default: return 2;
+    default: return 2;  // RKC, trapezoid, TR-BDF2; ESDIRK3's estimate is its 2nd-order embedding
   }
 }
 
@@ -261,6 +264,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::Rkc: step_rkc(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Trapezoid: return step_trapezoid(t, h, y, err);
     case OdeMethod::TrBdf2: return step_trbdf2(t, h, y, err);
+    case OdeMethod::Esdirk3: return step_esdirk3(t, h, y, err);
     case OdeMethod::Rk4: break;
   }
   throw std::logic_error("OdeSolver: RK4 has no step attempt");

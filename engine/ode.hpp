@@ -2,10 +2,10 @@
 //
 // The engine's production path keeps the fixed-step Rk4 of engine/integrator.hpp, whose
 // fused stage update the parallel runtime relies on bit for bit. This library sits beside
-// it: explicit (RK4, DOPRI5(4), RKC), implicit (trapezoid, TR-BDF2) methods behind one
-// driver, with error control, Newton with a reused Jacobian and factorization, and a
-// finite-difference Jacobian that needs one right-hand side per column colour when the
-// sparsity pattern is known.
+// it: explicit (RK4, DOPRI5(4), RKC) and implicit (trapezoid, TR-BDF2, ESDIRK3) methods
+// behind one driver, with error control, Newton with a reused Jacobian and factorization,
+// and a finite-difference Jacobian that needs one right-hand side per column colour when
+// the sparsity pattern is known.
 #pragma once
 
 #include <cstdint>
@@ -51,6 +51,7 @@ enum class OdeMethod {
   Rkc,        // Runge-Kutta-Chebyshev, 2nd order, stabilized explicit (Sommeijer et al. 1997)
   Trapezoid,  // implicit trapezoidal rule, A-stable but not L-stable, order 2
   TrBdf2,     // TR-BDF2, gamma = 2 - sqrt 2, L-stable, order 2 (Hosea & Shampine 1996)
+  Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
 };
 
 const char* to_string(OdeMethod method);
@@ -153,6 +154,7 @@ class FdJacobian {
 class OdeSolverImpl;
 
 // Owns the workspace of one method for one system: construct once, integrate many times.
+// Keeps a reference to sys, which must outlive it.
 class OdeSolver {
  public:
   OdeSolver(const OdeSystem& sys, OdeMethod method, const OdeOptions& options = {});

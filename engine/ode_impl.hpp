@@ -61,7 +61,9 @@ class OdeSolverImpl {
   double error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0, const Eigen::VectorXd& y1) const;
   double initial_step(double t0, const Eigen::VectorXd& y0, double t1);
   int order() const;  // of the propagated solution; err ~ h^(order+1)
-  bool implicit() const { return method_ == OdeMethod::Trapezoid || method_ == OdeMethod::TrBdf2; }
+  bool implicit() const {
+    return method_ == OdeMethod::Trapezoid || method_ == OdeMethod::TrBdf2 || method_ == OdeMethod::Esdirk3;
+  }
 
   // One step attempt from (t, y) with f0_ = f(t, y) valid: writes y_new_, f_new_ and the
   // scaled error (<= 1: acceptable). RKC may shorten h (stage count limit).
@@ -75,6 +77,7 @@ class OdeSolverImpl {
   // ode_implicit.cpp
   Attempt step_trapezoid(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt step_trbdf2(double t, double h, const Eigen::VectorXd& y, double* err);
+  Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,
@@ -88,7 +91,7 @@ class OdeSolverImpl {
   bool fixed_ = false;
 
   Eigen::VectorXd f0_, f_new_, y_new_, err_vec_, tmp_;
-  // DOPRI5 stages
+  // DOPRI5 stages (k2_, k3_ also ESDIRK3's)
   Eigen::VectorXd k2_, k3_, k4_, k5_, k6_;
   // RK4
   std::optional<Rk4> rk4_;

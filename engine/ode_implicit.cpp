@@ -18,6 +18,17 @@ const double kW0 = (1 - kGamma) * (1 - kGamma) / (kGamma * (2 - kGamma));  // we
 // |local error| = C h^3 |y'''|, C = (3 gamma^2 - 4 gamma + 2) / (12 (2 - gamma)) = 0.0404
 // (Hosea & Shampine 1996, eq. for the TR-BDF2 error constant).
 const double kErrC = (3 * kGamma * kGamma - 4 * kGamma + 2) / (12 * (2 - kGamma));
+// Kvaerno's ESDIRK 3(2) with 4 stages (A. Kvaerno, "Singly diagonally implicit
+// Runge-Kutta methods with an explicit first stage", BIT 44 (2004) 489-502): c = (0, 2g,
+// 1, 1), stiffly accurate (y_n+1 is the last stage), the third stage is the embedded
+// second-order solution. g is the root of 6 g^3 - 18 g^2 + 9 g - 1 = 0 that makes the
+// method L-stable (the same as Alexander's 3rd-order SDIRK).
+const double kKg = 0.43586652150845899941601945;
+const double kKa31 = (-4 * kKg * kKg + 6 * kKg - 1) / (4 * kKg);
+const double kKa32 = (-2 * kKg + 1) / (4 * kKg);
+const double kKa41 = (6 * kKg - 1) / (12 * kKg);
+const double kKa42 = -1 / ((24 * kKg - 12) * kKg);
+const double kKa43 = (-6 * kKg * kKg + 6 * kKg - 1) / (6 * kKg - 3);
 }  // namespace
 
 NewtonMatrix::NewtonMatrix(const OdeSystem& sys) : sys_(sys), sparse_(sys.is_sparse()), fd_(sys), tmp_(sys.size) {
@@ -220,6 +231,43 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_trbdf2(double t, double h, const Eige
   y_new_ = z_;
   if (fixed_) return Attempt::Ok;
   err_vec_ = (kErrC * 2 * h) * (f0_ / kGamma - fg_ / (kGamma * (1 - kGamma)) + f_new_ / (1 - kGamma));
+  newton_->solve_in_place(err_vec_);
+  *err = error_norm(err_vec_, y, y_new_);
+  return Attempt::Ok;
+}
+
+// ESDIRK3: stage i solves Z_i = psi_i + g h f(Z_i) with psi_i = y_n + h sum_j<i a_ij k_j,
+// all with the matrix I - g h J; k_i = (Z_i - psi_i) / (g h). The error estimate is
+// y_n+1 - Z_3, the difference with the embedded 2nd-order solution, filtered by
+// (I - g h J)^-1: the embedding is not L-stable (R(inf) = -0.957), and unfiltered its
+// estimate would be all stiff noise.
+OdeSolverImpl::Attempt OdeSolverImpl::step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err) {
+  const double dh = kKg * h;
+  prepare_newton(t, dh, y);
+  const Eigen::VectorXd& k1 = f0_;
+  // Stage 2 at c = 2g: the trapezoid over 2 g h.
+  psi_ = y + dh * k1;
+  zg_ = y + (2 * kKg * h) * k1;
+  bool ok = newton(t + 2 * kKg * h, dh, psi_, y, zg_, k2_);
+  if (ok) {
+    // Stage 3 at c = 1; predictor: the integral over the step of k interpolated linearly
+    // through k1 (c = 0) and k2 (c = 2g).
+    psi_ = y + h * (kKa31 * k1 + kKa32 * k2_);
+    z_ = y + h * (k1 + (k2_ - k1) / (4 * kKg));
+    ok = newton(t + h, dh, psi_, y, z_, k3_);
+  }
+  if (ok) {
+    zg_ = z_;  // the embedded solution Z_3, also the predictor of stage 4
+    psi_ = y + h * (kKa41 * k1 + kKa42 * k2_ + kKa43 * k3_);
+    ok = newton(t + h, dh, psi_, y, z_, f_new_);
+  }
+  if (!ok) {
+    if (!jac_fresh_) need_jac_ = true;
+    return Attempt::NewtonFailed;
+  }
+  y_new_ = z_;
+  if (fixed_) return Attempt::Ok;
+  err_vec_ = z_ - zg_;
   newton_->solve_in_place(err_vec_);
   *err = error_norm(err_vec_, y, y_new_);
   return Attempt::Ok;

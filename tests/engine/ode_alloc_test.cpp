@@ -37,7 +37,8 @@ using namespace ode_test;
 TEST(OdeAlloc, NoAllocationWhileIntegrating) {
   const Heat heat(50);
   const OdeSystem sys = heat.system();  // no pattern: dense Jacobian and LU
-  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2}) {
+  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
+                      OdeMethod::Esdirk3}) {
     OdeOptions opt;
     opt.rtol = opt.atol = 1e-6;
     if (m == OdeMethod::Rk4) opt.fixed_step = true, opt.h0 = 1e-5;

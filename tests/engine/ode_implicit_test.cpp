@@ -34,11 +34,12 @@ double observed_order(OdeMethod method, int n) {
 
 TEST(OdeOrder, TrapezoidIsSecond) { EXPECT_NEAR(observed_order(OdeMethod::Trapezoid, 20), 2.0, 0.1); }
 TEST(OdeOrder, TrBdf2IsSecond) { EXPECT_NEAR(observed_order(OdeMethod::TrBdf2, 20), 2.0, 0.1); }
+TEST(OdeOrder, Esdirk3IsThird) { EXPECT_NEAR(observed_order(OdeMethod::Esdirk3, 20), 3.0, 0.15); }
 
 // y' = -1e8 (y - cos t), y(0) = 0: the initial layer is 1e-8 long. At h = 0.1 (h lambda =
 // -1e7) an L-stable method damps it at once; the trapezoid's amplification tends to -1,
 // so the initial offset of 1 keeps flipping sign and never decays.
-TEST(OdeLStability, TrBdf2DampsStiffTransientTrapezoidDoesNot) {
+TEST(OdeLStability, TrBdf2AndEsdirk3DampStiffTransientTrapezoidDoesNot) {
   OdeSystem sys;
   sys.size = 1;
   sys.rhs = [](double t, const double* y, double* dy) { dy[0] = -1e8 * (y[0] - std::cos(t)); };
@@ -49,16 +50,21 @@ TEST(OdeLStability, TrBdf2DampsStiffTransientTrapezoidDoesNot) {
   integrate(sys, OdeMethod::TrBdf2, 0, 1, y, opt);
   const double err_bdf = std::abs(y[0] - std::cos(1.0));
   y.setZero();
+  integrate(sys, OdeMethod::Esdirk3, 0, 1, y, opt);
+  const double err_esdirk = std::abs(y[0] - std::cos(1.0));
+  y.setZero();
   integrate(sys, OdeMethod::Trapezoid, 0, 1, y, opt);
   const double err_tr = std::abs(y[0] - std::cos(1.0));
-  std::printf("[ode] L-stability h = 0.1, lambda = -1e8: |error| trbdf2 %.3e, trapezoid %.3e\n", err_bdf, err_tr);
+  std::printf("[ode] L-stability h = 0.1, lambda = -1e8: |error| trbdf2 %.3e, esdirk3 %.3e, trapezoid %.3e\n", err_bdf,
+              err_esdirk, err_tr);
   EXPECT_LT(err_bdf, 1e-7);
+  EXPECT_LT(err_esdirk, 1e-7);
   EXPECT_GT(err_tr, 0.5);
 }
 
 TEST(OdeImplicit, AdaptiveSmoothProblemMeetsTolerance) {
   const OdeSystem sys = smooth_system();
-  for (OdeMethod m : {OdeMethod::Trapezoid, OdeMethod::TrBdf2}) {
+  for (OdeMethod m : {OdeMethod::Trapezoid, OdeMethod::TrBdf2, OdeMethod::Esdirk3}) {
     double err_prev = 0;
     for (double tol : {1e-4, 1e-7}) {
       Eigen::VectorXd y = smooth_exact(0);
