@@ -439,6 +439,10 @@ std::string format_modal_report(const ModalReport& r, double config_step) {
   s += fmt("  nonsmooth at this state (one-sided differences disagree; smaller side taken): %ld entries of K and C, "
            "%ld of J\n",
            r.nonsmooth_entries, r.nonsmooth_jacobian_entries);
+  if (r.t == 0)
+    s += "  note: in the initial state every contact pair sits at zero penetration (its damping switching on) and\n"
+         "        every plate at its rest length: the chain's entries are mostly nonsmooth and describe the unloaded\n"
+         "        chain only roughly; linearize after the ramp with --at T (docs/model.md 9.1)\n";
   s += fmt("  asymmetry |K - K^T|/|K + K^T| = %.3g (friction, follower forces; the symmetric part is used), "
            "of C: %.3g\n",
            r.asymmetry, r.damping_asymmetry);

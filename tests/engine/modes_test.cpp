@@ -6,6 +6,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <numbers>
 #include <random>
 
@@ -320,6 +325,39 @@ TEST(ModesRk4, PredictedStepAgainstARunOnMini) {
   std::printf("perturbation growth over 40 steps: %.3g at 0.95 h*, %.3g at 1.1 h*\n", below, above);
   EXPECT_LT(below, 1e3);
   EXPECT_GT(above, 1e5);
+}
+
+// The command line: exit codes of docs/cli.md and the JSON report.
+int run_engine(const std::string& args, const std::string& out_file) {
+  const std::string cmd =
+      test::shell_quote(CVT_ENGINE_EXE) + " " + args + " >" + test::shell_quote(out_file) + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  return status != -1 && WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::string slurp(const std::string& path) {
+  std::ifstream f(path);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+TEST(ModesCli, ExitCodesAndJson) {
+  const auto dir = std::filesystem::temp_directory_path() / ("cvt_modes_cli_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string out = (dir / "out.txt").string(), json = (dir / "modes.json").string();
+  const std::string mini = test::shell_quote(test::config_path("mini"));
+  EXPECT_EQ(run_engine("modes " + mini + " --count 0", out), 64) << slurp(out);
+  EXPECT_EQ(run_engine("modes " + mini + " --at -1", out), 64) << slurp(out);
+  EXPECT_EQ(run_engine("modes " + mini + " --bogus", out), 64) << slurp(out);
+  EXPECT_EQ(run_engine("modes " + mini + " --set chain.links=5", out), 78) << slurp(out);
+  EXPECT_EQ(run_engine("modes " + mini + " --no-jacobian --count 3 --json " + test::shell_quote(json), out), 0)
+      << slurp(out);
+  const std::string text = slurp(out), js = slurp(json);
+  EXPECT_NE(text.find("natural frequencies"), std::string::npos) << text;
+  EXPECT_NE(text.find("lowest:"), std::string::npos) << text;
+  EXPECT_NE(js.find("\"highest\": ["), std::string::npos) << js;
+  EXPECT_EQ(js.find("\"jacobian\""), std::string::npos) << js;
+  EXPECT_EQ(run_engine("modes " + mini + " --no-jacobian --json /nonexistent-dir/x.json", out), 1) << slurp(out);
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace
