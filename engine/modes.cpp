@@ -356,8 +356,10 @@ ModalReport modal_analysis(const Model& m, const ContactStatus& status, double t
     if (std::abs(w2) < tol2) {
       if (static_cast<int>(r.rigid_modes.size()) < opt.count) r.rigid_modes.push_back(row(i));
       ++r.rigid;
+    } else if (w2 < 0) {
+      if (r.negative < opt.count) r.negative_modes.push_back(row(i));
+      ++r.negative;
     } else {
-      if (w2 < 0) ++r.negative;
       flexible.push_back(i);
     }
   }
@@ -451,6 +453,9 @@ std::string format_modal_report(const ModalReport& r, double config_step) {
            "f < 0)\n",
            r.rigid, r.negative);
   if (!r.rigid_modes.empty()) s += "  rigid-body and mechanism modes:\n" + mode_table(r.rigid_modes);
+  if (!r.negative_modes.empty())
+    s += "  negative stiffness, most negative first (symmetric part of K, docs/model.md 9.2):\n" +
+         mode_table(r.negative_modes);
   s += "  lowest:\n" + mode_table(r.lowest);
   s += "  highest:\n" + mode_table(r.highest);
   if (r.has_jacobian) {
@@ -485,6 +490,7 @@ std::string modal_report_json(const ModalReport& r, double config_step) {
   s += fmt("  \"seconds\": {\"differences\": %.4g, \"modes\": %.4g, \"jacobian_eigenvalues\": %.4g},\n",
            r.t_differences, r.t_modes, r.t_eigen_jacobian);
   s += "  \"rigid\": " + json_rows(r.rigid_modes) + ",\n";
+  s += "  \"negative\": " + json_rows(r.negative_modes) + ",\n";
   s += "  \"lowest\": " + json_rows(r.lowest) + ",\n";
   s += "  \"highest\": " + json_rows(r.highest);
   if (r.has_jacobian) {

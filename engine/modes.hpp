@@ -141,7 +141,9 @@ struct ModalReport {
   double asymmetry = 0;      // |K - K^T|_F / |K + K^T|_F
   double damping_asymmetry = 0;  // the same for C
   int rigid = 0, negative = 0;   // |f| < rigid_hz; w^2 < 0 beyond it
-  std::vector<ModeRow> rigid_modes, lowest, highest;
+  // Rigid ones; those with w^2 < 0 beyond the threshold, most negative first; the lowest
+  // and highest with w^2 > 0 beyond it.
+  std::vector<ModeRow> rigid_modes, negative_modes, lowest, highest;
   int force_evaluations = 0;
   long nonsmooth_entries = 0, nonsmooth_jacobian_entries = 0;
   double t_differences = 0, t_modes = 0, t_eigen_jacobian = 0;  // wall seconds
