@@ -1,5 +1,6 @@
 // The cvt-engine command line (docs/cli.md).
 #include <CLI/CLI.hpp>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -10,6 +11,7 @@
 #include "engine/config.hpp"
 #include "engine/h5_writer.hpp"
 #include "engine/model.hpp"
+#include "engine/modes.hpp"
 #include "engine/scale.hpp"
 #include "engine/simulation.hpp"
 #include "graph/schedule.hpp"
@@ -171,6 +173,60 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   return r.interrupted ? kExitInterrupted : kExitOk;
 }
 
+
+struct ModesArgs {
+  double at = 0;
+  int count = 10;
+  double rigid_hz = 1.0;
+  bool no_jacobian = false;
+  std::string json;
+};
+
+int cmd_modes(const std::string& config_path, const std::vector<std::string>& overrides, const ModesArgs& a) {
+  using namespace cvt;
+  const Config cfg = load_config(config_path, overrides);
+  const Model model = build_model(cfg);
+  const double h = cfg.integrator.step;
+  std::printf("cvt-engine %s modes: %s\n", CVT_VERSION, config_path.c_str());
+  std::printf("  %d links, %d coordinates, %d first-order unknowns; friction %s\n", model.links, model.ndof,
+              model.nstate, to_string(cfg.friction.law));
+  // The state at --at: the serial schedule from the initial state with the config's
+  // step, statuses updated after every step as in a run.
+  Simulation sim(model);
+  const long steps = std::lround(a.at / h);
+  if (steps > 0) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const long every = std::max(1L, std::lround(cfg.run.sample_interval / h));
+    for (long s = 0; s < steps; ++s) {
+      sim.step(h);
+      if ((s + 1) % every == 0 || s + 1 == steps) sim.check_finite();
+    }
+    std::printf("  ran %ld steps of %g s to t = %.9g s (%.1f s)\n", steps, h, sim.time(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::fflush(stdout);
+  ModesOptions opt;
+  opt.count = a.count;
+  opt.rigid_hz = a.rigid_hz;
+  opt.jacobian = !a.no_jacobian;
+  const ModalReport r = modal_analysis(model, sim.workspace().status, sim.time(), sim.state(), opt);
+  std::printf("  rigid-body threshold |f| < %g Hz\n\n%s", a.rigid_hz, format_modal_report(r, h).c_str());
+  if (r.has_jacobian) {
+    // The estimate a blow-up message gives (Simulation::spectral_radius), for comparison.
+    const double rho_pi = sim.spectral_radius(sim.state(), sim.time(), sim.workspace().status);
+    std::printf("  (power iteration on differences, as in the blow-up message: rho ~ %.4g 1/s, 2.8/rho = %.4g s)\n",
+                rho_pi, rho_pi > 0 ? 2.8 / rho_pi : 0.0);
+  }
+  if (!a.json.empty()) {
+    std::ofstream f(a.json);
+    f << modal_report_json(r, h);
+    f.close();
+    if (!f) throw std::runtime_error("cannot write " + a.json);
+    std::printf("\nwritten: %s\n", a.json.c_str());
+  }
+  return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -244,6 +300,24 @@ int main(int argc, char** argv) {
   topology->add_option("CONFIG", topo_config, "TOML configuration (for the number of pins; default 84)");
   topology->add_option("--threads", topo_threads, "threads to lay out (default: all cores)");
 
+  auto* modes = app.add_subcommand("modes", "natural frequencies, Jacobian spectrum and stable RK4 step at a state");
+  std::string modes_config;
+  std::vector<std::string> modes_overrides;
+  ModesArgs modes_args;
+  modes->add_option("CONFIG", modes_config, "TOML configuration")->required();
+  modes->add_option("--at", modes_args.at, "linearize at model time T [s] (runs the model there first)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  modes->add_option("--set", modes_overrides, "override a key: section.key=value (repeatable)");
+  modes->add_option("--count", modes_args.count, "lowest and highest modes to list")
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  modes->add_option("--rigid-hz", modes_args.rigid_hz, "|f| below this counts as a rigid-body or mechanism mode [Hz]")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  modes->add_flag("--no-jacobian", modes_args.no_jacobian, "skip the first-order Jacobian's spectrum");
+  modes->add_option("--json", modes_args.json, "also write the report as JSON to FILE");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {  // --help, --version
@@ -260,6 +334,7 @@ int main(int argc, char** argv) {
     if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched, run_args);
     if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
     if (*topology) return cmd_topology(topo_config, topo_threads);
+    if (*modes) return cmd_modes(modes_config, modes_overrides, modes_args);
   } catch (const cvt::ConfigError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitConfig;

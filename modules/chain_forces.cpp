@@ -17,6 +17,8 @@ inline void bend_stiffness_times(double L, const double u[4], double out[4]) {
   out[3] = 6 * L * u[0] + 2 * L * L * u[1] - 6 * L * u[2] + 4 * L * L * u[3];
 }
 
+}  // namespace
+
 // 4.1: beam forces of one half; returns the dissipated power.
 double beam(const Model& m, const double* q, const double* v, double* f) {
   const double L = m.L0, EA = m.cfg.pin.ea, k_b = m.cfg.pin.ei / (L * L * L);
@@ -44,6 +46,8 @@ double beam(const Model& m, const double* q, const double* v, double* f) {
   }
   return p;
 }
+
+namespace {
 
 double beam_energy(const Model& m, const double* q) {
   const double L = m.L0, EA = m.cfg.pin.ea, k_b = m.cfg.pin.ei / (L * L * L);

@@ -9,6 +9,11 @@ namespace cvt {
 
 void chain_forces(const Model& m, Workspace& ws, int begin, int end);
 
+// 4.1: adds the elastic and damping forces of one pin-half beam (q, v, f: its 10
+// coordinates) to f; returns the dissipated power. Public for the modal tests, which take
+// a single half's stiffness from it.
+double beam(const Model& m, const double* q, const double* v, double* f);
+
 // Potential energy of the chain's elastic elements (beams, plates, packs, rocker Hertz;
 // with `status`, only the active rocker pairs count).
 double chain_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);
