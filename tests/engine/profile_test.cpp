@@ -33,7 +33,7 @@ class ProfileTest : public ::testing::TestWithParam<SchedulerKind> {
 };
 
 TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
-  const Model m = test::model("mini", {"run.t_end=2e-5", "run.sample_interval=2e-6"});
+  const Model m = test::model("mini", {"run.t_end=5e-6", "run.sample_interval=5e-7"});
   RunOptions o;
   o.out_path = (dir_ / "run.h5").string();
   o.profile_json = (dir_ / "profile.json").string();
@@ -42,7 +42,7 @@ TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
   o.schedule.threads = GetParam() == SchedulerKind::serial ? 1 : 2;
   const RunSummary r = run_simulation(m, o);
   const Profiler::Report& p = r.profile;
-  const long steps = std::lround(2e-5 / m.cfg.integrator.step);
+  const long steps = std::lround(5e-6 / m.cfg.integrator.step);
   EXPECT_EQ(p.steps, steps);
   EXPECT_EQ(p.threads, o.schedule.threads);
   ASSERT_EQ(p.rows.size(), kRows.size());
@@ -55,7 +55,7 @@ TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
     EXPECT_GE(row.wall_s, 0.0) << row.name;
     if (row.name != "total") sum += row.wall_s;
   }
-  // Four RHS per RK4 step, one status update per step, one sample per 2e-6 s plus the first.
+  // Four RHS per RK4 step, one status update per step, one sample per 5e-7 s plus the first.
   EXPECT_EQ(p.rows[0].calls, 4 * steps);
   EXPECT_EQ(p.rows[5].calls, 4 * steps);
   EXPECT_EQ(p.rows[6].calls, steps);
