@@ -404,6 +404,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
       err_old = std::max(err, 1e-4);
       last_rejected = false;
       h = std::min(h_new, opt_.h_max);
+      stats.h_next = h;
     } else {
       rejected();
       const double fac = std::min(1.0 / fac_min, std::pow(err, expo + 0.75 * beta) / safe);
@@ -423,6 +424,7 @@ void OdeSolver::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObs
 }
 const OdeStats& OdeSolver::stats() const { return impl_->stats; }
 OdeStats& OdeSolver::stats() { return impl_->stats; }
+OdeOptions& OdeSolver::options() { return impl_->options(); }
 
 OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1, Eigen::VectorXd& y,
                    const OdeOptions& options, const OdeObserver& observer) {

@@ -97,6 +97,9 @@ struct OdeStats {
   int max_stages = 0;              // RKC: most stages used in one step
   int colors = 0;                  // colours of the finite-difference Jacobian (0: dense or analytic)
   double h_last = 0;
+  // Adaptive mode: the step the controller proposed for after the last accepted one (a
+  // caller that integrates in short pieces passes it on as the next call's h0).
+  double h_next = 0;
   double rho_last = 0;  // RKC: last spectral radius used
 };
 
@@ -166,6 +169,8 @@ class OdeSolver {
   void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer = {});
   const OdeStats& stats() const;
   OdeStats& stats();
+  // The options in use; changes (e.g. h0 between calls) apply from the next integrate().
+  OdeOptions& options();
 
  private:
   std::unique_ptr<OdeSolverImpl> impl_;
