@@ -44,14 +44,59 @@ std::vector<std::pair<int, int>> model_jacobian_pattern(const Model& m, int band
   return nz;
 }
 
+Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt) {
+  Eigen::VectorXd s = Eigen::VectorXd::Ones(m.nstate);
+  if (!opt.scaled) return s;
+  const int n = m.ndof;
+  const double r = 0.05;  // lever arm turning an angle into a length [m]
+  for (int j = 0; j < m.links; ++j)
+    for (int i = 0; i < kJointSize; ++i) {
+      const int c = i % half::kEnd;
+      const bool slope = i < 2 * half::kSize && (c == half::kSx || c == half::kSy);
+      s[m.joint(j) + i] = slope ? opt.length_unit / r : opt.length_unit;
+      s[n + m.joint(j) + i] = slope ? opt.velocity_unit / r : opt.velocity_unit;
+    }
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const bool angle = i == kTx || i == kTy || i == kPhi;
+      s[m.shaft(k) + i] = angle ? opt.length_unit / r : opt.length_unit;
+      s[n + m.shaft(k) + i] = angle ? opt.velocity_unit / r : opt.velocity_unit;
+    }
+  s[m.load_index()] = opt.length_unit / r;
+  s[n + m.load_index()] = opt.velocity_unit / r;
+  for (int a = 0; a < kAuxSize; ++a) s[2 * n + a] = opt.energy_unit;
+  return s;
+}
+
+void ModelOde::eval_scaled(double t, const double* z, double* dz) {
+  const int ns = m_.nstate;
+  for (int i = 0; i < ns; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
+  eval(t, ys_.data(), dz);
+  for (int i = 0; i < ns; ++i) dz[i] /= unit_[i];
+}
+
 ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt)
     : m_(m), ws_(ws), schedule_(schedule), opt_(opt) {
   const int ns = m.nstate, N = m.links, tail0 = m.shaft(0);
   if (opt.band < 1 || 2 * opt.band + 1 > N) throw std::invalid_argument("ModelOdeOptions::band must be in [1, (links - 1) / 2]");
   sys_.size = ns;
-  sys_.rhs = [this](double t, const double* y, double* dy) { eval(t, y, dy); };
+  unit_ = model_state_units(m, opt);
+  offset_ = Eigen::VectorXd::Zero(ns);
+  ys_.resize(ns);
+  if (opt.scaled)
+    sys_.rhs = [this](double t, const double* z, double* dz) { eval_scaled(t, z, dz); };
+  else
+    sys_.rhs = [this](double t, const double* y, double* dy) { eval(t, y, dy); };
   sys_.set_sparsity(model_jacobian_pattern(m, opt.band, opt.exact_dense_rows));
-  sys_.sparse_jacobian = [this](double t, const double* y, Eigen::SparseMatrix<double>& jac) { jacobian(t, y, jac); };
+  sys_.sparse_jacobian = [this](double t, const double* z, Eigen::SparseMatrix<double>& jac) {
+    if (!opt_.scaled) return jacobian(t, z, jac);
+    // J_z = S^-1 J_y S.
+    for (int i = 0; i < m_.nstate; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
+    const Eigen::VectorXd y = ys_;  // jacobian() evaluates through eval(), not ys_
+    jacobian(t, y.data(), jac);
+    for (int c = 0; c < jac.outerSize(); ++c)
+      for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() *= unit_[c] / unit_[it.row()];
+  };
 
   // Colours: the pin columns by the reduced pattern (no pin -> tail entries); every tail
   // column (shafts, load, work integrals) a colour of its own, since the tail rows see
@@ -164,6 +209,7 @@ OdeMethod parse_ode_method(const std::string& name) {
 OdeDriver::OdeDriver(Simulation& sim, const OdeRunOptions& opt)
     : sim_(sim), opt_(opt), ode_(sim.model(), sim.workspace(), sim.schedule(), opt.jac),
       solver_(ode_.system(), opt.method, opt.ode) {
+  solver_.options().keep_jacobian_across_calls = true;
   if (!(opt.ode.h0 > 0)) throw std::invalid_argument("OdeRunOptions: ode.h0 (first or fixed step) must be > 0");
   h_next_ = opt.ode.h0;
 }
@@ -179,6 +225,14 @@ void OdeDriver::advance(double t1) {
   // Fixed steps: t_k = t_start + k h, as Simulation::step counts them (no drift).
   const double t_start = t;
   std::int64_t k = 0;
+  const bool freeze = opt_.jac.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth &&
+                      (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
+                       opt_.method == OdeMethod::Esdirk3);
+  // The production RK4 path (Simulation::step) shares this workspace: leave the law plain.
+  struct Plain {
+    Workspace& ws;
+    ~Plain() { ws.friction_branch = Workspace::FrictionBranch::off; }
+  } plain{ws};
   sched.within([&] {
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
@@ -186,7 +240,15 @@ void OdeDriver::advance(double t1) {
       // No sliver shorter than 1 % of a macro step before t1.
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
-      solver_.integrate(t, t_end, y);
+      if (freeze) ws.friction_branch = Workspace::FrictionBranch::record;
+      if (opt_.jac.scaled) {
+        ode_.offset() = y;
+        ode_.to_z(y, z_);
+        solver_.integrate(t, t_end, z_);
+        ode_.to_y(z_, y);
+      } else {
+        solver_.integrate(t, t_end, y);
+      }
       if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
       t = t_end;
       ++k;

@@ -24,7 +24,25 @@ struct ModelOdeOptions {
   // evaluations (no extra RHS); false: they are left out (an approximate Jacobian, which
   // only slows Newton's convergence).
   bool exact_dense_rows = true;
+  // Integrate z = (y - c) / s instead of y, with s the unit vector below and c the state at
+  // the start of each OdeDriver macro step (s_i = 1, c = 0 when off): the solvers have a
+  // scalar atol, and the CVT's state mixes absolute positions (0.05 m, to be known to
+  // 1e-8 m), slopes, velocities and energies. With the shift, |z| is the motion within the
+  // macro step, so rtol = atol = tol is meaningful (and so is Newton's tolerance, which
+  // RADAU5-style is a fraction of rtol: a tiny rtol made Newton chase 1e-10 m).
+  bool scaled = false;
+  // Freeze each contact's friction branch (stick / slide) within a macro step: the first
+  // evaluation of each OdeDriver macro step records it (Workspace::friction_branch). Only
+  // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
+  // nonsmooth law at v0 (docs/integrators.md 11).
+  bool freeze_friction = true;
+  double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
+  double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
+  double energy_unit = 1e-3;    // [J] for the work integrals
 };
+
+// The unit vector s of ModelOdeOptions::scaled.
+Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt);
 
 // Nonzero pattern of df/dy for model m. With pin_to_tail the dense rows (shaft
 // accelerations, dissipated power) carry every pin column; without, only the tail columns.
@@ -37,6 +55,12 @@ class ModelOde {
  public:
   ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt = {});
   const OdeSystem& system() const { return sys_; }
+  // State units (all ones unless scaled): the system integrates z = y / units().
+  const Eigen::VectorXd& units() const { return unit_; }
+  // The shift c (scaled mode): y = c + units() * z.
+  Eigen::VectorXd& offset() { return offset_; }
+  void to_z(const Eigen::VectorXd& y, Eigen::VectorXd& z) const { z = (y - offset_).cwiseQuotient(unit_); }
+  void to_y(const Eigen::VectorXd& z, Eigen::VectorXd& y) const { y = offset_ + z.cwiseProduct(unit_); }
   // Every evaluation of f, including the Jacobian's (OdeStats does not see the latter:
   // to the solver the Jacobian is "analytic").
   std::int64_t rhs_evals() const { return rhs_evals_; }
@@ -49,7 +73,9 @@ class ModelOde {
   void eval(double t, const double* y, double* dy) {
     schedule_.rhs(t, y, dy, nullptr);
     ++rhs_evals_;
+    if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
   }
+  void eval_scaled(double t, const double* z, double* dz);
   // The per-pin parts of the dense rows after an evaluation: shaft forces [N][14] and
   // dissipated power [N] of the chain and pulley slots.
   void read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const;
@@ -67,7 +93,7 @@ class ModelOde {
   std::vector<int> owner_;  // [colour * N + joint]: index in columns_of_color_ of the column near the joint, or -1
   int n_colors_ = 0;
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> a0_shaft_inv_;  // (2 shafts + load) x 14
-  Eigen::VectorXd f0_, f1_, yp_, delta_;
+  Eigen::VectorXd f0_, f1_, yp_, delta_, unit_, ys_, offset_;
   std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
   Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour]
   Eigen::VectorXd acc_p_;
@@ -105,6 +131,7 @@ class OdeDriver {
   OdeSolver solver_;
   double h_next_ = 0;
   std::int64_t macro_ = 0;
+  Eigen::VectorXd z_;
 };
 
 // Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws

@@ -302,7 +302,7 @@ void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const Od
   if (!(t1 > t0)) throw std::invalid_argument("OdeSolver::integrate: t1 must be greater than t0");
   have_prev_ = false;
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
-  need_jac_ = true, faccon_ = 1;
+  if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;
   if (observer) observer(t0, y);
   if (method_ == OdeMethod::Rk4 || opt_.fixed_step)
     integrate_fixed(t0, t1, y, observer);

@@ -83,6 +83,11 @@ struct OdeOptions {
   // Keep the LU of I - dh' J while |dh / dh' - 1| <= lu_rel_change (0: refactorize at
   // every change of h).
   double lu_rel_change = 0.2;
+  // Keep the Jacobian (and LU) of the previous integrate() call instead of taking a fresh
+  // one at the start of each call: for callers that integrate one system in short pieces
+  // (engine/model_ode.hpp). Newton's convergence monitor still asks for a new one when it is
+  // stale.
+  bool keep_jacobian_across_calls = false;
 };
 
 struct OdeStats {
