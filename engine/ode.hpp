@@ -106,6 +106,9 @@ struct OdeStats {
   // caller that integrates in short pieces passes it on as the next call's h0).
   double h_next = 0;
   double rho_last = 0;  // RKC: last spectral radius used
+  // Wall time of the implicit methods' linear algebra [s]: Jacobians (with their f
+  // evaluations), LU factorizations, and the Newton iterations' solves.
+  double jac_seconds = 0, lu_seconds = 0, solve_seconds = 0;
 };
 
 // Thrown when the integration cannot go on: what() names the time, the step and the reason.

@@ -45,6 +45,8 @@ struct CurveRun {
   double deviation = kNaN;         // max |F - F_ref| / range(F_ref)
   double wall_s = 0;
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
+  double jac_s = 0, lu_s = 0, solve_s = 0;
+  double reached = kNaN;  // model time covered when stopped by the timeout [s]
   double h_mean = 0;
   bool chosen = false;
   std::vector<double> curve;  // the tracked half's axial force at the sample times
@@ -76,6 +78,14 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
   const Checkpoint start = warm.checkpoint();
   const double t0 = warm.time();
+  {
+    Workspace ws(m);
+    auto sched = make_schedule(m, ws, ScheduleOptions{});
+    ModelOde probe(m, ws, *sched, ModelOdeOptions{2, opt.exact_dense_rows});
+    std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
+                static_cast<long>(probe.system().sparsity.nonZeros()), opt.exact_dense_rows ? "exact" : "approximate",
+                probe.colors(), probe.colors() + 1);
+  }
 
   OdeOptions base;
   base.newton_max_iter = opt.newton_max_iter;
@@ -253,7 +263,12 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
               r.curve.push_back(f[tracked]);
               if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
               if (seconds_since(w0) > opt.max_wall) {
-                r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals();
+                const OdeStats& st = drv.stats();
+                r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
+                r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
+                r.newton_iterations = st.newton_iterations;
+                r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
+                r.reached = times[k] - t0;
                 throw std::runtime_error("timeout");
               }
             }
@@ -261,6 +276,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
             r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
             r.newton_iterations = st.newton_iterations;
+            r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
           }
         } catch (const BlowUpError&) {
           r.status = "blow-up";
@@ -270,14 +286,16 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
           r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
         }
         r.wall_s = seconds_since(w0);
-        r.h_mean = r.steps > 0 ? (times.back() - t0) / r.steps : kNaN;
+        r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
+        if (r.status == "timeout")
+          std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
         if (r.status == "ok") r.deviation = deviation(r.curve);
         const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
         if (good && !found) r.chosen = found = true;
         std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
-                    "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s%s\n",
+                    "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
-                    r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.chosen ? "  <- chosen" : "");
+                    r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
         std::fflush(stdout);
         runs.push_back(std::move(r));
         if (found) break;
@@ -307,14 +325,14 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   if (!opt.out_csv.empty()) {
     std::ofstream f(opt.out_csv);
     f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
-         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,chosen\n";
+         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen\n";
     f.precision(10);
     for (const OneStep& r : one)
-      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,\n";
+      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,\n";
     for (const CurveRun& r : runs)
       f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
         << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
-        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << (r.chosen ? 1 : 0) << "\n";
+        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << "\n";
     if (!f) throw std::runtime_error("cannot write '" + opt.out_csv + "'");
     if (!times.empty()) {
       std::string cpath = opt.out_csv;

@@ -885,6 +885,10 @@ def cmd_integrators(a):
     ax[1].set_title("(b) sample curve, each method's chosen run")
     ax[1].grid(True, alpha=0.3)
     runs = [r for r in rows if r["part"] == "curve"]
+    devs = [_num(r["deviation_percent"]) for r in runs]
+    devs = [x for x in devs if np.isfinite(x) and x > 0]
+    ax_top = 3 * max(devs + [1.0])
+    timeouts = False
     for m in dict.fromkeys(r["method"] for r in runs):
         rr = [r for r in runs if r["method"] == m]
         w = np.array([_num(r["wall_s"]) for r in rr])
@@ -893,7 +897,18 @@ def cmd_integrators(a):
         for r, wi, di in zip(rr, w, d):
             if r["chosen"] == "1" and np.isfinite(di):
                 ax[2].plot([wi], [di], "*", ms=14, color=line.get_color())
+        # Runs stopped by --max-wall: an x at the wall time projected to the whole window.
+        if cur is not None and "steps" in rr[0] and "mean_h_s" in rr[0]:
+            window = cur[1][-1, 0] - cur[1][0, 0]
+            for r, wi in zip(rr, w):
+                reached = _num(r["steps"]) * _num(r["mean_h_s"])
+                if r["status"] == "timeout" and reached > 0 and np.isfinite(reached):
+                    ax[2].plot([wi * window / reached], [ax_top], "x", ms=10, mew=2, color=line.get_color())
+                    timeouts = True
     ax[2].axhline(1.0, color="k", ls="--", lw=0.8)
+    if timeouts:
+        ax[2].text(0.02, 0.98, "x: stopped by --max-wall, at its wall time projected to the window",
+                   transform=ax[2].transAxes, va="top", fontsize=8)
     ax[2].set_xlabel("wall time [s]")
     ax[2].set_ylabel("deviation from the reference [% of its range]")
     ax[2].set_title("(b) accuracy against cost (star: chosen)")
