@@ -267,6 +267,7 @@ int main(int argc, char** argv) {
                         "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
+  study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
   study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
   study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");

@@ -222,13 +222,14 @@ int OdeSolverImpl::order() const {
 // Hairer's RMS norm of err weighted by atol + rtol max(|y0|, |y1|): 1 is the tolerance.
 double OdeSolverImpl::error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0,
                                  const Eigen::VectorXd& y1) const {
-  double sum = 0;
+  double sum = 0, worst = 0;
   for (int i = 0; i < n_; ++i) {
     const double sk = opt_.atol + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
     const double e = err[i] / sk;
     sum += e * e;
+    worst = std::max(worst, std::abs(e));
   }
-  return std::sqrt(sum / n_);
+  return opt_.max_norm ? worst : std::sqrt(sum / n_);
 }
 
 // Hairer & Wanner's starting step (HINIT of dopri5.f): the explicit Euler step whose

@@ -88,6 +88,10 @@ struct OdeOptions {
   // (engine/model_ode.hpp). Newton's convergence monitor still asks for a new one when it is
   // stale.
   bool keep_jacobian_across_calls = false;
+  // Error test and Newton's convergence test in the max norm instead of the RMS norm: for
+  // systems (the CVT) whose error concentrates in a few of many components, which an RMS over
+  // all of them dilutes by sqrt(n).
+  bool max_norm = false;
 };
 
 struct OdeStats {

@@ -162,7 +162,8 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
     const auto c0 = std::chrono::steady_clock::now();
     newton_->solve_in_place(delta_);
     stats.solve_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
-    const double dyno = std::sqrt((delta_.array() / scale_.array()).square().sum() / n_);
+    const double dyno = opt_.max_norm ? (delta_.array() / scale_.array()).abs().maxCoeff()
+                                      : std::sqrt((delta_.array() / scale_.array()).square().sum() / n_);
     if (!std::isfinite(dyno)) return false;
     if (it >= 1) {
       const double theta = dyno / dyold;

@@ -82,6 +82,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
     Workspace ws(m);
     auto sched = make_schedule(m, ws, ScheduleOptions{});
     ModelOde probe(m, ws, *sched, ModelOdeOptions{2, opt.exact_dense_rows});
+    const double rho = warm.spectral_radius(start.state, t0, warm.workspace().status);
+    std::printf("spectral radius of df/dy at the running state: about %.3g 1/s (RK4 stable for h up to about "
+                "%.3g s)\n", rho, 2.8 / rho);
     std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
                 static_cast<long>(probe.system().sparsity.nonZeros()), opt.exact_dense_rows ? "exact" : "approximate",
                 probe.colors(), probe.colors() + 1);
@@ -90,6 +93,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   OdeOptions base;
   base.newton_max_iter = opt.newton_max_iter;
   base.jac_theta = opt.jac_theta;
+  base.max_norm = opt.max_norm;
   // Scaled, shifted system (ModelOdeOptions::scaled): tolerances in units of 1 um, 1 mm/s, 1 mJ.
   ModelOdeOptions jac_opt;
   jac_opt.exact_dense_rows = opt.exact_dense_rows;

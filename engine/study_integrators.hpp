@@ -33,6 +33,7 @@ struct IntegratorStudyOptions {
   bool freeze_friction = true;  // ModelOdeOptions::freeze_friction
   double status_interval = 0;   // OdeRunOptions::status_interval
   int newton_max_iter = 7;      // OdeOptions
+  bool max_norm = false;
   double jac_theta = 0.3;
   ScheduleOptions schedule;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
