@@ -318,7 +318,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       std::printf("%-10s %-12s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
                   100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, rk4_wall / r.wall_s);
     }
-    std::printf("(reference RK4 h = %.3g s: %.2f s wall; one second of model time at the best run's pace: see the CSV)\n",
+    std::printf("(reference RK4 h = %.3g s: %.2f s wall)\n",
                 opt.ref_step, ref_wall);
     for (const CurveRun& r : runs)
       if (r.chosen)

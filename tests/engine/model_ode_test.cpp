@@ -12,6 +12,11 @@
 #include "engine/rhs.hpp"
 #include "modules/chain_forces.hpp"
 #include <memory>
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
 #include "tests/test_util.hpp"
 
 namespace cvt {
@@ -218,6 +223,35 @@ TEST(ModelOde, EnergyBalanceWithImplicitMethod) {
               static_cast<long>(drv.stats().steps));
   EXPECT_GT(flow, 0.0);
   EXPECT_LE(std::abs(res_b), 0.05 * flow);
+}
+
+// `cvt-engine study integrators` in its short mode (mini model, 0.1 ms window): both parts,
+// the table, the CSV and the curves.
+TEST(ModelOde, StudyIntegratorsShortMode) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("cvt_study_test_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string csv = (dir / "study.csv").string();
+  const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
+                          test::shell_quote(test::config_path("mini")) +
+                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2 "
+                          "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --tols 1 --max-dev 0.2 --out " +
+                          test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  auto slurp = [](const fs::path& p) {
+    std::ifstream f(p);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+  };
+  const std::string out = slurp(dir / "out.txt"), table = slurp(csv), curves = slurp(dir / "study-curves.csv");
+  std::printf("%s", out.c_str());
+  EXPECT_NE(out.find("(a) error after one step"), std::string::npos);
+  EXPECT_NE(out.find("(b) sample curve"), std::string::npos);
+  EXPECT_NE(table.find("one_step,trbdf2,h,1e-07"), std::string::npos);
+  EXPECT_NE(table.find("curve,rk4,h,5e-08"), std::string::npos);
+  EXPECT_NE(table.find("curve,trbdf2,tol,1"), std::string::npos);
+  EXPECT_EQ(curves.rfind("t_s,reference,rk4,trbdf2", 0), 0u) << curves.substr(0, 80);
+  EXPECT_GE(std::count(curves.begin(), curves.end(), '\n'), 11);
+  fs::remove_all(dir);
 }
 
 }  // namespace
