@@ -92,8 +92,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     if (!opt_.scaled) return jacobian(t, z, jac);
     // J_z = S^-1 J_y S.
     for (int i = 0; i < m_.nstate; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
-    const Eigen::VectorXd y = ys_;  // jacobian() evaluates through eval(), not ys_
-    jacobian(t, y.data(), jac);
+    jacobian(t, ys_.data(), jac);  // evaluates through eval(), which leaves ys_ alone
     for (int c = 0; c < jac.outerSize(); ++c)
       for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() *= unit_[c] / unit_[it.row()];
   };
