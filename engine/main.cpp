@@ -13,6 +13,7 @@
 #include "engine/model.hpp"
 #include "engine/modes.hpp"
 #include "engine/scale.hpp"
+#include "engine/study_integrators.hpp"
 #include "engine/simulation.hpp"
 #include "graph/schedule.hpp"
 #include "numa/arenas.hpp"
@@ -294,6 +295,43 @@ int main(int argc, char** argv) {
   scale->add_option("--json", scale_json, "JSON file");
   scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
 
+  auto* study = app.add_subcommand("study", "method studies");
+  study->require_subcommand(1);
+  auto* study_int = study->add_subcommand("integrators", "integrator study of paper 2 (docs/integrators.md 11)");
+  std::string si_config;
+  std::vector<std::string> si_overrides;
+  cvt::IntegratorStudyOptions si;
+  ScheduleArgs si_sched;
+  bool si_no_one_step = false, si_no_curve = false, si_approx = false, si_plain_friction = false;
+  study_int->add_option("CONFIG", si_config, "TOML configuration")->required();
+  study_int->add_option("--t-sample", si.t_sample, "length of the sample-curve window [s]")->capture_default_str();
+  study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
+  study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
+  study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
+  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3")->delimiter(',')
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3"}))->capture_default_str();
+  study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
+  study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
+      ->capture_default_str();
+  study_int->add_option("--tols", si.tolerances, "tolerances tried in (b), loosest first (atol in units of 1 um, 1 mm/s)")
+      ->delimiter(',')->capture_default_str();
+  study_int->add_option("--max-dev", si.max_deviation, "accurate: deviation <= this fraction of the curve's range")
+      ->capture_default_str();
+  study_int->add_option("--max-wall", si.max_wall, "stop a candidate run after this many wall seconds")
+      ->capture_default_str();
+  study_int->add_option("--status-interval", si.status_interval,
+                        "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
+  study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
+  study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
+  study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
+  study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
+  study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
+  study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
+  study_int->add_flag("--approximate-jacobian", si_approx, "leave the pins -> shaft rows out of the Jacobian");
+  study_int->add_option("--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
+  study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(study_int, si_sched);
+
   auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
   std::string topo_config;
   int topo_threads = 0;
@@ -335,6 +373,15 @@ int main(int argc, char** argv) {
     if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
     if (*topology) return cmd_topology(topo_config, topo_threads);
     if (*modes) return cmd_modes(modes_config, modes_overrides, modes_args);
+    if (*study_int) {
+      si.one_step = !si_no_one_step;
+      si.curve = !si_no_curve;
+      si.exact_dense_rows = !si_approx;
+      si.freeze_friction = !si_plain_friction;
+      si.schedule = si_sched.options();
+      const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
+      return cvt::run_integrator_study(model, si);
+    }
   } catch (const cvt::ConfigError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitConfig;

@@ -222,13 +222,14 @@ int OdeSolverImpl::order() const {
 // Hairer's RMS norm of err weighted by atol + rtol max(|y0|, |y1|): 1 is the tolerance.
 double OdeSolverImpl::error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0,
                                  const Eigen::VectorXd& y1) const {
-  double sum = 0;
+  double sum = 0, worst = 0;
   for (int i = 0; i < n_; ++i) {
     const double sk = opt_.atol + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
     const double e = err[i] / sk;
     sum += e * e;
+    worst = std::max(worst, std::abs(e));
   }
-  return std::sqrt(sum / n_);
+  return opt_.max_norm ? worst : std::sqrt(sum / n_);
 }
 
 // Hairer & Wanner's starting step (HINIT of dopri5.f): the explicit Euler step whose
@@ -302,7 +303,7 @@ void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const Od
   if (!(t1 > t0)) throw std::invalid_argument("OdeSolver::integrate: t1 must be greater than t0");
   have_prev_ = false;
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
-  need_jac_ = true, faccon_ = 1;
+  if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;
   if (observer) observer(t0, y);
   if (method_ == OdeMethod::Rk4 || opt_.fixed_step)
     integrate_fixed(t0, t1, y, observer);
@@ -404,6 +405,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
       err_old = std::max(err, 1e-4);
       last_rejected = false;
       h = std::min(h_new, opt_.h_max);
+      stats.h_next = h;
     } else {
       rejected();
       const double fac = std::min(1.0 / fac_min, std::pow(err, expo + 0.75 * beta) / safe);
@@ -423,6 +425,7 @@ void OdeSolver::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObs
 }
 const OdeStats& OdeSolver::stats() const { return impl_->stats; }
 OdeStats& OdeSolver::stats() { return impl_->stats; }
+OdeOptions& OdeSolver::options() { return impl_->options(); }
 
 OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1, Eigen::VectorXd& y,
                    const OdeOptions& options, const OdeObserver& observer) {

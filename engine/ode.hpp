@@ -83,6 +83,15 @@ struct OdeOptions {
   // Keep the LU of I - dh' J while |dh / dh' - 1| <= lu_rel_change (0: refactorize at
   // every change of h).
   double lu_rel_change = 0.2;
+  // Keep the Jacobian (and LU) of the previous integrate() call instead of taking a fresh
+  // one at the start of each call: for callers that integrate one system in short pieces
+  // (engine/model_ode.hpp). Newton's convergence monitor still asks for a new one when it is
+  // stale.
+  bool keep_jacobian_across_calls = false;
+  // Error test and Newton's convergence test in the max norm instead of the RMS norm: for
+  // systems (the CVT) whose error concentrates in a few of many components, which an RMS over
+  // all of them dilutes by sqrt(n).
+  bool max_norm = false;
 };
 
 struct OdeStats {
@@ -97,7 +106,13 @@ struct OdeStats {
   int max_stages = 0;              // RKC: most stages used in one step
   int colors = 0;                  // colours of the finite-difference Jacobian (0: dense or analytic)
   double h_last = 0;
+  // Adaptive mode: the step the controller proposed for after the last accepted one (a
+  // caller that integrates in short pieces passes it on as the next call's h0).
+  double h_next = 0;
   double rho_last = 0;  // RKC: last spectral radius used
+  // Wall time of the implicit methods' linear algebra [s]: Jacobians (with their f
+  // evaluations), LU factorizations, and the Newton iterations' solves.
+  double jac_seconds = 0, lu_seconds = 0, solve_seconds = 0;
 };
 
 // Thrown when the integration cannot go on: what() names the time, the step and the reason.
@@ -166,6 +181,8 @@ class OdeSolver {
   void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer = {});
   const OdeStats& stats() const;
   OdeStats& stats();
+  // The options in use; changes (e.g. h0 between calls) apply from the next integrate().
+  OdeOptions& options();
 
  private:
   std::unique_ptr<OdeSolverImpl> impl_;

@@ -47,6 +47,7 @@ class OdeSolverImpl {
   OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOptions& options);
   void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer);
   OdeStats stats;
+  OdeOptions& options() { return opt_; }
 
  private:
   enum class Attempt { Ok, NewtonFailed };

@@ -1,3 +1,4 @@
+#include <chrono>
 // Implicit steps of the generic integrators: the trapezoidal rule and TR-BDF2, with
 // simplified Newton on (I - dh J) (docs/integrators.md 5, 6).
 #include <algorithm>
@@ -127,13 +128,18 @@ void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y
     // stage formula's (z - psi) / dh, off by the Newton error over dh, which divided by a
     // difference increment of sqrt(eps) |y| would ruin the Jacobian.
     if (newton_->finite_differences()) eval(t, y, tmp_);
+    const auto c0 = std::chrono::steady_clock::now();
     newton_->evaluate_jacobian(t, y, tmp_, stats);
+    stats.jac_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
     need_jac_ = false, jac_fresh_ = true;
   }
   // Simplified Newton converges with a matrix for a somewhat different dh, only a little
   // slower: refactorize when dh moved by more than lu_rel_change (or J is new).
-  if (!newton_->factored() || std::abs(dh / newton_->factored_dh() - 1) > opt_.lu_rel_change)
+  if (!newton_->factored() || std::abs(dh / newton_->factored_dh() - 1) > opt_.lu_rel_change) {
+    const auto c0 = std::chrono::steady_clock::now();
     newton_->factorize(dh, stats);
+    stats.lu_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
+  }
   theta_max_ = 0;
 }
 
@@ -153,8 +159,11 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
     eval(tz, z, fz);
     ++stats.newton_iterations;
     delta_ = psi + dh * fz - z;  // -G(z)
+    const auto c0 = std::chrono::steady_clock::now();
     newton_->solve_in_place(delta_);
-    const double dyno = std::sqrt((delta_.array() / scale_.array()).square().sum() / n_);
+    stats.solve_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
+    const double dyno = opt_.max_norm ? (delta_.array() / scale_.array()).abs().maxCoeff()
+                                      : std::sqrt((delta_.array() / scale_.array()).square().sum() / n_);
     if (!std::isfinite(dyno)) return false;
     if (it >= 1) {
       const double theta = dyno / dyold;

@@ -13,6 +13,10 @@ Workspace::Workspace(const Model& m) {
     v->assign(N, 0.0);
   status.rocker.assign(N * m.cfg.rocker.stations, 1);
   status.pulley.assign(N * 8, 1);
+  rocker_stick.assign(N * m.cfg.rocker.stations, 0);
+  pulley_stick.assign(N * 8, 0);
+  rocker_dir.assign(3 * N * m.cfg.rocker.stations, 0.0);
+  pulley_dir.assign(3 * N * 8, 0.0);
   chain_slots.resize(N);
   pulley_slots.resize(N);
   inertia_slots.resize(N);

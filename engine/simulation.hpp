@@ -65,6 +65,9 @@ class Simulation {
   void set_clock(double t, long steps) { t_ = t0_ = t; steps_ = steps0_ = steps; }
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
+  Schedule& schedule() { return *schedule_; }
+  // Energy at the start (E(0) of the balance, docs/model.md 6).
+  double initial_energy() const { return energy0_; }
   // Per-module timing of every following step (engine/profile.hpp); the profiler lives
   // as long as the simulation.
   Profiler& enable_profiling();

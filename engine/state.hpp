@@ -3,6 +3,7 @@
 // kinematics, and write only the per-pin slots of their own module.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -79,6 +80,35 @@ struct Workspace {
   // takes it out.
   double switch_work = 0;
   std::vector<double> switch_slot;  // per joint, summed in pin order into switch_work
+
+  // Frozen friction branch (docs/integrators.md 11; implicit methods only, off in the
+  // production RK4 path): with the nonsmooth law, one evaluation records each contact's
+  // branch, stick (|u| < v0: R = -f0 N u / v0, linear) or slide (R = -f0 N d with the
+  // direction d = u / |u| of that evaluation, projected on the current tangent plane), and
+  // the following evaluations keep it. f is then smooth within a macro step and Newton
+  // does not meet the kink at v0 nor the turning of the sliding direction. Indexed like the
+  // statuses (directions: 3 per contact).
+  enum class FrictionBranch : std::uint8_t { off, record, frozen };
+  FrictionBranch friction_branch = FrictionBranch::off;
+  std::vector<std::uint8_t> rocker_stick, pulley_stick;
+  std::vector<double> rocker_dir, pulley_dir;
 };
+
+// The friction force R of one contact under the frozen branch (Workspace::friction_branch
+// != off): u the tangential slip velocity, n the unit contact normal.
+inline void frozen_branch_friction(const Workspace& ws, std::uint8_t& stick, double* dir, double Nel, double f0,
+                                   double v0, const double u[3], double speed, const double n[3], double R[3]) {
+  if (ws.friction_branch == Workspace::FrictionBranch::record) {
+    stick = speed < v0;
+    if (!stick)
+      for (int i = 0; i < 3; ++i) dir[i] = u[i] / speed;
+  }
+  if (stick) {
+    for (int i = 0; i < 3; ++i) R[i] = -Nel * f0 / v0 * u[i];
+  } else {
+    const double dn = dir[0] * n[0] + dir[1] * n[1] + dir[2] * n[2];
+    for (int i = 0; i < 3; ++i) R[i] = -Nel * f0 * (dir[i] - dn * n[i]);
+  }
+}
 
 }  // namespace cvt

@@ -6,6 +6,7 @@
     /usr/bin/python3 tools/cvt_plot.py scaling STUDY.csv|STUDY.json [--out scaling.png]
     /usr/bin/python3 tools/cvt_plot.py spectrogram RUN.h5 CHANNEL [--column K] [--nperseg N] [--out FILE.png]
     /usr/bin/python3 tools/cvt_plot.py animate RUN.h5 [--every K] [--fps F] [--out chain.gif]
+    /usr/bin/python3 tools/cvt_plot.py integrators STUDY.csv [--curves STUDY-curves.csv] [--out integrators.png]
 
 history: time histories of the tracked link and pin, chain torsion, supports, efficiency,
 speeds and torques (like Fig. 8 of Orlov et al. 2015). profile: share of each module in
@@ -14,6 +15,9 @@ against threads with the ideal line and the fitted Amdahl curve, per-module spee
 buffer zero+gather against compute time (their Fig. 9; Orlov et al. 2016, Figs. 8-11).
 spectrogram: short-time Fourier transform of one output channel. animate: the chain in
 the plane of the pulleys from the snapshots, links coloured by tension, as a GIF.
+integrators: the integrator study (`cvt-engine study integrators`, Orlov et al. 2016
+Figs. 12-17): one-step error against h, the sample curves of each method's chosen run
+against the reference, and wall time and RHS evaluations of every run tried.
 docs/plots.md describes every panel. Exit codes: 0 success, 2 bad input (missing file,
 group, channel or column; a message on stderr names it).
 """
@@ -820,6 +824,102 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+# ---------------------------------------------------------------------- integrators
+
+INTEGRATOR_COLUMNS = ["part", "method", "param_kind", "param", "h", "err_pos_m", "status", "deviation_percent",
+                      "wall_s", "rhs_evals", "chosen"]
+
+
+def load_integrators(path):
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no such file")
+    try:
+        with open(path, newline="") as fh:
+            raw = list(csv.DictReader(fh))
+    except (OSError, csv.Error, UnicodeDecodeError) as e:
+        raise UserError(f"{path}: cannot read: {e}")
+    if not raw:
+        raise UserError(f"{path}: no rows")
+    miss = [k for k in INTEGRATOR_COLUMNS if k not in raw[0]]
+    if miss:
+        raise UserError(f"{path}: missing column(s) {', '.join(miss)} (not an integrator study?)")
+    return raw
+
+
+def cmd_integrators(a):
+    rows = load_integrators(a.file)
+    curves = a.curves
+    if curves is None:
+        base = a.file[:-4] if a.file.endswith(".csv") else a.file
+        curves = base + "-curves.csv"
+    cur = None
+    if os.path.exists(curves):
+        with open(curves, newline="") as fh:
+            cr = list(csv.reader(fh))
+        if len(cr) > 1:
+            cur = (cr[0], np.array([[_num(x) for x in r] for r in cr[1:]]))
+    elif a.curves is not None:
+        raise UserError(f"{curves}: no such file")
+    fig, ax = plt.subplots(1, 3, figsize=(17, 5.2))
+    one = [r for r in rows if r["part"] == "one_step"]
+    for m in dict.fromkeys(r["method"] for r in one):
+        rr = [r for r in one if r["method"] == m]
+        h = np.array([_num(r["h"]) for r in rr])
+        e = np.array([_num(r["err_pos_m"]) for r in rr])
+        ax[0].loglog(h, e, "o-", label=m)
+    ax[0].set_xlabel("step h [s]")
+    ax[0].set_ylabel("position error after one step [m]")
+    ax[0].set_title("(a) one-step error against RK4, h = 2e-9 s")
+    ax[0].grid(True, which="both", alpha=0.3)
+    if one:
+        ax[0].legend(fontsize=8)
+    if cur is not None:
+        head, data = cur
+        t = (data[:, 0] - data[0, 0]) * 1e3
+        ax[1].plot(t, data[:, 1], "k-", lw=2.5, alpha=0.4, label="reference RK4")
+        for k in range(2, len(head)):
+            ax[1].plot(t, data[:, k], "-", lw=1, label=head[k])
+        ax[1].legend(fontsize=8)
+    ax[1].set_xlabel("time from the running state [ms]")
+    ax[1].set_ylabel("axial force in the pin half [N]")
+    ax[1].set_title("(b) sample curve, each method's chosen run")
+    ax[1].grid(True, alpha=0.3)
+    runs = [r for r in rows if r["part"] == "curve"]
+    devs = [_num(r["deviation_percent"]) for r in runs]
+    devs = [x for x in devs if np.isfinite(x) and x > 0]
+    ax_top = 3 * max(devs + [1.0])
+    timeouts = False
+    for m in dict.fromkeys(r["method"] for r in runs):
+        rr = [r for r in runs if r["method"] == m]
+        w = np.array([_num(r["wall_s"]) for r in rr])
+        d = np.array([_num(r["deviation_percent"]) for r in rr])
+        line, = ax[2].loglog(w, np.where(np.isfinite(d), d, np.nan), "o-", label=m)
+        for r, wi, di in zip(rr, w, d):
+            if r["chosen"] == "1" and np.isfinite(di):
+                ax[2].plot([wi], [di], "*", ms=14, color=line.get_color())
+        # Runs stopped by --max-wall: an x at the wall time projected to the whole window.
+        if cur is not None and "steps" in rr[0] and "mean_h_s" in rr[0]:
+            window = cur[1][-1, 0] - cur[1][0, 0]
+            for r, wi in zip(rr, w):
+                reached = _num(r["steps"]) * _num(r["mean_h_s"])
+                if r["status"] == "timeout" and reached > 0 and np.isfinite(reached):
+                    ax[2].plot([wi * window / reached], [ax_top], "x", ms=10, mew=2, color=line.get_color())
+                    timeouts = True
+    ax[2].axhline(1.0, color="k", ls="--", lw=0.8)
+    if timeouts:
+        ax[2].text(0.02, 0.98, "x: stopped by --max-wall, at its wall time projected to the window",
+                   transform=ax[2].transAxes, va="top", fontsize=8)
+    ax[2].set_xlabel("wall time [s]")
+    ax[2].set_ylabel("deviation from the reference [% of its range]")
+    ax[2].set_title("(b) accuracy against cost (star: chosen)")
+    ax[2].grid(True, which="both", alpha=0.3)
+    if runs:
+        ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    save(fig, a.out)
+
+
+
 def build_parser():
     ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0],
                 epilog="See docs/plots.md for what every panel shows.")
@@ -871,6 +971,12 @@ def build_parser():
     window(p)
     p.add_argument("--out", default="chain.gif", help="output GIF (default chain.gif; PNG frames without Pillow)")
     p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("integrators", help="integrator study: one-step error, sample curves, accuracy against cost")
+    p.add_argument("file", metavar="STUDY", help="the CSV of `cvt-engine study integrators --out`")
+    p.add_argument("--curves", default=None, help="the curves CSV (default: STUDY-curves.csv)")
+    p.add_argument("--out", default="integrators.png", help="output image (default integrators.png)")
+    p.set_defaults(func=cmd_integrators)
     return ap
 
 

@@ -277,6 +277,27 @@ class CvtPlotTest(unittest.TestCase):
     def test_animate(self):
         self.ok("chain.gif", "animate", self.run_h5, "--every", "3", "--fps", "5", magic=b"GIF8")
 
+    def test_integrators(self):
+        # The CSVs of `cvt-engine study integrators` (columns as engine/study_integrators.cpp writes them).
+        head = ("part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,"
+                "jac_evals,lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,"
+                "solve_s,chosen\n")
+        study = os.path.join(self.dir, "integrators.csv")
+        with open(study, "w") as fh:
+            fh.write(head)
+            for m in ("rk4", "trbdf2"):
+                for h in (1e-8, 1e-7, 1e-6):
+                    fh.write(f"one_step,{m},h,{h},{h},{h ** 3 * 1e12},{h * 1e3},,,,,,,,,,,,,,,\n")
+            fh.write("curve,rk4,h,5e-8,,,,ok,0.5,1.2,80000,0,0,20000,0,0,0,5e-8,0,0,0,1\n")
+            fh.write("curve,trbdf2,tol,1,,,,ok,5.8,20,5600,21,74,76,21,400,20,2.6e-6,1,15,2,0\n")
+            fh.write("curve,trbdf2,tol,0.1,,,,timeout,,120,56000,210,700,760,210,4000,200,,10,100,10,0\n")
+        with open(os.path.join(self.dir, "integrators-curves.csv"), "w") as fh:
+            fh.write("t_s,reference,rk4\n")
+            for k in range(50):
+                fh.write(f"{3e-4 + k * 1e-5},{-10.0 * k},{-10.0 * k + 0.1}\n")
+        self.ok("integrators.png", "integrators", study)
+        self.fails("integrators", self.study_csv, expect="missing column")
+
     def test_missing_channel(self):
         self.fails("spectrogram", self.run_h5, "no_such_channel", expect="no_such_channel")
 

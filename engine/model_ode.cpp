@@ -1,0 +1,262 @@
+#include "engine/model_ode.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <set>
+#include <stdexcept>
+
+#include "modules/inertia.hpp"
+
+namespace cvt {
+
+std::vector<std::pair<int, int>> model_jacobian_pattern(const Model& m, int band, bool pin_to_tail) {
+  const int n = m.ndof, N = m.links, tail0 = m.shaft(0), pins = kJointSize * N;
+  std::vector<std::pair<int, int>> nz;
+  // Position rows: q' = v.
+  for (int i = 0; i < n; ++i) nz.emplace_back(i, n + i);
+  // Pin acceleration rows: the joints within the band, and the shafts (contact geometry
+  // and sheave velocities at every pin end).
+  std::set<int> near;
+  for (int j = 0; j < N; ++j) {
+    near.clear();
+    for (int d = -band; d <= band; ++d) near.insert(m.wrap(j + d));
+    for (int r = m.joint(j); r < m.joint(j) + kJointSize; ++r) {
+      for (int k : near)
+        for (int c = m.joint(k); c < m.joint(k) + kJointSize; ++c) nz.emplace_back(n + r, c), nz.emplace_back(n + r, n + c);
+      for (int c = tail0; c < tail0 + 2 * kShaftSize; ++c) nz.emplace_back(n + r, c), nz.emplace_back(n + r, n + c);
+    }
+  }
+  // Tail rows (shaft and load accelerations, the work integrals): all tail columns, and
+  // with pin_to_tail every pin column where the pins act (shafts, dissipated power).
+  std::vector<int> tail_rows, tail_cols;
+  for (int i = tail0; i < n; ++i) tail_rows.push_back(n + i), tail_cols.push_back(i), tail_cols.push_back(n + i);
+  for (int a = 0; a < kAuxSize; ++a) tail_rows.push_back(2 * n + a), tail_cols.push_back(2 * n + a);
+  for (int r : tail_rows)
+    for (int c : tail_cols) nz.emplace_back(r, c);
+  if (pin_to_tail) {
+    std::vector<int> dense_rows;
+    for (int i = tail0; i < tail0 + 2 * kShaftSize; ++i) dense_rows.push_back(n + i);
+    dense_rows.push_back(2 * n + kWorkDiss);
+    for (int r : dense_rows)
+      for (int c = 0; c < pins; ++c) nz.emplace_back(r, c), nz.emplace_back(r, n + c);
+  }
+  return nz;
+}
+
+Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt) {
+  Eigen::VectorXd s = Eigen::VectorXd::Ones(m.nstate);
+  if (!opt.scaled) return s;
+  const int n = m.ndof;
+  const double r = 0.05;  // lever arm turning an angle into a length [m]
+  for (int j = 0; j < m.links; ++j)
+    for (int i = 0; i < kJointSize; ++i) {
+      const int c = i % half::kEnd;
+      const bool slope = i < 2 * half::kSize && (c == half::kSx || c == half::kSy);
+      s[m.joint(j) + i] = slope ? opt.length_unit / r : opt.length_unit;
+      s[n + m.joint(j) + i] = slope ? opt.velocity_unit / r : opt.velocity_unit;
+    }
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const bool angle = i == kTx || i == kTy || i == kPhi;
+      s[m.shaft(k) + i] = angle ? opt.length_unit / r : opt.length_unit;
+      s[n + m.shaft(k) + i] = angle ? opt.velocity_unit / r : opt.velocity_unit;
+    }
+  s[m.load_index()] = opt.length_unit / r;
+  s[n + m.load_index()] = opt.velocity_unit / r;
+  for (int a = 0; a < kAuxSize; ++a) s[2 * n + a] = opt.energy_unit;
+  return s;
+}
+
+void ModelOde::eval_scaled(double t, const double* z, double* dz) {
+  const int ns = m_.nstate;
+  for (int i = 0; i < ns; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
+  eval(t, ys_.data(), dz);
+  for (int i = 0; i < ns; ++i) dz[i] /= unit_[i];
+}
+
+ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt)
+    : m_(m), ws_(ws), schedule_(schedule), opt_(opt) {
+  const int ns = m.nstate, N = m.links, tail0 = m.shaft(0);
+  if (opt.band < 1 || 2 * opt.band + 1 > N) throw std::invalid_argument("ModelOdeOptions::band must be in [1, (links - 1) / 2]");
+  sys_.size = ns;
+  unit_ = model_state_units(m, opt);
+  offset_ = Eigen::VectorXd::Zero(ns);
+  ys_.resize(ns);
+  if (opt.scaled)
+    sys_.rhs = [this](double t, const double* z, double* dz) { eval_scaled(t, z, dz); };
+  else
+    sys_.rhs = [this](double t, const double* y, double* dy) { eval(t, y, dy); };
+  sys_.set_sparsity(model_jacobian_pattern(m, opt.band, opt.exact_dense_rows));
+  sys_.sparse_jacobian = [this](double t, const double* z, Eigen::SparseMatrix<double>& jac) {
+    if (!opt_.scaled) return jacobian(t, z, jac);
+    // J_z = S^-1 J_y S.
+    for (int i = 0; i < m_.nstate; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
+    jacobian(t, ys_.data(), jac);  // evaluates through eval(), which leaves ys_ alone
+    for (int c = 0; c < jac.outerSize(); ++c)
+      for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() *= unit_[c] / unit_[it.row()];
+  };
+
+  // Colours: the pin columns by the reduced pattern (no pin -> tail entries); every tail
+  // column (shafts, load, work integrals) a colour of its own, since the tail rows see
+  // every pin column and so could not tell a tail column from the pins beside it.
+  std::vector<std::pair<int, int>> pin_nz;
+  for (const auto& rc : model_jacobian_pattern(m, opt.band, false))
+    if (is_pin(rc.second)) pin_nz.push_back(rc);
+  OdeSystem reduced;
+  reduced.size = ns;
+  reduced.set_sparsity(pin_nz);
+  std::vector<int> color = color_columns(reduced.sparsity, &n_colors_);
+  for (int c = 0; c < ns; ++c)
+    if (!is_pin(c)) color[c] = n_colors_++;
+  columns_of_color_.assign(n_colors_, {});
+  for (int c = 0; c < ns; ++c) columns_of_color_[color[c]].push_back(c);
+  owner_.assign(static_cast<size_t>(n_colors_) * N, -1);
+  size_t widest = 0;
+  for (int k = 0; k < n_colors_; ++k) {
+    const auto& cols = columns_of_color_[k];
+    widest = std::max(widest, cols.size());
+    for (int idx = 0; idx < static_cast<int>(cols.size()); ++idx) {
+      if (!is_pin(cols[idx])) continue;
+      for (int d = -opt.band; d <= opt.band; ++d) {
+        int& o = owner_[static_cast<size_t>(k) * N + m.wrap(joint_of(cols[idx]) + d)];
+        if (o >= 0 && o != idx) throw std::logic_error("ModelOde: two pin columns of one colour near one joint");
+        o = idx;
+      }
+    }
+  }
+  // A0^-1 restricted to the shafts and the load (a constant 15 x 14 block).
+  a0_shaft_inv_.resize(2 * kShaftSize + 1, 2 * kShaftSize);
+  Eigen::VectorXd F = Eigen::VectorXd::Zero(m.ndof), Y = Eigen::VectorXd::Zero(m.ndof);
+  for (int k = 0; k < 2 * kShaftSize; ++k) {
+    F.setZero();
+    F[tail0 + k] = 1.0;
+    a0_inverse_shafts(m, F.data(), Y.data());
+    for (int r = 0; r < 2 * kShaftSize + 1; ++r) a0_shaft_inv_(r, k) = Y[tail0 + r];
+  }
+  f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
+  shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
+  pdiss0_.resize(N), pdiss1_ = pdiss0_;
+  acc_shaft_.resize(2 * kShaftSize, static_cast<Eigen::Index>(widest));
+  acc_p_.resize(static_cast<Eigen::Index>(widest));
+}
+
+void ModelOde::read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const {
+  for (int j = 0; j < m_.links; ++j) {
+    const JointSlot& s = ws_.pulley_slots[j];
+    for (int i = 0; i < 2 * kShaftSize; ++i) shaft[static_cast<size_t>(j) * 2 * kShaftSize + i] = s.shaft[i];
+    pdiss[j] = s.p_diss + ws_.chain_slots[j].p_diss;
+  }
+}
+
+void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac) {
+  ++jac_evals_;
+  const int n = m_.ndof, N = m_.links, ns = m_.nstate;
+  const int shaft_row0 = n + m_.shaft(0), diss_row = 2 * n + kWorkDiss;
+  const bool exact = opt_.exact_dense_rows;
+  const double eps = std::numeric_limits<double>::epsilon();
+  eval(t, y, f0_.data());
+  if (exact) read_slots(shaft0_, pdiss0_);
+  for (int i = 0; i < ns; ++i) yp_[i] = y[i];
+  jac.coeffs().setZero();
+  for (int k = 0; k < n_colors_; ++k) {
+    const auto& cols = columns_of_color_[k];
+    for (int c : cols) {
+      delta_[c] = std::sqrt(eps * std::max(1e-5, std::abs(y[c])));
+      yp_[c] = y[c] + delta_[c];
+    }
+    eval(t, yp_.data(), f1_.data());
+    if (exact) {
+      read_slots(shaft1_, pdiss1_);
+      acc_shaft_.setZero();
+      acc_p_.setZero();
+      for (int j = 0; j < N; ++j) {
+        const int o = owner_[static_cast<size_t>(k) * N + j];
+        if (o < 0) continue;
+        for (int i = 0; i < 2 * kShaftSize; ++i) {
+          const size_t s = static_cast<size_t>(j) * 2 * kShaftSize + i;
+          acc_shaft_(i, o) += shaft1_[s] - shaft0_[s];
+        }
+        acc_p_[o] += pdiss1_[j] - pdiss0_[j];
+      }
+    }
+    for (int idx = 0; idx < static_cast<int>(cols.size()); ++idx) {
+      const int c = cols[idx];
+      const bool pin = exact && is_pin(c);
+      const double inv = 1.0 / delta_[c];
+      for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) {
+        const int r = static_cast<int>(it.row());
+        if (pin && r >= shaft_row0 && r < shaft_row0 + 2 * kShaftSize)
+          it.valueRef() = a0_shaft_inv_.row(r - shaft_row0).dot(acc_shaft_.col(idx)) * inv;
+        else if (pin && r == diss_row)
+          it.valueRef() = acc_p_[idx] * inv;
+        else
+          it.valueRef() = (f1_[r] - f0_[r]) * inv;
+      }
+      yp_[c] = y[c];
+    }
+  }
+}
+
+OdeMethod parse_ode_method(const std::string& name) {
+  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
+                      OdeMethod::Esdirk3})
+    if (name == to_string(m)) return m;
+  throw std::invalid_argument("unknown method '" + name + "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3)");
+}
+
+OdeDriver::OdeDriver(Simulation& sim, const OdeRunOptions& opt)
+    : sim_(sim), opt_(opt), ode_(sim.model(), sim.workspace(), sim.schedule(), opt.jac),
+      solver_(ode_.system(), opt.method, opt.ode) {
+  solver_.options().keep_jacobian_across_calls = true;
+  if (!(opt.ode.h0 > 0)) throw std::invalid_argument("OdeRunOptions: ode.h0 (first or fixed step) must be > 0");
+  h_next_ = opt.ode.h0;
+}
+
+void OdeDriver::advance(double t1) {
+  const Model& m = sim_.model();
+  Eigen::VectorXd& y = sim_.mutable_state();
+  Workspace& ws = sim_.workspace();
+  Schedule& sched = sim_.schedule();
+  double t = sim_.time();
+  const std::int64_t steps0 = solver_.stats().steps;
+  const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;
+  // Fixed steps: t_k = t_start + k h, as Simulation::step counts them (no drift).
+  const double t_start = t;
+  std::int64_t k = 0;
+  const bool freeze = opt_.jac.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth &&
+                      (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
+                       opt_.method == OdeMethod::Esdirk3);
+  // The production RK4 path (Simulation::step) shares this workspace: leave the law plain.
+  struct Plain {
+    Workspace& ws;
+    ~Plain() { ws.friction_branch = Workspace::FrictionBranch::off; }
+  } plain{ws};
+  sched.within([&] {
+    while (t < t1) {
+      const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
+      double t_end = fixed ? t_start + static_cast<double>(k + 1) * H : t + H;
+      // No sliver shorter than 1 % of a macro step before t1.
+      if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
+      if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
+      if (freeze) ws.friction_branch = Workspace::FrictionBranch::record;
+      if (opt_.jac.scaled) {
+        ode_.offset() = y;
+        ode_.to_z(y, z_);
+        solver_.integrate(t, t_end, z_);
+        ode_.to_y(z_, y);
+      } else {
+        solver_.integrate(t, t_end, y);
+      }
+      if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
+      t = t_end;
+      ++k;
+      sched.update_status(t, y.data());
+      y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
+      ++macro_;
+    }
+  });
+  sim_.set_clock(t, sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
+}
+
+}  // namespace cvt

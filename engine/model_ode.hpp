@@ -1,0 +1,141 @@
+// The CVT model as a first-order system y' = f(t, y) for the generic integrators of
+// engine/ode.hpp (docs/integrators.md 11): the right-hand side is Schedule::rhs with the
+// contact statuses frozen, the Jacobian is coloured finite differences over a sparsity
+// pattern built from the model's structure, and OdeDriver advances a Simulation with any
+// OdeMethod, updating the statuses between short integrate() calls.
+#pragma once
+
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "engine/ode.hpp"
+#include "engine/simulation.hpp"
+
+namespace cvt {
+
+struct ModelOdeOptions {
+  // Joints on each side whose coordinates a joint's acceleration may depend on (pattern
+  // half-width; 2 covers the rocker faces turning with the neighbouring links and the
+  // Woodbury correction, verified by tests/engine/model_ode_test.cpp).
+  int band = 2;
+  // true: the pins -> shaft accelerations and pins -> dissipated power entries (the dense
+  // rows) are in the Jacobian, computed from the per-pin force slots of the same coloured
+  // evaluations (no extra RHS); false: they are left out (an approximate Jacobian, which
+  // only slows Newton's convergence).
+  bool exact_dense_rows = true;
+  // Integrate z = (y - c) / s instead of y, with s the unit vector below and c the state at
+  // the start of each OdeDriver macro step (s_i = 1, c = 0 when off): the solvers have a
+  // scalar atol, and the CVT's state mixes absolute positions (0.05 m, to be known to
+  // 1e-8 m), slopes, velocities and energies. With the shift, |z| is the motion within the
+  // macro step, so rtol = atol = tol is meaningful (and so is Newton's tolerance, which
+  // RADAU5-style is a fraction of rtol: a tiny rtol made Newton chase 1e-10 m).
+  bool scaled = false;
+  // Freeze each contact's friction branch (stick / slide) within a macro step: the first
+  // evaluation of each OdeDriver macro step records it (Workspace::friction_branch). Only
+  // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
+  // nonsmooth law at v0 (docs/integrators.md 11).
+  bool freeze_friction = true;
+  double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
+  double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
+  double energy_unit = 1e-3;    // [J] for the work integrals
+};
+
+// The unit vector s of ModelOdeOptions::scaled.
+Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt);
+
+// Nonzero pattern of df/dy for model m. With pin_to_tail the dense rows (shaft
+// accelerations, dissipated power) carry every pin column; without, only the tail columns.
+std::vector<std::pair<int, int>> model_jacobian_pattern(const Model& m, int band, bool pin_to_tail);
+
+// The adapter. Holds references: model, workspace and schedule must outlive it. The
+// workspace must be the schedule's (its statuses are the frozen ones, its slots are read
+// by the Jacobian).
+class ModelOde {
+ public:
+  ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt = {});
+  const OdeSystem& system() const { return sys_; }
+  // State units (all ones unless scaled): the system integrates z = y / units().
+  const Eigen::VectorXd& units() const { return unit_; }
+  // The shift c (scaled mode): y = c + units() * z.
+  Eigen::VectorXd& offset() { return offset_; }
+  void to_z(const Eigen::VectorXd& y, Eigen::VectorXd& z) const { z = (y - offset_).cwiseQuotient(unit_); }
+  void to_y(const Eigen::VectorXd& z, Eigen::VectorXd& y) const { y = offset_ + z.cwiseProduct(unit_); }
+  // Every evaluation of f, including the Jacobian's (OdeStats does not see the latter:
+  // to the solver the Jacobian is "analytic").
+  std::int64_t rhs_evals() const { return rhs_evals_; }
+  std::int64_t jacobian_evals() const { return jac_evals_; }
+  int colors() const { return n_colors_; }
+  // The coloured finite-difference Jacobian at (t, y) into jac (which has sys.sparsity).
+  void jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac);
+
+ private:
+  void eval(double t, const double* y, double* dy) {
+    schedule_.rhs(t, y, dy, nullptr);
+    ++rhs_evals_;
+    if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
+  }
+  void eval_scaled(double t, const double* z, double* dz);
+  // The per-pin parts of the dense rows after an evaluation: shaft forces [N][14] and
+  // dissipated power [N] of the chain and pulley slots.
+  void read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const;
+  bool is_pin(int col) const { return col < 2 * m_.ndof && col % m_.ndof < kJointSize * m_.links; }
+  int joint_of(int col) const { return (col % m_.ndof) / kJointSize; }
+
+  const Model& m_;
+  Workspace& ws_;
+  Schedule& schedule_;
+  ModelOdeOptions opt_;
+  OdeSystem sys_;
+  std::int64_t rhs_evals_ = 0, jac_evals_ = 0;
+  // Column colours (the pins by the pattern without pin -> tail entries).
+  std::vector<std::vector<int>> columns_of_color_;
+  std::vector<int> owner_;  // [colour * N + joint]: index in columns_of_color_ of the column near the joint, or -1
+  int n_colors_ = 0;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> a0_shaft_inv_;  // (2 shafts + load) x 14
+  Eigen::VectorXd f0_, f1_, yp_, delta_, unit_, ys_, offset_;
+  std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
+  Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour]
+  Eigen::VectorXd acc_p_;
+};
+
+// How OdeDriver runs a method on the model.
+struct OdeRunOptions {
+  OdeMethod method = OdeMethod::TrBdf2;
+  OdeOptions ode;        // rtol, atol, h0 (fixed step for Rk4), ...
+  ModelOdeOptions jac;
+  // Contact statuses are frozen within each integrate() call and updated after it. 0: one
+  // accepted step per call (the statuses follow every step, like the RK4 driver); > 0: calls
+  // of this length (several steps each).
+  double status_interval = 0;
+};
+
+// Advances a Simulation with any OdeMethod. Each macro step: integrate() from t to
+// t + H with the statuses frozen, where H is the controller's proposed step (status_interval
+// 0) or status_interval; then update the statuses and add the switching work to
+// y[2n + kWorkSwitch] (docs/model.md 4.4), as Simulation::step does.
+class OdeDriver {
+ public:
+  OdeDriver(Simulation& sim, const OdeRunOptions& opt);
+  // Advances the simulation's state and clock to exactly t1.
+  void advance(double t1);
+  const OdeStats& stats() const { return solver_.stats(); }
+  const ModelOde& model_ode() const { return ode_; }
+  std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
+  std::int64_t macro_steps() const { return macro_; }
+
+ private:
+  Simulation& sim_;
+  OdeRunOptions opt_;
+  ModelOde ode_;
+  OdeSolver solver_;
+  double h_next_ = 0;
+  std::int64_t macro_ = 0;
+  Eigen::VectorXd z_;
+};
+
+// Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws
+// std::invalid_argument otherwise.
+OdeMethod parse_ode_method(const std::string& name);
+
+}  // namespace cvt

@@ -1,0 +1,364 @@
+#include "engine/study_integrators.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <memory>
+
+#include "engine/model_ode.hpp"
+#include "engine/rhs.hpp"
+#include "engine/simulation.hpp"
+#include "modules/chain_forces.hpp"
+
+namespace cvt {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+const double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Axial forces of both halves of every pin [2N], and whether any end of each half touches
+// a sheave in the current statuses [2N].
+void pin_forces(const Model& m, const Eigen::VectorXd& y, const ContactStatus& st, std::vector<double>& f,
+                std::vector<int>& touching) {
+  const int N = m.links;
+  f.resize(2 * N), touching.resize(2 * N);
+  const double* q = y.data();
+  const double* v = q + m.ndof;
+  for (int j = 0; j < N; ++j)
+    for (int h = 0; h < 2; ++h) {
+      f[2 * j + h] = half_axial_force(m, q, v, h == 0 ? m.half_a(j) : m.half_b(j));
+      int any = 0;
+      for (int e = 0; e < 2; ++e)
+        for (int k = 0; k < 2; ++k) any |= st.pulley[ContactStatus::pulley_index(j, h, e, k)];
+      touching[2 * j + h] = any;
+    }
+}
+
+struct CurveRun {
+  std::string method, param_kind;  // "h" or "tol"
+  double param = 0;
+  std::string status = "ok";       // ok | blow-up | timeout | error: ...
+  double deviation = kNaN;         // max |F - F_ref| / range(F_ref)
+  double wall_s = 0;
+  long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
+  double jac_s = 0, lu_s = 0, solve_s = 0;
+  double reached = kNaN;  // model time covered when stopped by the timeout [s]
+  double h_mean = 0;
+  bool chosen = false;
+  std::vector<double> curve;  // the tracked half's axial force at the sample times
+};
+
+struct OneStep {
+  std::string method;
+  double h = 0, err_pos = kNaN, err_vel = kNaN;
+};
+
+// Largest |difference| over pin positions [m] and pin velocities [m/s].
+void state_errors(const Model& m, const Eigen::VectorXd& a, const Eigen::VectorXd& b, double& ep, double& ev) {
+  const int pins = kJointSize * m.links, n = m.ndof;
+  ep = (a.head(pins) - b.head(pins)).cwiseAbs().maxCoeff();
+  ev = (a.segment(n, pins) - b.segment(n, pins)).cwiseAbs().maxCoeff();
+  if (!a.allFinite()) ep = ev = kNaN;
+}
+
+}  // namespace
+
+int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
+  const double h_prod = m.cfg.integrator.step;
+  // The running state.
+  Simulation warm(m, opt.schedule);
+  const long warm_steps = std::lround(opt.t_warm / h_prod);
+  std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m.links,
+              m.nstate, h_prod, warm_steps * h_prod);
+  std::fflush(stdout);
+  for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
+  const Checkpoint start = warm.checkpoint();
+  const double t0 = warm.time();
+  {
+    Workspace ws(m);
+    auto sched = make_schedule(m, ws, ScheduleOptions{});
+    ModelOde probe(m, ws, *sched, ModelOdeOptions{2, opt.exact_dense_rows});
+    const double rho = warm.spectral_radius(start.state, t0, warm.workspace().status);
+    std::printf("spectral radius of df/dy at the running state: about %.3g 1/s (RK4 stable for h up to about "
+                "%.3g s)\n", rho, 2.8 / rho);
+    std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
+                static_cast<long>(probe.system().sparsity.nonZeros()), opt.exact_dense_rows ? "exact" : "approximate",
+                probe.colors(), probe.colors() + 1);
+  }
+
+  OdeOptions base;
+  base.newton_max_iter = opt.newton_max_iter;
+  base.jac_theta = opt.jac_theta;
+  base.max_norm = opt.max_norm;
+  // Scaled, shifted system (ModelOdeOptions::scaled): tolerances in units of 1 um, 1 mm/s, 1 mJ.
+  ModelOdeOptions jac_opt;
+  jac_opt.exact_dense_rows = opt.exact_dense_rows;
+  jac_opt.scaled = true;
+  jac_opt.freeze_friction = opt.freeze_friction;
+
+  // ---- (a) one-step error -------------------------------------------------------------
+  std::vector<OneStep> one;
+  if (opt.one_step) {
+    std::vector<double> hs = opt.one_step_h;
+    std::sort(hs.begin(), hs.end());
+    // Reference: RK4 with the small step, statuses frozen, states kept at every h.
+    std::vector<Eigen::VectorXd> ref(hs.size());
+    {
+      Simulation s(m, ScheduleOptions{});
+      s.restore(start);
+      long done = 0;
+      for (size_t i = 0; i < hs.size(); ++i) {
+        const long want = std::lround(hs[i] / opt.one_step_ref);
+        for (; done < want; ++done) s.step(opt.one_step_ref, false);
+        ref[i] = s.state();
+      }
+    }
+    std::printf("\n(a) error after one step from t = %.4g s against RK4 with h = %.3g s (statuses frozen)\n", t0,
+                opt.one_step_ref);
+    std::printf("%-10s %10s %14s %14s\n", "method", "h [s]", "pos err [m]", "vel err [m/s]");
+    for (const std::string& name : opt.methods) {
+      const OdeMethod method = parse_ode_method(name);
+      for (size_t i = 0; i < hs.size(); ++i) {
+        Workspace ws(m);
+        ws.status.rocker = start.rocker;
+        ws.status.pulley = start.pulley;
+        auto sched = make_schedule(m, ws, ScheduleOptions{});
+        ModelOde ode(m, ws, *sched, jac_opt);
+        OdeOptions o = base;
+        o.atol = o.rtol = 1e-3;
+        o.fixed_step = true;
+        o.h0 = hs[i];
+        OneStep r{name, hs[i]};
+        const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
+        if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
+          ws.friction_branch = Workspace::FrictionBranch::record;
+        ode.offset() = start.state;
+        Eigen::VectorXd z;
+        ode.to_z(start.state, z);
+        try {
+          OdeSolver solver(ode.system(), method, o);
+          solver.integrate(t0, t0 + hs[i], z);
+          Eigen::VectorXd y;
+          ode.to_y(z, y);
+          state_errors(m, y, ref[i], r.err_pos, r.err_vel);
+        } catch (const std::exception&) {
+        }
+        std::printf("%-10s %10.3g %14.4g %14.4g\n", name.c_str(), r.h, r.err_pos, r.err_vel);
+        one.push_back(r);
+      }
+    }
+    std::fflush(stdout);
+  }
+
+  // ---- (b) the sample curve -------------------------------------------------------------
+  std::vector<CurveRun> runs;
+  std::vector<double> times, ref_curve;
+  int tracked = -1;
+  double ref_wall = 0;
+  if (opt.curve) {
+    const long n_samples = std::max(1L, std::lround(opt.t_sample / opt.sample_dt));
+    for (long k = 0; k <= n_samples; ++k) times.push_back(t0 + k * opt.sample_dt);
+    // Reference: production RK4 at ref_step, all pins' axial forces.
+    std::vector<std::vector<double>> all_f;
+    std::vector<std::vector<int>> all_touch;
+    {
+      Simulation s(m, opt.schedule);
+      s.restore(start);
+      s.set_clock(t0, 0);
+      std::vector<double> f;
+      std::vector<int> touch;
+      const auto w0 = Clock::now();
+      pin_forces(m, s.state(), s.workspace().status, f, touch);
+      all_f.push_back(f), all_touch.push_back(touch);
+      const long per = std::lround(opt.sample_dt / opt.ref_step);
+      for (long k = 1; k <= n_samples; ++k) {
+        for (long i = 0; i < per; ++i) s.step(opt.ref_step);
+        pin_forces(m, s.state(), s.workspace().status, f, touch);
+        all_f.push_back(f), all_touch.push_back(touch);
+      }
+      ref_wall = seconds_since(w0);
+    }
+    // The tracked half: one that starts off the sheaves and touches them from 10 % .. 60 % of
+    // the window on; among those the one with the largest range of axial force.
+    double best_range = -1;
+    for (int i = 0; i < 2 * m.links; ++i) {
+      if (all_touch[0][i]) continue;
+      long first = -1;
+      for (long k = 0; k <= n_samples; ++k)
+        if (all_touch[k][i]) {
+          first = k;
+          break;
+        }
+      if (first < 0) continue;
+      const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
+      double lo = 1e300, hi = -1e300;
+      for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
+      const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
+      if (score > best_range) best_range = score, tracked = i;
+    }
+    if (tracked < 0) tracked = 0;  // nothing enters in this window: take pin 0, half a
+    for (long k = 0; k <= n_samples; ++k) ref_curve.push_back(all_f[k][tracked]);
+    const double lo = *std::min_element(ref_curve.begin(), ref_curve.end());
+    const double hi = *std::max_element(ref_curve.begin(), ref_curve.end());
+    const double range = std::max(hi - lo, 1e-12);
+    long enters = -1;
+    for (long k = 0; k <= n_samples; ++k)
+      if (all_touch[k][tracked]) {
+        enters = k;
+        break;
+      }
+    std::printf("\n(b) sample curve: axial force of pin %d, half %c over %.4g .. %.4g s (enters a pulley at %.4g s); "
+                "reference RK4 h = %.3g s: range %.1f .. %.1f N, %.2f s wall\n",
+                tracked / 2, tracked % 2 ? 'b' : 'a', t0, times.back(), enters >= 0 ? times[enters] : kNaN,
+                opt.ref_step, lo, hi, ref_wall);
+    std::fflush(stdout);
+
+    auto deviation = [&](const std::vector<double>& c) {
+      double d = 0;
+      for (size_t k = 0; k < c.size(); ++k) d = std::max(d, std::abs(c[k] - ref_curve[k]));
+      return c.size() == ref_curve.size() ? d / range : kNaN;
+    };
+    for (const std::string& name : opt.methods) {
+      const OdeMethod method = parse_ode_method(name);
+      const bool fixed = method == OdeMethod::Rk4;
+      const std::vector<double>& cands = fixed ? opt.rk4_steps : opt.tolerances;
+      bool found = false;
+      for (double p : cands) {
+        CurveRun r;
+        r.method = name, r.param_kind = fixed ? "h" : "tol", r.param = p;
+        Simulation s(m, opt.schedule);
+        s.restore(start);
+        s.set_clock(t0, 0);
+        std::vector<double> f;
+        std::vector<int> touch;
+        pin_forces(m, s.state(), s.workspace().status, f, touch);
+        r.curve.push_back(f[tracked]);
+        const auto w0 = Clock::now();
+        try {
+          if (fixed) {
+            // The production path (Simulation::step, fused stage update).
+            const long per = std::lround(opt.sample_dt / p);
+            if (std::abs(per * p - opt.sample_dt) > 1e-6 * opt.sample_dt)
+              throw std::invalid_argument("the RK4 step must divide sample_dt");
+            for (size_t k = 1; k < times.size(); ++k) {
+              for (long i = 0; i < per; ++i) s.step(p);
+              r.steps += per, r.rhs += 4 * per;
+              pin_forces(m, s.state(), s.workspace().status, f, touch);
+              r.curve.push_back(f[tracked]);
+              if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+              if (seconds_since(w0) > opt.max_wall) throw std::runtime_error("timeout");
+            }
+          } else {
+            OdeRunOptions ro;
+            ro.method = method;
+            ro.ode = base;
+            ro.ode.atol = ro.ode.rtol = p;
+            ro.ode.h0 = 1e-8;
+            ro.jac = jac_opt;
+            ro.status_interval = opt.status_interval;
+            OdeDriver drv(s, ro);
+            for (size_t k = 1; k < times.size(); ++k) {
+              drv.advance(times[k]);
+              pin_forces(m, s.state(), s.workspace().status, f, touch);
+              r.curve.push_back(f[tracked]);
+              if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+              if (seconds_since(w0) > opt.max_wall) {
+                const OdeStats& st = drv.stats();
+                r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
+                r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
+                r.newton_iterations = st.newton_iterations;
+                r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
+                r.reached = times[k] - t0;
+                throw std::runtime_error("timeout");
+              }
+            }
+            const OdeStats& st = drv.stats();
+            r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
+            r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
+            r.newton_iterations = st.newton_iterations;
+            r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
+          }
+        } catch (const BlowUpError&) {
+          r.status = "blow-up";
+        } catch (const OdeError& e) {
+          r.status = "error";
+        } catch (const std::exception& e) {
+          r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
+        }
+        r.wall_s = seconds_since(w0);
+        r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
+        if (r.status == "timeout")
+          std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
+        if (r.status == "ok") r.deviation = deviation(r.curve);
+        const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
+        if (good && !found) r.chosen = found = true;
+        std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
+                    "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
+                    name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
+                    r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
+        std::fflush(stdout);
+        runs.push_back(std::move(r));
+        if (found) break;
+      }
+    }
+    // Summary table: the chosen run of each method.
+    double rk4_wall = kNaN;
+    for (const CurveRun& r : runs)
+      if (r.chosen && r.method == "rk4") rk4_wall = r.wall_s;
+    std::printf("\n%-10s %-12s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
+                "jac", "lu", "steps", "mean h s", "vs rk4");
+    for (const CurveRun& r : runs) {
+      if (!r.chosen) continue;
+      char p[32];
+      std::snprintf(p, sizeof p, "%s=%.3g", r.param_kind.c_str(), r.param);
+      std::printf("%-10s %-12s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
+                  100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, rk4_wall / r.wall_s);
+    }
+    std::printf("(reference RK4 h = %.3g s: %.2f s wall)\n",
+                opt.ref_step, ref_wall);
+    for (const CurveRun& r : runs)
+      if (r.chosen)
+        std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),
+                    r.wall_s / (times.back() - t0), r.wall_s / (times.back() - t0) / 60);
+  }
+
+  if (!opt.out_csv.empty()) {
+    std::ofstream f(opt.out_csv);
+    f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
+         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen\n";
+    f.precision(10);
+    for (const OneStep& r : one)
+      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,\n";
+    for (const CurveRun& r : runs)
+      f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
+        << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
+        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << "\n";
+    if (!f) throw std::runtime_error("cannot write '" + opt.out_csv + "'");
+    if (!times.empty()) {
+      std::string cpath = opt.out_csv;
+      if (cpath.size() > 4 && cpath.substr(cpath.size() - 4) == ".csv") cpath.resize(cpath.size() - 4);
+      cpath += "-curves.csv";
+      std::ofstream c(cpath);
+      c.precision(10);
+      c << "t_s,reference";
+      for (const CurveRun& r : runs)
+        if (r.chosen) c << "," << r.method;
+      c << "\n";
+      for (size_t k = 0; k < times.size(); ++k) {
+        c << times[k] << "," << ref_curve[k];
+        for (const CurveRun& r : runs)
+          if (r.chosen) c << "," << r.curve[k];
+        c << "\n";
+      }
+      std::printf("wrote %s and %s (pin %d, half %c)\n", opt.out_csv.c_str(), cpath.c_str(), tracked / 2,
+                  tracked % 2 ? 'b' : 'a');
+    }
+  }
+  return 0;
+}
+
+}  // namespace cvt

@@ -1,0 +1,45 @@
+// `cvt-engine study integrators`: the integrator study protocol of Orlov et al. 2016
+// (paper 2, section 4.1) on the CVT model (docs/integrators.md 11).
+//   (a) the error after one step against h, from a running state, relative to RK4 with a
+//       small step (2e-9 s), statuses frozen;
+//   (b) the sample curve, the axial force in a pin half entering a pulley, over a window:
+//       each method at its largest accurate step (fixed h for RK4, the loosest tolerance for
+//       the adaptive ones), its deviation from the RK4 reference curve in % of the curve's
+//       range, wall time, RHS evaluations, Jacobians and LU factorizations.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "engine/model.hpp"
+#include "graph/schedule.hpp"
+
+namespace cvt {
+
+struct IntegratorStudyOptions {
+  double t_warm = 3e-4;       // RK4 (production step) from t = 0 to here: the running state
+  double t_sample = 5e-3;     // length of the sample-curve window [s]
+  double sample_dt = 1e-5;    // spacing of the curve's samples [s]
+  double ref_step = 1e-8;     // RK4 step of the reference curve [s]
+  double one_step_ref = 2e-9; // RK4 step of the one-step reference [s]
+  std::vector<std::string> methods = {"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3"};
+  std::vector<double> one_step_h = {1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 4e-6};
+  std::vector<double> rk4_steps = {5e-8, 4e-8, 3e-8, 2e-8};       // tried largest first
+  std::vector<double> tolerances = {1.0, 0.3, 0.1, 0.03, 0.01};   // tried loosest first (scaled atol)
+  double max_deviation = 0.01;  // accurate: max |F - F_ref| <= this x range of F_ref
+  double max_wall = 600;        // per candidate run [s]; longer runs are stopped ("timeout")
+  bool one_step = true, curve = true;
+  bool exact_dense_rows = true;
+  bool freeze_friction = true;  // ModelOdeOptions::freeze_friction
+  double status_interval = 0;   // OdeRunOptions::status_interval
+  int newton_max_iter = 7;      // OdeOptions
+  bool max_norm = false;
+  double jac_theta = 0.3;
+  ScheduleOptions schedule;
+  std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
+};
+
+// Runs the study on model m, prints the tables, writes the CSVs. Returns 0.
+int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt);
+
+}  // namespace cvt

@@ -1,0 +1,258 @@
+// The CVT model through the generic integrators (engine/model_ode.hpp,
+// docs/integrators.md 11): the Jacobian pattern and its values against a dense
+// finite-difference Jacobian, RK4 through the adapter against Simulation::step, an implicit
+// method against RK4, and the energy balance.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+#include "engine/model_ode.hpp"
+#include "engine/rhs.hpp"
+#include "modules/chain_forces.hpp"
+#include <memory>
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+#include "tests/test_util.hpp"
+
+namespace cvt {
+namespace {
+
+// The mini model running under load (0.1 ms, ramp 0.1 ms), contacts established.
+struct Running {
+  Model m;
+  Eigen::VectorXd y;
+  ContactStatus status;
+  double t = 0;
+  Running() : m(test::model("mini", {"ramp.time=1e-4"})) {
+    Simulation sim(m);
+    for (int k = 0; k < 10000; ++k) sim.step(m.cfg.integrator.step);
+    y = sim.state();
+    status = sim.workspace().status;
+    t = sim.time();
+  }
+};
+
+const Running& running() {
+  static Running r;
+  return r;
+}
+
+// Dense forward-difference Jacobian (the same increments as the coloured one).
+Eigen::MatrixXd dense_fd(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y) {
+  const int ns = m.nstate;
+  Eigen::VectorXd f0(ns), f1(ns), yp = y;
+  rhs_serial(m, ws, t, y.data(), f0.data());
+  Eigen::MatrixXd J(ns, ns);
+  const double eps = std::numeric_limits<double>::epsilon();
+  for (int c = 0; c < ns; ++c) {
+    const double d = std::sqrt(eps * std::max(1e-5, std::abs(y[c])));
+    yp[c] = y[c] + d;
+    rhs_serial(m, ws, t, yp.data(), f1.data());
+    J.col(c) = (f1 - f0) / d;
+    yp[c] = y[c];
+  }
+  return J;
+}
+
+TEST(ModelOde, PatternCoversDenseJacobian) {
+  const Running& r = running();
+  const Model& m = r.m;
+  Workspace ws(m);
+  ws.status = r.status;
+  const Eigen::MatrixXd D = dense_fd(m, ws, r.t, r.y);
+  for (bool exact : {true, false}) {
+    Workspace ws2(m);
+    ws2.status = r.status;
+    auto sched = make_schedule(m, ws2, {});
+    ModelOde ode(m, ws2, *sched, {2, exact});
+    Eigen::SparseMatrix<double> J = ode.system().sparsity;
+    ode.jacobian(r.t, r.y.data(), J);
+    const Eigen::MatrixXd S = Eigen::MatrixXd(J);
+    // Every entry of the dense Jacobian outside the pattern, by kind.
+    const int n = m.ndof, tail0 = m.shaft(0);
+    double worst_out = 0, worst_pin_tail = 0, worst_diff = 0, scale = D.cwiseAbs().maxCoeff();
+    int max_band = 0;
+    std::string worst_at;
+    Eigen::MatrixXd P = Eigen::MatrixXd(ode.system().sparsity).cwiseAbs();
+    for (int c = 0; c < m.nstate; ++c)
+      for (int rr = 0; rr < m.nstate; ++rr) {
+        const double v = std::abs(D(rr, c));
+        if (v == 0) continue;
+        const bool pin_col = c < 2 * n && c % n < tail0, pin_row = rr < 2 * n && rr % n < tail0;
+        if (pin_col && pin_row && rr >= n) {
+          int d = std::abs((rr % n) / kJointSize - (c % n) / kJointSize);
+          d = std::min(d, m.links - d);
+          max_band = std::max(max_band, d);
+        }
+        if (P(rr, c) == 0) {
+          if (pin_col && !pin_row) worst_pin_tail = std::max(worst_pin_tail, v);
+          else worst_out = std::max(worst_out, v);
+        } else {
+          // Relative to the entry, with a floor at the row's rounding noise (sums of many
+          // pins' forces in the shaft rows).
+          const double dd = std::abs(S(rr, c) - D(rr, c)) / (v + 1e-7 * D.row(rr).cwiseAbs().maxCoeff());
+          if (dd > worst_diff) {
+            worst_diff = dd;
+            worst_at = describe_state_index(m, rr) + " / " + describe_state_index(m, c);
+          }
+        }
+      }
+    std::printf("[model_ode] mini %s: %d colours, nnz %ld, joint band of the dense FD %d; largest dense entry "
+                "outside the pattern %.3g (pins -> tail rows %.3g) of max %.3g; max |coloured - dense| relative "
+                "%.3g at %s\n",
+                exact ? "exact dense rows" : "approximate", ode.colors(), static_cast<long>(J.nonZeros()), max_band,
+                worst_out, worst_pin_tail, scale, worst_diff, worst_at.c_str());
+    EXPECT_LE(max_band, 2);
+    EXPECT_EQ(worst_out, 0.0);
+    if (exact) {
+      EXPECT_EQ(worst_pin_tail, 0.0);
+    }
+    EXPECT_LE(worst_diff, 1e-2);  // 4e-3 measured, in the dissipated-power row (rounding of its sum)
+  }
+}
+
+// A Simulation at the running state.
+std::unique_ptr<Simulation> at_running_state(const Running& r) {
+  auto sim = std::make_unique<Simulation>(r.m);
+  sim->mutable_state() = r.y;
+  sim->workspace().status = r.status;
+  sim->set_clock(r.t, 0);
+  return sim;
+}
+
+TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {
+  const Running& r = running();
+  const Model& m = r.m;
+  const double h = m.cfg.integrator.step;
+  const int steps = 300;
+  auto a = at_running_state(r), b = at_running_state(r);
+  for (int k = 0; k < steps; ++k) a->step(h);
+  OdeRunOptions ro;
+  ro.method = OdeMethod::Rk4;
+  ro.ode.h0 = h;
+  ro.jac.scaled = false;
+  OdeDriver drv(*b, ro);
+  drv.advance(r.t + steps * h);
+  const Eigen::VectorXd& ya = a->state();
+  const Eigen::VectorXd& yb = b->state();
+  const int pins = kJointSize * m.links;
+  const double dq = (ya.head(pins) - yb.head(pins)).cwiseAbs().maxCoeff();
+  const double dv = (ya.segment(m.ndof, pins) - yb.segment(m.ndof, pins)).cwiseAbs().maxCoeff();
+  const double dw = std::abs(ya[2 * m.ndof + kWorkSwitch] - yb[2 * m.ndof + kWorkSwitch]);
+  std::printf("[model_ode] RK4 via OdeDriver vs Simulation::step, %d steps: max |dq| %.3g m, |dv| %.3g m/s, "
+              "|dW_switch| %.3g J; steps %ld / %ld, t %.17g / %.17g, equal bits: %s\n",
+              steps, dq, dv, dw, a->steps(), b->steps(), a->time(), b->time(), ya == yb ? "yes" : "no");
+  EXPECT_EQ(drv.rhs_evals(), 4 * steps);
+  EXPECT_EQ(b->steps(), steps);
+  EXPECT_NEAR(b->time(), a->time(), 1e-18);
+  EXPECT_LE(dq, 1e-14);
+  EXPECT_LE(dv, 1e-8);
+  EXPECT_LE(dw, 1e-12);
+}
+
+// TR-BDF2 (scaled, frozen friction branch) against RK4 at the production step over a short
+// window in which the tracked pin's forces change: the pins' positions and the tracked
+// half's axial force.
+TEST(ModelOde, ImplicitStaysCloseToRk4) {
+  const Running& r = running();
+  const Model& m = r.m;
+  const double h = m.cfg.integrator.step, window = 2e-5;
+  auto a = at_running_state(r), b = at_running_state(r);
+  OdeRunOptions ro;
+  ro.method = OdeMethod::TrBdf2;
+  ro.ode.rtol = ro.ode.atol = 1e-2;
+  ro.ode.h0 = 1e-8;
+  ro.jac.scaled = true;
+  OdeDriver drv(*b, ro);
+  double worst_f = 0, range_lo = 1e300, range_hi = -1e300;
+  const int pins = kJointSize * m.links;
+  for (int k = 1; k <= 10; ++k) {
+    const double t = r.t + k * window / 10;
+    for (int i = 0; i < 200; ++i) a->step(h);
+    drv.advance(t);
+    for (int j = 0; j < m.links; ++j) {
+      const double fa = half_axial_force(m, a->state().data(), a->state().data() + m.ndof, m.half_a(j));
+      const double fb = half_axial_force(m, b->state().data(), b->state().data() + m.ndof, m.half_a(j));
+      worst_f = std::max(worst_f, std::abs(fa - fb));
+      range_lo = std::min(range_lo, fa), range_hi = std::max(range_hi, fa);
+    }
+  }
+  const double dq = (a->state().head(pins) - b->state().head(pins)).cwiseAbs().maxCoeff();
+  const OdeStats& st = drv.stats();
+  std::printf("[model_ode] trbdf2 tol 1e-2 over %.3g s: %ld steps (rejected %ld, Newton failures %ld), %ld RHS, "
+              "%ld Jacobians, %ld LU; max |dq| vs RK4 %.3g m; max |axial force difference| over all halves a %.3g N "
+              "(range of the forces %.1f .. %.1f N)\n",
+              window, static_cast<long>(st.steps), static_cast<long>(st.rejected), static_cast<long>(st.newton_failures),
+              static_cast<long>(drv.rhs_evals()), static_cast<long>(drv.model_ode().jacobian_evals()),
+              static_cast<long>(st.lu_factorizations), dq, worst_f, range_lo, range_hi);
+  EXPECT_LT(st.steps, 2000);  // RK4 took 2000
+  // 3.3e-6 m measured: mostly the phase of the chain along its path (12 m/s x 0.3 ns).
+  EXPECT_LE(dq, 1e-5);
+  EXPECT_LE(worst_f, 0.02 * (range_hi - range_lo));
+}
+
+// The energy balance of docs/model.md 6 with an implicit method: the residual stays a small
+// fraction of the work that flows.
+TEST(ModelOde, EnergyBalanceWithImplicitMethod) {
+  const Running& r = running();
+  const Model& m = r.m;
+  auto a = at_running_state(r), b = at_running_state(r);
+  const Sample s0 = b->sample();
+  OdeRunOptions ro;
+  ro.method = OdeMethod::TrBdf2;
+  ro.ode.rtol = ro.ode.atol = 1e-1;
+  ro.ode.h0 = 1e-8;
+  ro.jac.scaled = true;
+  OdeDriver drv(*b, ro);
+  const double window = 5e-5;
+  drv.advance(r.t + window);
+  for (long k = 0; k < std::lround(window / m.cfg.integrator.step); ++k) a->step(m.cfg.integrator.step);
+  const Sample sb = b->sample(), sa = a->sample();
+  const double win = sb.work_input - s0.work_input, flow = win + std::abs(sb.work_clamping - s0.work_clamping) +
+                                                          (sb.work_dissipated - s0.work_dissipated);
+  const double res_b = sb.energy_residual - s0.energy_residual, res_a = sa.energy_residual - s0.energy_residual;
+  std::printf("[model_ode] energy balance over %.3g s: residual change trbdf2 %.3g J, rk4 %.3g J; work in %.4g J, "
+              "dissipated %.4g J, clamping %.3g J, switching %.3g J (trbdf2) / %.3g J (rk4); %ld steps\n",
+              window, res_b, res_a, win, sb.work_dissipated - s0.work_dissipated, sb.work_clamping - s0.work_clamping,
+              sb.work_contact_switching - s0.work_contact_switching, sa.work_contact_switching - s0.work_contact_switching,
+              static_cast<long>(drv.stats().steps));
+  EXPECT_GT(flow, 0.0);
+  EXPECT_LE(std::abs(res_b), 0.05 * flow);
+}
+
+// `cvt-engine study integrators` in its short mode (mini model, 0.1 ms window): both parts,
+// the table, the CSV and the curves.
+TEST(ModelOde, StudyIntegratorsShortMode) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("cvt_study_test_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string csv = (dir / "study.csv").string();
+  const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
+                          test::shell_quote(test::config_path("mini")) +
+                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2 "
+                          "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --tols 1 --max-dev 0.2 --out " +
+                          test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  auto slurp = [](const fs::path& p) {
+    std::ifstream f(p);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+  };
+  const std::string out = slurp(dir / "out.txt"), table = slurp(csv), curves = slurp(dir / "study-curves.csv");
+  std::printf("%s", out.c_str());
+  EXPECT_NE(out.find("(a) error after one step"), std::string::npos);
+  EXPECT_NE(out.find("(b) sample curve"), std::string::npos);
+  EXPECT_NE(table.find("one_step,trbdf2,h,1e-07"), std::string::npos);
+  EXPECT_NE(table.find("curve,rk4,h,5e-08"), std::string::npos);
+  EXPECT_NE(table.find("curve,trbdf2,tol,1"), std::string::npos);
+  EXPECT_EQ(curves.rfind("t_s,reference,rk4,trbdf2", 0), 0u) << curves.substr(0, 80);
+  EXPECT_GE(std::count(curves.begin(), curves.end(), '\n'), 11);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace cvt
