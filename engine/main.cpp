@@ -79,6 +79,13 @@ int cmd_scale(const std::string& config_path, const std::vector<std::string>& ov
   o.repeat = repeat;
   o.warmup = warmup;
   o.grain = grain;
+  // The output files are created first: a bad path fails now, not after the study.
+  std::optional<std::ofstream> csv_file, json_file;
+  for (auto [path, file] : {std::pair{&csv, &csv_file}, std::pair{&json, &json_file}})
+    if (!path->empty()) {
+      file->emplace(*path);
+      if (!**file) throw std::runtime_error("cannot write '" + *path + "'");
+    }
   const int cores = numa::discover_topology().total_cores();
   std::printf("cvt-engine %s scale: %s, %d links, %ld steps x %d repeats per combination, %d cores here\n", CVT_VERSION,
               config_path.c_str(), model.links, steps, repeat, cores);
@@ -91,13 +98,14 @@ int cmd_scale(const std::string& config_path, const std::vector<std::string>& ov
   std::printf("\n%s", scale_table(rows).c_str());
   std::printf("(medians over the repeats; speedups against the serial schedule in the same run; chain/pulley us:\n"
               " the module's largest busy time over the threads per step; zero+gath, compute: per thread and step)\n");
-  const auto write = [](const std::string& path, const std::string& text) {
-    std::ofstream f(path);
+  const auto write = [](std::ofstream& f, const std::string& path, const std::string& text) {
     f << text;
+    f.close();
     if (!f) throw std::runtime_error("cannot write '" + path + "'");
+    std::printf("wrote %s\n", path.c_str());
   };
-  if (!csv.empty()) write(csv, scale_csv(rows)), std::printf("wrote %s\n", csv.c_str());
-  if (!json.empty()) write(json, scale_json(rows, config_path)), std::printf("wrote %s\n", json.c_str());
+  if (csv_file) write(*csv_file, csv, scale_csv(rows));
+  if (json_file) write(*json_file, json, scale_json(rows, config_path));
   for (const auto& r : rows)
     if (!r.identical) {
       std::fprintf(stderr, "cvt-engine: %s with %d threads (%s) did not give the serial bits\n", r.scheduler.c_str(),

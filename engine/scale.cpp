@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "engine/simulation.hpp"
+#include "numa/topology.hpp"
 
 namespace cvt {
 
@@ -71,6 +72,12 @@ std::vector<ScaleRow> run_scaling_study(const Model& m, const ScaleOptions& o,
                                         const std::function<void(const std::string&)>& progress) {
   if (o.steps < 1 || o.repeat < 1) throw std::invalid_argument("--steps and --repeat must be >= 1");
   const double h = m.cfg.integrator.step;
+  // Bad layouts are refused before anything runs.
+  for (const std::string& l : o.layouts)
+    if (l != "native") {
+      LayoutScope scope(l);
+      (void)numa::discover_topology();
+    }
   // The running state every combination starts from.
   Simulation warm(m);
   const long warm_steps = std::lround(o.warmup / h);

@@ -346,5 +346,24 @@ TEST_F(CliTest, BlowUpIsExplainedAndKeepsTheGoodSamples) {
   H5Fclose(f);
 }
 
+// `scale` refuses a bad layout or an unwritable output before it runs anything, and
+// writes its CSV and JSON otherwise.
+TEST_F(CliTest, ScaleChecksItsInputsFirstAndWritesItsFiles) {
+  const RunResult bad_layout = run({"scale", kMini, "--layouts", "garbage", "--steps", "2", "--repeat", "1"});
+  EXPECT_EQ(bad_layout.exit_code, 1) << bad_layout.err;
+  EXPECT_NE(bad_layout.err.find("hwloc rejects this synthetic description"), std::string::npos) << bad_layout.err;
+  EXPECT_EQ(bad_layout.err.find("warmed up"), std::string::npos) << "ran before checking the layout";
+  const RunResult bad_out = run({"scale", kMini, "--steps", "2", "--repeat", "1", "--out", "no/such/dir/s.csv"});
+  EXPECT_EQ(bad_out.exit_code, 1) << bad_out.err;
+  EXPECT_NE(bad_out.err.find("cannot write"), std::string::npos) << bad_out.err;
+  const RunResult usage = run({"scale", kMini, "--schedulers", "foo"});
+  EXPECT_EQ(usage.exit_code, 64) << usage.err;
+  const RunResult ok = run({"scale", kMini, "--threads", "1,2", "--steps", "3", "--repeat", "1", "--warmup", "1e-6",
+                            "--out", "s.csv", "--json", "s.json"});
+  EXPECT_EQ(ok.exit_code, 0) << ok.err;
+  EXPECT_TRUE(fs::exists(dir_ / "s.csv"));
+  EXPECT_TRUE(fs::exists(dir_ / "s.json"));
+}
+
 }  // namespace
 }  // namespace cvt
