@@ -11,7 +11,11 @@
 #include <string>
 #include <vector>
 
+#if defined(__x86_64__) || defined(__i386__)
 #include <x86intrin.h>
+#else
+#include <chrono>
+#endif
 
 namespace cvt {
 
@@ -29,7 +33,13 @@ inline constexpr int kSections = static_cast<int>(Section::count);
 
 class Profiler {
  public:
-  static std::uint64_t ticks() { return __rdtsc(); }
+  static std::uint64_t ticks() {
+#if defined(__x86_64__) || defined(__i386__)
+    return __rdtsc();
+#else  // elsewhere the steady clock in ns (seconds_per_tick calibrates either)
+    return static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+#endif
+  }
 
   // workers: the number of threads that may run timed work (index 0..workers-1).
   explicit Profiler(int workers = 1);
