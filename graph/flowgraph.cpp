@@ -3,7 +3,7 @@
 //   start -> {chain_forces, pulley_contact, other_forces, inertia_decomposition}
 //         -> {gather (pins), gather_shafts} -> accelerations + stage update
 // Module nodes are continue_nodes whose bodies run a chunked parallel_for over the arena's
-// pin segment (simple_partitioner, `grain` pins per task); data lives in the workspace,
+// pin segment (owner-preferred parts of about `grain` pins); data lives in the workspace,
 // not in messages. With one NUMA node the whole stage is one graph run. With several,
 // the gather of a segment reads the slots of its neighbour's boundary pin and the solve
 // reads the neighbours' A0^-1 F, so the graphs stop after the modules and the gather and
@@ -15,6 +15,7 @@
 #include <oneapi/tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <sstream>
 #include <vector>
@@ -48,7 +49,10 @@ class FlowGraphSchedule final : public Schedule {
     for (int n = 0; n < nodes; ++n) offset_[n + 1] = offset_[n] + arenas_->threads(n);
     parts_.resize(nodes);
     empty_ = opt.empty_kernels;
-    for (int i = 0; i < nodes * kPasses; ++i) affinity_.push_back(std::make_unique<tbb::affinity_partitioner>());
+    for (int n = 0; n < nodes; ++n)
+      for (int i = 0; i < kPasses; ++i)
+        claims_.push_back(std::make_unique<std::atomic<unsigned char>[]>(
+            static_cast<std::size_t>(kMaxPartsPerThread * arenas_->threads(n))));
     for (int n = 0; n < nodes; ++n)
       for (const char* name : {"chain_forces", "pulley_contact", "inertia_decomposition", "other_forces"})
         spans_.push_back({"node" + std::to_string(n) + "/" + name, 0, 0});
@@ -198,23 +202,44 @@ class FlowGraphSchedule final : public Schedule {
   // Runs f(b, e) over the node's pin segment in chunks of `grain` pins (default: the
   // configured grain, for the expensive chain kernel; the cheap passes use coarse chunks,
   // two per thread, since a task costs a fraction of a microsecond).
-  // Each pass of each node keeps its own affinity_partitioner, so that a pin's chunk runs
-  // on the same thread stage after stage and its data stays in that core's cache (a
-  // cache line moved between cores costs about 80 ns here, and a stage touches ~2000).
+  // Every pass gives a pin to the same thread while all are awake (owner-preferred parts,
+  // below), so that its data stays in that core's cache (a cache line moved between cores
+  // costs about 80 ns here, and a stage touches ~2000).
   enum Pass { kKinematics, kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
   // Each chunk is timed as `sec` on the worker that runs it when profiling
   // (Section::count: f times itself).
   template <class F>
   void pins(int n, Pass pass, Section sec, const F& f, int grain = 0) {
     if (grain == 0) grain = grain_;
+    const auto chunk = [&](int b, int e) {
+      if (!prof_ || sec == Section::count) return f(b, e);
+      ScopedTimer tm(prof_, worker(n), sec);
+      f(b, e);
+    };
+    const int T = arenas_->threads(n), b0 = bounds_[n], len = bounds_[n + 1] - b0;
+    if (T == 1) return chunk(b0, b0 + len);
+    // Owner-preferred parts (docs/runtime.md): the segment is cut into parts of about
+    // `grain` pins, c per thread; thread k runs its own parts [k c, (k+1) c) first, then
+    // takes what is left from the end. A pin thus stays on the same thread in every pass
+    // while all threads are awake, and its data in that core's cache; a late thread's
+    // parts are still taken by the others. The parts are fixed, so the bits are too.
+    const int c = std::clamp((len + T * grain - 1) / (T * grain), 1, kMaxPartsPerThread);
+    const int P = T * c;
+    std::atomic<unsigned char>* claim = claims_[n * kPasses + pass].get();
+    for (int p = 0; p < P; ++p) claim[p].store(0, std::memory_order_relaxed);
     tbb::parallel_for(
-        tbb::blocked_range<int>(bounds_[n], bounds_[n + 1], grain),
-        [&](const tbb::blocked_range<int>& r) {
-          if (!prof_ || sec == Section::count) return f(r.begin(), r.end());
-          ScopedTimer tm(prof_, worker(n), sec);
-          f(r.begin(), r.end());
+        0, T,
+        [&](int) {
+          const int me = tbb::this_task_arena::current_thread_index();
+          const auto run = [&](int p) {
+            if (claim[p].exchange(1, std::memory_order_acq_rel)) return;
+            chunk(b0 + p * len / P, b0 + (p + 1) * len / P);
+          };
+          if (me >= 0 && me < T)
+            for (int p = me * c; p < (me + 1) * c; ++p) run(p);
+          for (int p = P - 1; p >= 0; --p) run(p);
         },
-        *affinity_[n * kPasses + pass]);
+        tbb::simple_partitioner());
   }
   // This thread's index among all the schedule's threads (arena n's slots come after
   // those of the nodes before it).
@@ -370,7 +395,8 @@ class FlowGraphSchedule final : public Schedule {
   bool inside_ = false;  // the master is in arena 0 (within())
   std::vector<NodeSpan> spans_;
   std::string placement_;
-  std::vector<std::unique_ptr<tbb::affinity_partitioner>> affinity_;
+  static constexpr int kMaxPartsPerThread = 64;
+  std::vector<std::unique_ptr<std::atomic<unsigned char>[]>> claims_;  // per node and pass
   static double now() {
     return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
   }
