@@ -125,18 +125,18 @@ class FlowGraphSchedule final : public Schedule {
       os << "  subgraph cluster_" << n << " {\n    label=\"NUMA node " << n << ": pins [" << bounds_[n] << ", "
          << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n";
       if (arenas_->nodes() == 1)
-        os << "    " << p << "start;\n    " << p << "kinematics [label=\"link kinematics\\nparallel_for\"];\n    " << p
+        os << "    " << p << "start;\n    " << p << "kinematics [label=\"link kinematics\\nper-thread parts\"];\n    " << p
            << "start -> " << p << "kinematics;\n";
       else
         os << "    " << p << "start [label=\"start\\n(link kinematics, all links)\"];\n";
       const std::string src = arenas_->nodes() == 1 ? p + "kinematics" : p + "start";
       for (const char* mod : {"chain_forces", "pulley_contact", "inertia_decomposition"})
-        os << "    " << p << mod << " [label=\"" << mod << "\\nparallel_for, grain " << grain_ << "\"];\n"
+        os << "    " << p << mod << " [label=\"" << mod << "\\nper-thread parts, grain " << grain_ << "\"];\n"
            << "    " << src << " -> " << p << mod << ";\n";
       if (n == 0) os << "    " << p << "other_forces;\n    " << src << " -> " << p << "other_forces;\n";
       if (arenas_->nodes() == 1) {
-        os << "    " << p << "gather [label=\"gather\\nparallel_for\"];\n    " << p
-           << "gather_shafts;\n    " << p << "accelerations [label=\"accelerations + stage update\\nparallel_for\"];\n";
+        os << "    " << p << "gather [label=\"gather\\nper-thread parts\"];\n    " << p
+           << "gather_shafts;\n    " << p << "accelerations [label=\"accelerations + stage update\\nper-thread parts\"];\n";
         for (const char* mod : {"chain_forces", "pulley_contact", "other_forces", "inertia_decomposition"})
           os << "    " << p << mod << " -> {" << p << "gather " << p << "gather_shafts};\n";
         os << "    {" << p << "gather " << p << "gather_shafts} -> " << p << "accelerations;\n";
