@@ -9,6 +9,7 @@
 #include <numbers>
 #include <stdexcept>
 
+#include "engine/json.hpp"
 #include "engine/rhs.hpp"
 #include "modules/beam.hpp"
 #include "modules/inertia.hpp"
@@ -405,14 +406,6 @@ std::string mode_table(const std::vector<ModeRow>& rows) {
   return s;
 }
 
-std::string json_escape(const std::string& s) {
-  std::string o;
-  for (char c : s) {
-    if (c == '"' || c == '\\') o += '\\';
-    o += c;
-  }
-  return o;
-}
 
 std::string json_rows(const std::vector<ModeRow>& rows) {
   std::string s = "[";

@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <sstream>
 
+#include "engine/json.hpp"
+
 namespace cvt {
 
 namespace {
@@ -16,14 +18,6 @@ double clock_s() {
 const char* const kSectionNames[kSections] = {"chain forces",  "pulley contact",    "other forces",  "inertia decomposition",
                                               "accelerations", "integrator update", "contact status"};
 
-std::string json_escape(const std::string& s) {
-  std::string o;
-  for (char c : s) {
-    if (c == '"' || c == '\\') o += '\\';
-    o += c;
-  }
-  return o;
-}
 
 }  // namespace
 

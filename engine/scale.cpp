@@ -9,6 +9,7 @@
 #include <memory>
 #include <sstream>
 
+#include "engine/json.hpp"
 #include "engine/simulation.hpp"
 #include "numa/topology.hpp"
 
@@ -206,12 +207,10 @@ std::string scale_json(const std::vector<ScaleRow>& rows, const std::string& con
   std::ostringstream os;
   os.precision(9);
   const auto str = [](const std::string& s) {
-    std::string o = "\"";
-    for (char c : s) {
-      if (c == '"' || c == '\\') o += '\\';
-      o += c;
-    }
-    return o + "\"";
+    std::string o = "\"";  // (+= : GCC 12 warns falsely, -Wrestrict, on "\"" + ...)
+    o += json_escape(s);
+    o += '"';
+    return o;
   };
   os << "{\"config\": " << str(config) << ", \"rows\": [";
   for (std::size_t i = 0; i < rows.size(); ++i) {
