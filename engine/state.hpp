@@ -94,21 +94,4 @@ struct Workspace {
   std::vector<double> rocker_dir, pulley_dir;
 };
 
-// The friction force R of one contact under the frozen branch (Workspace::friction_branch
-// != off): u the tangential slip velocity, n the unit contact normal.
-inline void frozen_branch_friction(const Workspace& ws, std::uint8_t& stick, double* dir, double Nel, double f0,
-                                   double v0, const double u[3], double speed, const double n[3], double R[3]) {
-  if (ws.friction_branch == Workspace::FrictionBranch::record) {
-    stick = speed < v0;
-    if (!stick)
-      for (int i = 0; i < 3; ++i) dir[i] = u[i] / speed;
-  }
-  if (stick) {
-    for (int i = 0; i < 3; ++i) R[i] = -Nel * f0 / v0 * u[i];
-  } else {
-    const double dn = dir[0] * n[0] + dir[1] * n[1] + dir[2] * n[2];
-    for (int i = 0; i < 3; ++i) R[i] = -Nel * f0 * (dir[i] - dn * n[i]);
-  }
-}
-
 }  // namespace cvt

@@ -232,21 +232,13 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
         wx -= wn * r.mx;
         wy -= wn * r.my;
         const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
-        double Rz = 0;
-        if (law == FrictionLaw::nonsmooth && ws.friction_branch != Workspace::FrictionBranch::off) {
-          const int idx = j * nst + st;
-          const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
-          double Rv[3];
-          frozen_branch_friction(ws, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Nel, f0, v0, u, speed, nrm, Rv);
-          Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
-          s.p_diss += -(Rx * wx + Ry * wy + Rz * wz);
-        } else {
-          const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-          Rx = -mu * wx;
-          Ry = -mu * wy;
-          Rz = -mu * wz;
-          s.p_diss += mu * speed * speed;
-        }
+        const int idx = j * nst + st;
+        const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
+        double Rv[3];
+        s.p_diss +=
+            contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
+        Rx = Rv[0], Ry = Rv[1];
+        const double Rz = Rv[2];
         fa[half::kZ] += (1 - xi) * Rz;
         fa[half::kEnd + half::kZ] += xi * Rz;
         fb[half::kZ] -= (1 - xi) * Rz;

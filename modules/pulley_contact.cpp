@@ -125,22 +125,12 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           uy -= un * ny;
           uz -= un * nz;
           const double speed = std::sqrt(ux * ux + uy * uy + uz * uz);
-          if (law == FrictionLaw::nonsmooth && ws.friction_branch != Workspace::FrictionBranch::off) {
-            const int idx = ContactStatus::pulley_index(j, h, e, k);
-            const double u[3] = {ux, uy, uz}, nrm[3] = {nx, ny, nz};
-            double Rv[3];
-            frozen_branch_friction(ws, ws.pulley_stick[idx], &ws.pulley_dir[3 * idx], Nel, f0, v0, u, speed, nrm, Rv);
-            Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
-            Rmag = std::sqrt(Rx * Rx + Ry * Ry + Rz * Rz);
-            s.p_diss += -(Rx * ux + Ry * uy + Rz * uz);
-          } else {
-            const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-            Rx = -mu * ux;
-            Ry = -mu * uy;
-            Rz = -mu * uz;
-            Rmag = mu * speed;
-            s.p_diss += mu * speed * speed;
-          }
+          const int idx = ContactStatus::pulley_index(j, h, e, k);
+          const double u[3] = {ux, uy, uz}, nrm[3] = {nx, ny, nz};
+          double Rv[3];
+          s.p_diss += contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.pulley_stick[idx],
+                                       &ws.pulley_dir[3 * idx], Rv, &Rmag);
+          Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).
