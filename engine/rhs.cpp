@@ -171,18 +171,54 @@ void gather_forces(const Model& m, Workspace& ws) {
   gather_shafts(m, ws);
 }
 
-void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op) {
+void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, Profiler* prof) {
+  {
+    ScopedTimer tm(prof, 0, Section::accel);
+    finish_joints(m, ws, dy, nullptr, 0, m.links);
+    finish_shafts(m, ws, dy, nullptr);
+  }
+  if (op) {
+    ScopedTimer tm(prof, 0, Section::update);
+    stage_update_joints(m, op, dy, 0, m.links);
+    stage_update_shafts(m, op, dy);
+  }
+}
+
+void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op,
+                Profiler* prof) {
+  if (prof) {
+    for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
+      prof->call(s);
+    if (op) prof->call(Section::update);
+  }
   set_stage_input(m, ws, t, y);
   const int N = m.links;
-  link_kinematics(m, ws, 0, N);
-  chain_forces(m, ws, 0, N);
-  pulley_contact(m, ws, 0, N);
-  other_forces(m, ws);
-  inertia_decomposition(m, ws, 0, N);
-  gather_joints(m, ws, 0, N);
-  gather_shafts(m, ws);
-  finish_joints(m, ws, dy, op, 0, N);
-  finish_shafts(m, ws, dy, op);
+  {
+    ScopedTimer tm(prof, 0, Section::inertia);
+    link_kinematics(m, ws, 0, N);
+  }
+  {
+    ScopedTimer tm(prof, 0, Section::chain);
+    chain_forces(m, ws, 0, N);
+  }
+  {
+    ScopedTimer tm(prof, 0, Section::pulley);
+    pulley_contact(m, ws, 0, N);
+  }
+  {
+    ScopedTimer tm(prof, 0, Section::other);
+    other_forces(m, ws);
+  }
+  {
+    ScopedTimer tm(prof, 0, Section::inertia);
+    inertia_decomposition(m, ws, 0, N);
+  }
+  {
+    ScopedTimer tm(prof, 0, Section::accel);
+    gather_joints(m, ws, 0, N);
+    gather_shafts(m, ws);
+  }
+  finish_stage(m, ws, dy, op, prof);
 }
 
 void begin_status_update(const Model& m, Workspace& ws, double t, const double* y) {
@@ -202,7 +238,9 @@ void finish_status_update(const Model& m, Workspace& ws) {
   ws.switch_work = w;
 }
 
-void update_contact_status(const Model& m, Workspace& ws, double t, const double* y) {
+void update_contact_status(const Model& m, Workspace& ws, double t, const double* y, Profiler* prof) {
+  if (prof) prof->call(Section::status);
+  ScopedTimer tm(prof, 0, Section::status);
   begin_status_update(m, ws, t, y);
   update_status_joints(m, ws, 0, m.links);
   finish_status_update(m, ws);

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "engine/integrator.hpp"
+#include "engine/profile.hpp"
 #include "engine/state.hpp"
 
 namespace cvt {
@@ -40,15 +41,20 @@ void stage_update_shafts(const Model& m, const StageOp* op, double* dy);
 // Whole-vector forms of the passes (tests, benchmarks, sampling).
 void gather_forces(const Model& m, Workspace& ws);
 
-// The serial schedule: module after module over all pins (the baseline).
+// Pass 3 and the stage update over all pins and the shafts, each timed into prof (if
+// given, as worker 0): the common tail of the serial and the paper-omp schedules.
+void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, Profiler* prof = nullptr);
+
+// The serial schedule: module after module over all pins (the baseline); each pass timed
+// into prof (if given, as worker 0).
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy,
-                const StageOp* op = nullptr);
+                const StageOp* op = nullptr, Profiler* prof = nullptr);
 
 // Contact statuses for the next step from the state y (docs/model.md 4.4), and the
 // contact energy switched in or out (ws.switch_work). In passes like the RHS: the link
 // kinematics, then joints [begin, end) (each writes its own statuses and switch_slot[j]),
 // then the sum of switch_slot in pin order.
-void update_contact_status(const Model& m, Workspace& ws, double t, const double* y);
+void update_contact_status(const Model& m, Workspace& ws, double t, const double* y, Profiler* prof = nullptr);
 void begin_status_update(const Model& m, Workspace& ws, double t, const double* y);
 void update_status_joints(const Model& m, Workspace& ws, int begin, int end);
 void finish_status_update(const Model& m, Workspace& ws);

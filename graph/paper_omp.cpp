@@ -105,22 +105,12 @@ class PaperOmpSchedule final : public Schedule {
       ScopedTimer tm(prof, 0, Section::accel);
       gather_joints_from_sums(m, ws, csum_.data(), psum_.data(), 0, N);
       gather_shafts(m, ws);
-      finish_joints(m, ws, dy, nullptr, 0, N);
-      finish_shafts(m, ws, dy, nullptr);
     }
-    if (op) {
-      ScopedTimer tm(prof, 0, Section::update);
-      stage_update_joints(m, op, dy, 0, N);
-      stage_update_shafts(m, op, dy);
-    }
+    finish_stage(m, ws, dy, op, prof);
   }
 
   // The published code updated its contact events serially.
-  void update_status(double t, const double* y) override {
-    if (prof_) prof_->call(Section::status);
-    ScopedTimer tm(prof_, 0, Section::status);
-    update_contact_status(m_, ws_, t, y);
-  }
+  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
 
   std::string describe() const override {
     return "paper-omp (" + std::to_string(threads_) + " OpenMP threads, static loops, thread-local buffers)";

@@ -2,10 +2,6 @@
 #include <stdexcept>
 
 #include "graph/schedule.hpp"
-#include "modules/chain_forces.hpp"
-#include "modules/inertia.hpp"
-#include "modules/other_forces.hpp"
-#include "modules/pulley_contact.hpp"
 
 namespace cvt {
 
@@ -15,37 +11,9 @@ class SerialSchedule final : public Schedule {
  public:
   SerialSchedule(const Model& m, Workspace& ws) : m_(m), ws_(ws) {}
   void rhs(double t, const double* y, double* dy, const StageOp* op) override {
-    if (!prof_) return rhs_serial(m_, ws_, t, y, dy, op);
-    // rhs_serial's passes, each timed (the same calls in the same order: the same bits).
-    const int N = m_.links;
-    Profiler* p = prof_;
-    for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
-      p->call(s);
-    if (op) p->call(Section::update);
-    set_stage_input(m_, ws_, t, y);
-    { ScopedTimer tm(p, 0, Section::inertia); link_kinematics(m_, ws_, 0, N); }
-    { ScopedTimer tm(p, 0, Section::chain); chain_forces(m_, ws_, 0, N); }
-    { ScopedTimer tm(p, 0, Section::pulley); pulley_contact(m_, ws_, 0, N); }
-    { ScopedTimer tm(p, 0, Section::other); other_forces(m_, ws_); }
-    { ScopedTimer tm(p, 0, Section::inertia); inertia_decomposition(m_, ws_, 0, N); }
-    {
-      ScopedTimer tm(p, 0, Section::accel);
-      gather_joints(m_, ws_, 0, N);
-      gather_shafts(m_, ws_);
-      finish_joints(m_, ws_, dy, nullptr, 0, N);
-      finish_shafts(m_, ws_, dy, nullptr);
-    }
-    if (op) {
-      ScopedTimer tm(p, 0, Section::update);
-      stage_update_joints(m_, op, dy, 0, N);
-      stage_update_shafts(m_, op, dy);
-    }
+    rhs_serial(m_, ws_, t, y, dy, op, prof_);
   }
-  void update_status(double t, const double* y) override {
-    if (prof_) prof_->call(Section::status);
-    ScopedTimer tm(prof_, 0, Section::status);
-    update_contact_status(m_, ws_, t, y);
-  }
+  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
   std::string describe() const override { return "serial (1 thread)"; }
   std::string graphviz() const override {
     return "digraph stage {\n  rankdir=LR;\n  start -> link_kinematics -> chain_forces -> pulley_contact -> "
