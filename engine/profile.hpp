@@ -52,6 +52,11 @@ class Profiler {
   }
   // One call of section s (counted once per stage by the master, not per chunk).
   void call(Section s) { ++calls_[static_cast<int>(s)]; }
+  // One RHS evaluation: a call of every module section and, with a stage update, of it.
+  void call_rhs(bool update) {
+    for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel}) call(s);
+    if (update) call(Section::update);
+  }
   // Wall time the master spent inside steps, in output, and the number of steps.
   void add_step(std::uint64_t dt) { step_ticks_ += dt, ++steps_; }
   void add_output(std::uint64_t dt) { output_ticks_ += dt, ++output_calls_; }

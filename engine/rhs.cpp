@@ -186,11 +186,7 @@ void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, 
 
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op,
                 Profiler* prof) {
-  if (prof) {
-    for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
-      prof->call(s);
-    if (op) prof->call(Section::update);
-  }
+  if (prof) prof->call_rhs(op != nullptr);
   set_stage_input(m, ws, t, y);
   const int N = m.links;
   {

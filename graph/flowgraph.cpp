@@ -72,11 +72,7 @@ class FlowGraphSchedule final : public Schedule {
     }
     dy_ = dy;
     op_ = op;
-    if (prof_) {
-      for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
-        prof_->call(s);
-      if (op) prof_->call(Section::update);
-    }
+    if (prof_) prof_->call_rhs(op != nullptr);
     const int nodes = arenas_->nodes();
     if (nodes == 1) {
       const auto run = [&] {

@@ -32,11 +32,7 @@ class PaperOmpSchedule final : public Schedule {
     set_stage_input(m, ws, t, y);
     const int N = m.links;
     Profiler* prof = prof_;
-    if (prof) {
-      for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel})
-        prof->call(s);
-      if (op) prof->call(Section::update);
-    }
+    if (prof) prof->call_rhs(op != nullptr);
     {
       ScopedTimer tm(prof, 0, Section::inertia);
       link_kinematics(m, ws, 0, N);
