@@ -300,12 +300,7 @@ H5Series& H5File::series(const std::string& path, std::vector<hsize_t> row_shape
   return *series_.emplace(key, std::move(created)).first->second;
 }
 
-void H5File::set_string_attribute(const std::string& object_path, const std::string& name,
-                                  const std::string& value) {
-  const std::string path = normalize(object_path);
-  const std::string where = path + "@" + name;
-  require_open("set_string_attribute", where);
-  require_no_nul(value, where);
+H5Handle H5File::attribute_owner(const std::string& path, const std::string& name, const std::string& where) {
   if (!link_exists(path)) {
     H5Handle lcpl = make_lcpl(path);
     H5Handle group(H5Gcreate2(file_.get(), path.c_str(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
@@ -316,6 +311,16 @@ void H5File::set_string_attribute(const std::string& object_path, const std::str
   const htri_t exists = H5Aexists(object.get(), name.c_str());
   if (exists < 0) fail("H5Aexists", where);
   if (exists > 0) check(H5Adelete(object.get(), name.c_str()), "H5Adelete", where);
+  return object;
+}
+
+void H5File::set_string_attribute(const std::string& object_path, const std::string& name,
+                                  const std::string& value) {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("set_string_attribute", where);
+  require_no_nul(value, where);
+  H5Handle object = attribute_owner(path, name, where);
   H5Handle type = make_string_type(where);
   H5Handle space(H5Screate(H5S_SCALAR), "H5Screate(H5S_SCALAR)", where);
   H5Handle acpl(H5Pcreate(H5P_ATTRIBUTE_CREATE), "H5Pcreate(H5P_ATTRIBUTE_CREATE)", where);
@@ -333,16 +338,7 @@ void H5File::set_double_attribute(const std::string& object_path, const std::str
   const std::string path = normalize(object_path);
   const std::string where = path + "@" + name;
   require_open("set_double_attribute", where);
-  if (!link_exists(path)) {
-    H5Handle lcpl = make_lcpl(path);
-    H5Handle group(H5Gcreate2(file_.get(), path.c_str(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
-                   "H5Gcreate2", path);
-    group.close(path);
-  }
-  H5Handle object(H5Oopen(file_.get(), path.c_str(), H5P_DEFAULT), "H5Oopen", path);
-  const htri_t exists = H5Aexists(object.get(), name.c_str());
-  if (exists < 0) fail("H5Aexists", where);
-  if (exists > 0) check(H5Adelete(object.get(), name.c_str()), "H5Adelete", where);
+  H5Handle object = attribute_owner(path, name, where);
   H5Handle space(H5Screate(H5S_SCALAR), "H5Screate(H5S_SCALAR)", where);
   H5Handle attr(H5Acreate2(object.get(), name.c_str(), H5T_IEEE_F64LE, space.get(), H5P_DEFAULT,
                            H5P_DEFAULT),

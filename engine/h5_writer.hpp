@@ -163,6 +163,8 @@ class H5File {
   H5File(H5Handle file, std::string path);
   void require_open(const char* operation, const std::string& object_path) const;
   bool link_exists(const std::string& object_path) const;
+  // The object at path (a group created if missing) with no attribute `name` left on it.
+  H5Handle attribute_owner(const std::string& path, const std::string& name, const std::string& where);
 
   H5Handle file_;
   std::string path_;
