@@ -77,6 +77,8 @@ class OdeSolverImpl {
   void step_rkc(double t, double& h, const Eigen::VectorXd& y, double* err);
   // ode_implicit.cpp
   Attempt step_trapezoid(double t, double h, const Eigen::VectorXd& y, double* err);
+  Attempt newton_failed();
+  Attempt filtered_error(const Eigen::VectorXd& y, double* err);
   Attempt step_trbdf2(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz

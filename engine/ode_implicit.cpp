@@ -186,6 +186,19 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
   return false;
 }
 
+// A failed Newton iteration: the next attempt takes a fresh Jacobian unless this one was.
+OdeSolverImpl::Attempt OdeSolverImpl::newton_failed() {
+  if (!jac_fresh_) need_jac_ = true;
+  return Attempt::NewtonFailed;
+}
+
+// The error estimate err_vec_ filtered by the Newton matrix (I - dh J)^-1, as its norm.
+OdeSolverImpl::Attempt OdeSolverImpl::filtered_error(const Eigen::VectorXd& y, double* err) {
+  newton_->solve_in_place(err_vec_);
+  *err = error_norm(err_vec_, y, y_new_);
+  return Attempt::Ok;
+}
+
 // The trapezoidal rule y1 = y0 + h/2 (f0 + f1). Its local error -h^3/12 y''' is estimated
 // from the second divided difference of f over the previous, current and new points,
 // y''' ~ 2 f[t_-1, t0, t1], and filtered by (I - h/2 J)^-1 as Shampine suggests for stiff
@@ -195,10 +208,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_trapezoid(double t, double h, const E
   prepare_newton(t, dh, y);
   psi_ = y + dh * f0_;
   z_ = y;
-  if (!newton(t + h, dh, psi_, y, z_, f_new_)) {
-    if (!jac_fresh_) need_jac_ = true;
-    return Attempt::NewtonFailed;
-  }
+  if (!newton(t + h, dh, psi_, y, z_, f_new_)) return newton_failed();
   y_new_ = z_;
   if (fixed_) return Attempt::Ok;
   double tp = t_prev_;
@@ -210,9 +220,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_trapezoid(double t, double h, const E
   const double hp = t - tp;
   // (h^3 / 12) * 2 f[tp, t, t + h]
   err_vec_ = ((f_new_ - f0_) / h - (f0_ - f_prev_) / hp) * (h * h * h / 6.0 / (h + hp));
-  newton_->solve_in_place(err_vec_);
-  *err = error_norm(err_vec_, y, y_new_);
-  return Attempt::Ok;
+  return filtered_error(y, err);
 }
 
 // TR-BDF2: a trapezoidal stage to t + gamma h, then BDF2 through y_n, y_gamma, y_n+1:
@@ -233,16 +241,11 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_trbdf2(double t, double h, const Eige
     z_ = y + (zg_ - y) / kGamma;  // linear extrapolation through y_n and y_g
     ok = newton(t + h, dh, psi_, y, z_, f_new_);
   }
-  if (!ok) {
-    if (!jac_fresh_) need_jac_ = true;
-    return Attempt::NewtonFailed;
-  }
+  if (!ok) return newton_failed();
   y_new_ = z_;
   if (fixed_) return Attempt::Ok;
   err_vec_ = (kErrC * 2 * h) * (f0_ / kGamma - fg_ / (kGamma * (1 - kGamma)) + f_new_ / (1 - kGamma));
-  newton_->solve_in_place(err_vec_);
-  *err = error_norm(err_vec_, y, y_new_);
-  return Attempt::Ok;
+  return filtered_error(y, err);
 }
 
 // ESDIRK3: stage i solves Z_i = psi_i + g h f(Z_i) with psi_i = y_n + h sum_j<i a_ij k_j,
@@ -270,16 +273,11 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_esdirk3(double t, double h, const Eig
     psi_ = y + h * (kKa41 * k1 + kKa42 * k2_ + kKa43 * k3_);
     ok = newton(t + h, dh, psi_, y, z_, f_new_);
   }
-  if (!ok) {
-    if (!jac_fresh_) need_jac_ = true;
-    return Attempt::NewtonFailed;
-  }
+  if (!ok) return newton_failed();
   y_new_ = z_;
   if (fixed_) return Attempt::Ok;
   err_vec_ = z_ - zg_;
-  newton_->solve_in_place(err_vec_);
-  *err = error_norm(err_vec_, y, y_new_);
-  return Attempt::Ok;
+  return filtered_error(y, err);
 }
 
 }  // namespace cvt
