@@ -265,51 +265,49 @@ class FlowGraphSchedule final : public Schedule {
 
   // With several nodes, the pages of each node's segment of the per-pin arrays (module
   // slots, forces, accelerations) move to that node, and its threads touch them first.
-  void place_slots() {
-    std::string why;
+  // Tally of the migrations of one kind of array: "M of T <what> moved to their node (why
+  // the first refusal)"; segments without a whole page ("-") do not count.
+  struct Moves {
     int moved = 0, tried = 0;
-    const auto note = [&](const std::string& r) {
-      if (r == "-") return;  // no whole page in the segment
+    std::string why;
+    void note(const std::string& r) {
+      if (r == "-") return;
       ++tried;
       moved += r.empty();
       if (!r.empty() && why.empty()) why = r;
-    };
+    }
+    std::string text(const std::string& what) const {
+      return std::to_string(moved) + " of " + std::to_string(tried) + " " + what + " moved to their node" +
+             (why.empty() ? "" : " (" + why + ")");
+    }
+  };
+
+  void place_slots() {
+    Moves mv;
     for (int n = 0; n < arenas_->nodes(); ++n) {
       const int b = bounds_[n], e = bounds_[n + 1];
-      for (auto* slots : {&ws_.chain_slots, &ws_.pulley_slots, &ws_.inertia_slots}) {
-        note(numa::migrate_to_node(*arenas_, slots->data() + b, sizeof(JointSlot) * (e - b), n));
-      }
-      for (Eigen::VectorXd* v : {&ws_.force, &ws_.accel, &ws_.accel_free}) {
-        note(numa::migrate_to_node(*arenas_, v->data() + m_.joint(b), sizeof(double) * kJointSize * (e - b), n));
-      }
+      for (auto* slots : {&ws_.chain_slots, &ws_.pulley_slots, &ws_.inertia_slots})
+        mv.note(numa::migrate_to_node(*arenas_, slots->data() + b, sizeof(JointSlot) * (e - b), n));
+      for (Eigen::VectorXd* v : {&ws_.force, &ws_.accel, &ws_.accel_free})
+        mv.note(numa::migrate_to_node(*arenas_, v->data() + m_.joint(b), sizeof(double) * kJointSize * (e - b), n));
       arenas_->execute_on(n, [&] {
         pins(n, kChain, Section::count, [&](int pb, int pe) {
           for (int j = pb; j < pe; ++j) ws_.chain_slots[j].clear(), ws_.pulley_slots[j].clear(), ws_.inertia_slots[j].clear();
         });
       });
     }
-    placement_ = std::to_string(moved) + " of " + std::to_string(tried) + " per-node array segments moved to their node" +
-                 (why.empty() ? "" : " (" + why + ")");
+    placement_ = mv.text("per-node array segments");
   }
 
   void place_state(const std::vector<double*>& vectors) override {
     if (arenas_->nodes() < 2) return;
-    int moved = 0, tried = 0;
-    std::string why;
+    Moves mv;
     for (int n = 0; n < arenas_->nodes(); ++n) {
       const int lo = m_.joint(bounds_[n]), len = kJointSize * (bounds_[n + 1] - bounds_[n]);
       for (double* v : vectors)
-        for (int off : {lo, m_.ndof + lo}) {
-          const std::string r = numa::migrate_to_node(*arenas_, v + off, sizeof(double) * len, n);
-          if (r == "-") continue;
-          ++tried;
-          moved += r.empty();
-          if (!r.empty() && why.empty()) why = r;
-        }
+        for (int off : {lo, m_.ndof + lo}) mv.note(numa::migrate_to_node(*arenas_, v + off, sizeof(double) * len, n));
     }
-    placement_ += "; " + std::to_string(moved) + " of " + std::to_string(tried) +
-                  " per-node state segments (q, v of the integrator's vectors) moved to their node" +
-                  (why.empty() ? "" : " (" + why + ")");
+    placement_ += "; " + mv.text("per-node state segments (q, v of the integrator's vectors)");
   }
 
   // Declares node n's graph; it reads like the DAG of a stage.
