@@ -317,10 +317,12 @@ int main(int argc, char** argv) {
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
   study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3")->delimiter(',')
-      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3"}))->capture_default_str();
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2"}))->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();
+  study_int->add_option("--ros2-steps", si.ros2_steps, "ROS2 (W-method) fixed steps tried in (b), largest first [s]")
+      ->delimiter(',')->capture_default_str();
   study_int->add_option("--tols", si.tolerances, "tolerances tried in (b), loosest first (atol in units of 1 um, 1 mm/s)")
       ->delimiter(',')->capture_default_str();
   study_int->add_option("--max-dev", si.max_deviation, "accurate: deviation <= this fraction of the curve's range")
@@ -330,6 +332,9 @@ int main(int argc, char** argv) {
   study_int->add_option("--status-interval", si.status_interval,
                         "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
+  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its friction matrix every N steps")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  study_int->add_flag("--w-secant", si.w_secant, "ROS2: secant friction slope along the sliding direction too");
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");

@@ -6,6 +6,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "modules/beam.hpp"
 #include "modules/inertia.hpp"
 
 namespace cvt {
@@ -134,6 +135,22 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     a0_inverse_shafts(m, F.data(), Y.data());
     for (int r = 0; r < 2 * kShaftSize + 1; ++r) a0_shaft_inv_(r, k) = Y[tail0 + r];
   }
+  // W-method: A0 of a joint's two halves (bending per plane, axial bar), and the hooks.
+  a0_joint_.setZero();
+  for (int h = 0; h < 2; ++h) {
+    const int o = h * half::kSize;
+    for (int pl = 0; pl < 2; ++pl) {
+      const auto d = plane_dofs(pl);
+      for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c) a0_joint_(o + d[r], o + d[c]) = m.bend_mass(r, c);
+    }
+    const int z[2] = {half::kZ, half::kEnd + half::kZ};
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 2; ++c) a0_joint_(o + z[r], o + z[c]) = m.axial_mass(r, c);
+  }
+  w_llt_.resize(N);
+  sys_.w_factor = [this](double, const double*, double gh) { w_factor(gh); };
+  sys_.w_solve = [this](double* x) { w_solve(x); };
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
   pdiss0_.resize(N), pdiss1_ = pdiss0_;
@@ -198,11 +215,52 @@ void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& 
   }
 }
 
+void ModelOde::w_factor(double gh) {
+  constexpr int kD = Workspace::kDampDim;
+  // A stale matrix is kept for w_every steps unless gh changed; the blocks are recorded
+  // only by the evaluation that starts a rebuilding step.
+  // (A fixed step taken as t1 - t0 varies in its last bits: that is no change of gh.)
+  const bool rebuild = w_gh_ == 0 || std::abs(gh / w_gh_ - 1) > 1e-9 || ++w_since_ >= opt_.w_every;
+  ws_.record_damping = opt_.w_every <= 1 || w_since_ + 1 >= opt_.w_every;
+  if (!rebuild) return;
+  w_since_ = 0;
+  w_gh_ = gh;
+  ws_.record_damping = opt_.w_every <= 1;
+  for (int j = 0; j < m_.links; ++j) {
+    const std::size_t o = static_cast<std::size_t>(j) * kD * kD;
+    const Eigen::Map<const Block> kr(ws_.rocker_damping.data() + o), kp(ws_.pulley_damping.data() + o);
+    // Row-major storage read column-major is the transpose; K is symmetric.
+    Block k = kr + kp;
+    // What the neighbours' contacts export onto this joint's halves through the link spins:
+    // joint j-1's export [1] onto a_j, joint j+1's export [0] onto b_j.
+    constexpr int kE = Workspace::kExportDim;
+    const std::size_t prev = static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
+    const std::size_t next = static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
+    using EBlock = Eigen::Matrix<double, kE, kE>;
+    k.topLeftCorner<kE, kE>() += Eigen::Map<const EBlock>(ws_.rocker_export.data() + prev) +
+                                 Eigen::Map<const EBlock>(ws_.pulley_export.data() + prev);
+    k.bottomRightCorner<kE, kE>() += Eigen::Map<const EBlock>(ws_.rocker_export.data() + next) +
+                                     Eigen::Map<const EBlock>(ws_.pulley_export.data() + next);
+    w_llt_[j].compute(a0_joint_ + gh * k);
+  }
+}
+
+void ModelOde::w_solve(double* x) const {
+  const int n = m_.ndof;
+  for (int j = 0; j < m_.links; ++j) {
+    const int r0 = n + m_.joint(j);
+    BlockVec b;
+    for (int i = 0; i < Workspace::kDampDim; ++i) b[i] = x[r0 + i] * unit_[r0 + i];
+    const BlockVec sol = w_llt_[j].solve(a0_joint_ * b);
+    for (int i = 0; i < Workspace::kDampDim; ++i) x[r0 + i] = sol[i] / unit_[r0 + i];
+  }
+}
+
 OdeMethod parse_ode_method(const std::string& name) {
   for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
-                      OdeMethod::Esdirk3})
+                      OdeMethod::Esdirk3, OdeMethod::Ros2})
     if (name == to_string(m)) return m;
-  throw std::invalid_argument("unknown method '" + name + "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3)");
+  throw std::invalid_argument("unknown method '" + name + "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3, ros2)");
 }
 
 OdeDriver::OdeDriver(Simulation& sim, const OdeRunOptions& opt)
@@ -230,8 +288,14 @@ void OdeDriver::advance(double t1) {
   // The production RK4 path (Simulation::step) shares this workspace: leave the law plain.
   struct Plain {
     Workspace& ws;
-    ~Plain() { ws.friction_branch = Workspace::FrictionBranch::off; }
+    ~Plain() {
+      ws.friction_branch = Workspace::FrictionBranch::off;
+      ws.record_damping = false;
+    }
   } plain{ws};
+  // The W-method takes its matrix from the damping blocks of each evaluation.
+  ws.record_damping = opt_.method == OdeMethod::Ros2;
+  ws.damping_secant = opt_.jac.w_secant;
   sched.within([&] {
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;

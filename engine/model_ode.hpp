@@ -36,6 +36,10 @@ struct ModelOdeOptions {
   // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
   // nonsmooth law at v0 (docs/integrators.md 11).
   bool freeze_friction = true;
+  // W-method (Ros2): rebuild the friction blocks and refactorize every this many steps (a
+  // W-method keeps its order with a stale matrix; only the stiff part must be captured).
+  int w_every = 1;
+  bool w_secant = false;  // Workspace::damping_secant
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -68,6 +72,13 @@ class ModelOde {
   int colors() const { return n_colors_; }
   // The coloured finite-difference Jacobian at (t, y) into jac (which has sys.sparsity).
   void jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac);
+  // The W-method's matrix (OdeSystem::w_factor / w_solve, docs/integrators.md 12): per
+  // joint, W_j = I + gh A0_j^-1 K_j on the velocities of its two halves, with K_j the
+  // friction damping blocks that the last evaluation recorded (Workspace::record_damping,
+  // which the adapter turns on while a W-method runs), A0_j their constant mass blocks;
+  // identity on every other unknown. Solved as (A0_j + gh K_j) x = A0_j b (Cholesky, 20 x 20).
+  void w_factor(double gh);
+  void w_solve(double* x) const;
 
  private:
   void eval(double t, const double* y, double* dy) {
@@ -97,6 +108,13 @@ class ModelOde {
   std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
   Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour]
   Eigen::VectorXd acc_p_;
+  // W-method blocks.
+  using Block = Eigen::Matrix<double, Workspace::kDampDim, Workspace::kDampDim>;
+  using BlockVec = Eigen::Matrix<double, Workspace::kDampDim, 1>;
+  Block a0_joint_;                // A0 of the two halves of a joint (constant)
+  std::vector<Eigen::LLT<Block>> w_llt_;  // per joint
+  double w_gh_ = 0;                       // gh of the factorization (0: none yet)
+  int w_since_ = 0;                       // steps since the blocks were rebuilt
 };
 
 // How OdeDriver runs a method on the model.

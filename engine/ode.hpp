@@ -41,6 +41,17 @@ struct OdeSystem {
   Eigen::SparseMatrix<double> sparsity;
 
   bool is_sparse() const { return sparsity.nonZeros() > 0; }
+
+  // W-methods (OdeMethod::Ros2) with a system-supplied approximate Jacobian J~ (optional;
+  // without them Ros2 takes the Jacobian above and an LU, fresh at every step):
+  // w_factor(t, y, gh) prepares W = I - gh J~ at (t, y), and is always called right after
+  // rhs(t, y), so a system may take J~ from what that evaluation recorded; w_solve(x)
+  // overwrites x with W^-1 x. A W-method keeps its order for any J~; J~ only has to capture
+  // the stiff part for the step to be stable.
+  using WFactor = std::function<void(double t, const double* y, double gh)>;
+  using WSolve = std::function<void(double* x)>;
+  WFactor w_factor;
+  WSolve w_solve;
   // The pattern from a list of (row, column) nonzeros; duplicates are fine.
   void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
 };
@@ -52,6 +63,7 @@ enum class OdeMethod {
   Trapezoid,  // implicit trapezoidal rule, A-stable but not L-stable, order 2
   TrBdf2,     // TR-BDF2, gamma = 2 - sqrt 2, L-stable, order 2 (Hosea & Shampine 1996)
   Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
+  Ros2,       // Verwer et al.'s ROS2 W-method, 2 stages, order 2 for any J~, L-stable for J~ = J
 };
 
 const char* to_string(OdeMethod method);

@@ -99,6 +99,8 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.exact_dense_rows = opt.exact_dense_rows;
   jac_opt.scaled = true;
   jac_opt.freeze_friction = opt.freeze_friction;
+  jac_opt.w_every = opt.w_every;
+  jac_opt.w_secant = opt.w_secant;
 
   // ---- (a) one-step error -------------------------------------------------------------
   std::vector<OneStep> one;
@@ -136,6 +138,8 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
         if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
           ws.friction_branch = Workspace::FrictionBranch::record;
+        ws.record_damping = method == OdeMethod::Ros2;  // the W-method's matrix
+        ws.damping_secant = opt.w_secant;
         ode.offset() = start.state;
         Eigen::VectorXd z;
         ode.to_z(start.state, z);
@@ -225,11 +229,12 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
     for (const std::string& name : opt.methods) {
       const OdeMethod method = parse_ode_method(name);
       const bool fixed = method == OdeMethod::Rk4;
-      const std::vector<double>& cands = fixed ? opt.rk4_steps : opt.tolerances;
+      const bool w_fixed = method == OdeMethod::Ros2 && !opt.ros2_steps.empty();
+      const std::vector<double>& cands = fixed ? opt.rk4_steps : w_fixed ? opt.ros2_steps : opt.tolerances;
       bool found = false;
       for (double p : cands) {
         CurveRun r;
-        r.method = name, r.param_kind = fixed ? "h" : "tol", r.param = p;
+        r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
         Simulation s(m, opt.schedule);
         s.restore(start);
         s.set_clock(t0, 0);
@@ -258,6 +263,10 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             ro.ode = base;
             ro.ode.atol = ro.ode.rtol = p;
             ro.ode.h0 = 1e-8;
+            if (w_fixed) {
+              ro.ode.fixed_step = true;
+              ro.ode.h0 = p;
+            }
             ro.jac = jac_opt;
             ro.status_interval = opt.status_interval;
             OdeDriver drv(s, ro);

@@ -25,6 +25,8 @@ struct IntegratorStudyOptions {
   std::vector<std::string> methods = {"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3"};
   std::vector<double> one_step_h = {1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 4e-6};
   std::vector<double> rk4_steps = {5e-8, 4e-8, 3e-8, 2e-8};       // tried largest first
+  // ROS2 (the W-method) runs fixed steps, tried largest first (empty: adaptive with the tolerances).
+  std::vector<double> ros2_steps = {5e-7, 2e-7, 1e-7, 5e-8};
   std::vector<double> tolerances = {1.0, 0.3, 0.1, 0.03, 0.01};   // tried loosest first (scaled atol)
   double max_deviation = 0.01;  // accurate: max |F - F_ref| <= this x range of F_ref
   double max_wall = 600;        // per candidate run [s]; longer runs are stopped ("timeout")
@@ -35,6 +37,8 @@ struct IntegratorStudyOptions {
   int newton_max_iter = 7;      // OdeOptions
   bool max_norm = false;
   double jac_theta = 0.3;
+  int w_every = 1;              // ModelOdeOptions::w_every (ROS2)
+  bool w_secant = false;        // ModelOdeOptions::w_secant (ROS2)
   ScheduleOptions schedule;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
 };

@@ -1,6 +1,7 @@
 // docs/model.md 4.1 (beams), 4.2 (plates, pack), 4.3 (rocker joints).
 #include "modules/chain_forces.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include "modules/beam.hpp"
@@ -173,6 +174,44 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
   return r;
 }
 
+// Workspace::record_damping: the slip velocity u = v_a - v_b at a rocker station as a
+// function of the joint's own 20 coordinates (a_j: 0..9, b_j: 10..19): the centre lines'
+// velocities at the station, their axial rates, and the link spins psi_dot_{j-1} (through
+// a_j's mid-point, +n/(2|Delta|)) and psi_dot_j (through b_j's, -n/(2|Delta|)).
+void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int lp, int lc, double rax, double ray,
+                           double rbx, double rby, const double u[3], double speed, double mu, double mu_t, double* K,
+                           double* E) {
+  double G[Workspace::kDampDim][3] = {};
+  for (int side = 0; side < 2; ++side) {
+    const int o = side == 0 ? 0 : 10;
+    const double sg = side == 0 ? 1.0 : -1.0;  // u = v_a - v_b
+    for (int pl = 0; pl < 2; ++pl) {
+      const auto d = plane_dofs(pl);
+      for (int i = 0; i < 4; ++i) G[o + d[i]][pl] += sg * r.h.w[i];
+    }
+    G[o + half::kZ][2] += sg * (1 - r.xi);
+    G[o + half::kEnd + half::kZ][2] += sg * r.xi;
+    // psi_dot (-r_y, r_x, 0): a_j is the a-half of link j-1 (+), b_j the b-half of link j (-).
+    const int l = side == 0 ? lp : lc;
+    const double c = (side == 0 ? 0.5 : -0.5) * kin.inv_len[l];
+    const double nx = -kin.ey[l], ny = kin.ex[l];
+    const double lx = side == 0 ? -ray : -rby, ly = side == 0 ? rax : rbx;
+    for (int e = 0; e < 2; ++e) {
+      double* gx = G[o + e * half::kEnd + half::kX];
+      double* gy = G[o + e * half::kEnd + half::kY];
+      gx[0] += sg * c * nx * lx, gx[1] += sg * c * nx * ly;
+      gy[0] += sg * c * ny * lx, gy[1] += sg * c * ny * ly;
+    }
+  }
+  const double n[3] = {r.mx, r.my, 0.0};
+  add_friction_damping(K, Workspace::kDampDim, Workspace::kDampDim, G, n, u, speed, mu, mu_t);
+  // Through psi_dot_{j-1} onto b_{j-1} (-n/(2|Delta|), on the a side of u), through psi_dot_j
+  // onto a_{j+1} (+n/(2|Delta|), on the b side of u: sign -).
+  add_exported_damping(E, -0.5 * kin.inv_len[lp], -kin.ey[lp], kin.ex[lp], -ray, rax, n, u, speed, mu, mu_t);
+  add_exported_damping(E + Workspace::kExportDim * Workspace::kExportDim, -0.5 * kin.inv_len[lc], -kin.ey[lc],
+                       kin.ex[lc], -rby, rbx, n, u, speed, mu, mu_t);
+}
+
 }  // namespace
 
 void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
@@ -204,6 +243,11 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
 
     // 4.3 rocker joint j: a_j turns with link j-1, b_j with link j.
     const int lp = m.wrap(j - 1), lc = j;
+    constexpr int kD = Workspace::kDampDim;
+    double* Kd = ws.record_damping ? ws.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
+    constexpr int kE2 = 2 * Workspace::kExportDim * Workspace::kExportDim;
+    double* Ed = ws.record_damping ? ws.rocker_export.data() + static_cast<std::size_t>(j) * kE2 : nullptr;
+    if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Ed, Ed + kE2, 0.0);
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
       const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
@@ -239,6 +283,11 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
             contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
         Rx = Rv[0], Ry = Rv[1];
         const double Rz = Rv[2];
+        if (Kd) {
+          const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+          record_rocker_damping(kin, r, lp, lc, rax, ray, rbx, rby, u, speed, mu,
+                                ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed), Kd, Ed);
+        }
         fa[half::kZ] += (1 - xi) * Rz;
         fa[half::kEnd + half::kZ] += xi * Rz;
         fb[half::kZ] -= (1 - xi) * Rz;

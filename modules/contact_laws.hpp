@@ -69,4 +69,56 @@ inline double contact_friction(const Workspace& ws, FrictionLaw law, double f0, 
   return mu * speed * speed;
 }
 
+// df/dv of the law at speed v >= 0 (the slope along the sliding direction).
+inline double friction_slope(FrictionLaw law, double f0, double v0, double v) {
+  switch (law) {
+    case FrictionLaw::nonsmooth: return v < v0 ? f0 / v0 : 0.0;
+    case FrictionLaw::smooth: {
+      const double x = M_PI * v / (2.0 * v0);
+      return f0 / v0 / (1.0 + x * x);
+    }
+    case FrictionLaw::none: return 0.0;
+  }
+  return 0.0;
+}
+
+// Adds G^T D G to the row-major dim x dim block K for a contact whose slip velocity is
+// u = G v (G given by columns, Gc[c] the 3 entries of column c, over `cols` columns), with
+// D = -dR/du of R = -N f(|u|) u/|u| at fixed N: D = mu (P - t t^T) + mu_t t t^T on the
+// tangent plane (P = I - n n^T, t = u/|u|), mu = N f(v)/v (the secant: turning the sliding
+// direction) and mu_t = N f'(v) (along it). Workspace::record_damping.
+inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc)[3], const double n[3],
+                                 const double u[3], double speed, double mu, double mu_t) {
+  double ng[Workspace::kDampDim], tg[Workspace::kDampDim];
+  const bool along = speed > 0 && mu_t != mu;
+  const double inv = speed > 0 ? 1.0 / speed : 0.0;
+  const double t[3] = {u[0] * inv, u[1] * inv, u[2] * inv};
+  for (int c = 0; c < cols; ++c) {
+    ng[c] = n[0] * Gc[c][0] + n[1] * Gc[c][1] + n[2] * Gc[c][2];
+    tg[c] = along ? t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2] : 0.0;
+  }
+  const double dt = mu_t - mu;
+  for (int a = 0; a < cols; ++a) {
+    if (Gc[a][0] == 0 && Gc[a][1] == 0 && Gc[a][2] == 0) continue;
+    for (int b = 0; b < cols; ++b)
+      K[a * dim + b] += mu * (Gc[a][0] * Gc[b][0] + Gc[a][1] * Gc[b][1] + Gc[a][2] * Gc[b][2] - ng[a] * ng[b]) +
+                        dt * tg[a] * tg[b];
+  }
+}
+
+// The exported part of a contact's damping (Workspace::rocker_export / pulley_export): the
+// slip velocity's dependence on the other half of a link through that link's spin,
+// u += c (-l_y, l_x, 0) psi_dot-part with psi_dot-part = (n_l,x (x0 + x1) + n_l,y (y0 + y1))
+// of that half (c already holds +-1/(2|Delta|) and the sign of u); adds G^T D G on its 10
+// coordinates to E.
+inline void add_exported_damping(double* E, double c, double nlx, double nly, double lx, double ly, const double n[3],
+                                 const double u[3], double speed, double mu, double mu_t) {
+  double G[Workspace::kExportDim][3] = {};
+  for (int e = 0; e < 2; ++e) {
+    G[e * 5 + 0][0] = c * nlx * lx, G[e * 5 + 0][1] = c * nlx * ly;
+    G[e * 5 + 1][0] = c * nly * lx, G[e * 5 + 1][1] = c * nly * ly;
+  }
+  add_friction_damping(E, Workspace::kExportDim, Workspace::kExportDim, G, n, u, speed, mu, mu_t);
+}
+
 }  // namespace cvt

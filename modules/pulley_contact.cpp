@@ -1,6 +1,7 @@
 // docs/model.md 4.5.
 #include "modules/pulley_contact.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include "modules/beam.hpp"
@@ -74,6 +75,11 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   const FrictionLaw law = c.friction.law;
   const double f0 = c.friction.f0, v0 = c.friction.v0;
   s.clear();
+  constexpr int kD = Workspace::kDampDim;
+  double* Kd = ws.record_damping ? ws.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
+  constexpr int kE2 = 2 * Workspace::kExportDim * Workspace::kExportDim;
+  double* Ed = ws.record_damping ? ws.pulley_export.data() + static_cast<std::size_t>(j) * kE2 : nullptr;
+  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Ed, Ed + kE2, 0.0);
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;
@@ -132,6 +138,31 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
                                        &ws.pulley_dir[3 * idx], Rv, &Rmag);
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
+          if (Kd) {
+            // Workspace::record_damping: u as a function of the half's own 10 coordinates
+            // (the sheave's velocity left out): c_dot, the cap's tilt, and the link spin
+            // through this half's mid-point (a_j: +n/(2|Delta|), b_j: -n/(2|Delta|)).
+            double G[Workspace::kDampDim][3] = {};
+            double(*Gh)[3] = G + (h == 0 ? 0 : 10);
+            const int b = e * half::kEnd;
+            Gh[b + half::kX][0] += 1;
+            Gh[b + half::kY][1] += 1;
+            Gh[b + half::kZ][2] += 1;
+            Gh[b + half::kSx][0] += -sigma * R + oz, Gh[b + half::kSx][2] += -ox;
+            Gh[b + half::kSy][1] += -sigma * R + oz, Gh[b + half::kSy][2] += -oy;
+            const double cp = (h == 0 ? 0.5 : -0.5) * ws.kin.inv_len[link];
+            const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
+            for (int e2 = 0; e2 < 2; ++e2) {
+              Gh[e2 * half::kEnd + half::kX][0] += cp * lnx * -oy, Gh[e2 * half::kEnd + half::kX][1] += cp * lnx * ox;
+              Gh[e2 * half::kEnd + half::kY][0] += cp * lny * -oy, Gh[e2 * half::kEnd + half::kY][1] += cp * lny * ox;
+            }
+            const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+            const double mu_t = ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed);
+            add_friction_damping(Kd, kD, kD, G, nrm, u, speed, mu, mu_t);
+            // The link's other half: b_{j-1} for a_j (export 0), a_{j+1} for b_j (export 1).
+            add_exported_damping(Ed + h * Workspace::kExportDim * Workspace::kExportDim, -cp, lnx, lny, -oy, ox, nrm, u,
+                                 speed, mu, mu_t);
+          }
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).
         pf[half::kX] += Fx + Rx;
