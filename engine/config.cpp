@@ -141,6 +141,7 @@ const std::vector<KeyDef>& schema() {
 
       CVT_KEY(integrator, method, string, "", Range{}),
       CVT_KEY(integrator, step, real, "s", positive),
+      CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
 
       CVT_KEY(run, t_end, real, "s", positive),
       CVT_KEY(run, sample_interval, real, "s", positive),
@@ -180,7 +181,7 @@ const std::vector<std::string>& law_names() {
   return names;
 }
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"rk4"};
+  static const std::vector<std::string> names = {"rk4", "ros2"};
   return names;
 }
 

@@ -120,8 +120,9 @@ struct Config {
     double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
   } damping;
   struct Integrator {
-    std::string method = "rk4";
+    std::string method = "rk4";  // "rk4" | "ros2" (docs/integrators.md 12)
     double step = 1.0e-8;  // [s]
+    int w_every = 1;       // ros2: rebuild its friction matrix every this many steps
   } integrator;
   struct Run {
     double t_end = 5.0e-3;            // [s]

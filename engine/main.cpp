@@ -120,6 +120,7 @@ struct RunArgs {
   long checkpoint_every = 50000;
   double flush_seconds = 10.0;
   std::string profile_json;
+  std::string method;  // --method: integrator.method
 };
 
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
@@ -129,6 +130,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   // recorded in the resolved TOML.
   if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
   if (!step.empty()) overrides.push_back("integrator.step=" + step);
+  if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
   // A resumed run takes its configuration from the checkpoint (overrides still apply:
   // --t-end to go further; changing the physics would break the continuation).
   std::optional<Checkpoint> ckpt;
@@ -144,7 +146,9 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
   std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
               1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
-  std::printf("  t_end = %g s, step = %g s, friction %s\n", cfg.run.t_end, cfg.integrator.step,
+  std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
+              cfg.integrator.step,
+              cfg.integrator.method == "ros2" ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps)").c_str() : "",
               to_string(cfg.friction.law));
   std::fflush(stdout);
   RunOptions opt;
@@ -261,6 +265,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
+  run->add_option("--method", run_args.method, "rk4 | ros2 (integrator.method; docs/integrators.md 12)");
   run->add_option("--out", out, "output HDF5 file")->capture_default_str();
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
   run->add_flag("--quiet", quiet, "no progress line");
@@ -334,6 +339,8 @@ int main(int argc, char** argv) {
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
   study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its friction matrix every N steps")
       ->check(CLI::PositiveNumber)->capture_default_str();
+  study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
+                     "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
   study_int->add_flag("--w-secant", si.w_secant, "ROS2: secant friction slope along the sliding direction too");
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");

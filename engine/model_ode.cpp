@@ -149,8 +149,10 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
       for (int c = 0; c < 2; ++c) a0_joint_(o + z[r], o + z[c]) = m.axial_mass(r, c);
   }
   w_llt_.resize(N);
-  sys_.w_factor = [this](double, const double*, double gh) { w_factor(gh); };
-  sys_.w_solve = [this](double* x) { w_solve(x); };
+  if (opt.w_blocks) {
+    sys_.w_factor = [this](double, const double*, double gh) { w_factor(gh); };
+    sys_.w_solve = [this](double* x) { w_solve(x); };
+  }
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
   pdiss0_.resize(N), pdiss1_ = pdiss0_;
@@ -217,15 +219,16 @@ void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& 
 
 void ModelOde::w_factor(double gh) {
   constexpr int kD = Workspace::kDampDim;
-  // A stale matrix is kept for w_every steps unless gh changed; the blocks are recorded
-  // only by the evaluation that starts a rebuilding step.
-  // (A fixed step taken as t1 - t0 varies in its last bits: that is no change of gh.)
-  const bool rebuild = w_gh_ == 0 || std::abs(gh / w_gh_ - 1) > 1e-9 || ++w_since_ >= opt_.w_every;
-  ws_.record_damping = opt_.w_every <= 1 || w_since_ + 1 >= opt_.w_every;
+  // The matrix is rebuilt at the steps whose index is a multiple of w_every (so a run
+  // resumed at such a step repeats the bits), and whenever gh changed or none exists yet
+  // (a fixed step taken as t1 - t0 varies in its last bits: that is no change of gh); in
+  // between, the stale one is kept. The blocks come from the evaluation that starts a
+  // rebuilding step, the only one that records them.
+  const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
+  ++w_index_;
+  ws_.record_damping = w_due();
   if (!rebuild) return;
-  w_since_ = 0;
   w_gh_ = gh;
-  ws_.record_damping = opt_.w_every <= 1;
   for (int j = 0; j < m_.links; ++j) {
     const std::size_t o = static_cast<std::size_t>(j) * kD * kD;
     const Eigen::Map<const Block> kr(ws_.rocker_damping.data() + o), kp(ws_.pulley_damping.data() + o);
@@ -241,6 +244,8 @@ void ModelOde::w_factor(double gh) {
                                  Eigen::Map<const EBlock>(ws_.pulley_export.data() + prev);
     k.bottomRightCorner<kE, kE>() += Eigen::Map<const EBlock>(ws_.rocker_export.data() + next) +
                                      Eigen::Map<const EBlock>(ws_.pulley_export.data() + next);
+    // (Forming (A0_j + gh K_j)^-1 A0_j here instead made a rebuild 6x dearer, 8.7 us per
+    // joint, for 20 right-hand sides, and lost more than the two solves per step it saved.)
     w_llt_[j].compute(a0_joint_ + gh * k);
   }
 }
@@ -294,7 +299,7 @@ void OdeDriver::advance(double t1) {
     }
   } plain{ws};
   // The W-method takes its matrix from the damping blocks of each evaluation.
-  ws.record_damping = opt_.method == OdeMethod::Ros2;
+  ws.record_damping = opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks;
   ws.damping_secant = opt_.jac.w_secant;
   sched.within([&] {
     while (t < t1) {
@@ -304,6 +309,10 @@ void OdeDriver::advance(double t1) {
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
       if (freeze) ws.friction_branch = Workspace::FrictionBranch::record;
+      if (opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks) {
+        ode_.set_step_index(sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
+        ws.record_damping = ode_.w_due();
+      }
       if (opt_.jac.scaled) {
         ode_.offset() = y;
         ode_.to_z(y, z_);

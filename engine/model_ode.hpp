@@ -36,10 +36,14 @@ struct ModelOdeOptions {
   // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
   // nonsmooth law at v0 (docs/integrators.md 11).
   bool freeze_friction = true;
-  // W-method (Ros2): rebuild the friction blocks and refactorize every this many steps (a
-  // W-method keeps its order with a stale matrix; only the stiff part must be captured).
+  // W-method (Ros2): rebuild the friction blocks and refactorize at every step whose index
+  // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
+  // part must be captured).
   int w_every = 1;
   bool w_secant = false;  // Workspace::damping_secant
+  // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
+  // and a sparse LU at every step (slow: for checking what the blocks leave out).
+  bool w_blocks = true;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -79,11 +83,17 @@ class ModelOde {
   // identity on every other unknown. Solved as (A0_j + gh K_j) x = A0_j b (Cholesky, 20 x 20).
   void w_factor(double gh);
   void w_solve(double* x) const;
+  // The index of the next step (OdeDriver sets it from the simulation's step count), and
+  // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
+  void set_step_index(long i) { w_index_ = i; }
+  bool w_due() const { return w_gh_ == 0 || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0; }
 
  private:
   void eval(double t, const double* y, double* dy) {
     schedule_.rhs(t, y, dy, nullptr);
     ++rhs_evals_;
+    // The W-method's blocks come from the first evaluation of a rebuilding step only.
+    ws_.record_damping = false;
     if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
   }
   void eval_scaled(double t, const double* z, double* dz);
@@ -114,7 +124,7 @@ class ModelOde {
   Block a0_joint_;                // A0 of the two halves of a joint (constant)
   std::vector<Eigen::LLT<Block>> w_llt_;  // per joint
   double w_gh_ = 0;                       // gh of the factorization (0: none yet)
-  int w_since_ = 0;                       // steps since the blocks were rebuilt
+  long w_index_ = 0;                      // index of the next step
 };
 
 // How OdeDriver runs a method on the model.

@@ -52,9 +52,12 @@ struct Sample {
   double work_contact_switching = 0;  // energy added by contact status switches (4.4)
 };
 
+class OdeDriver;
+
 class Simulation {
  public:
   explicit Simulation(const Model& m, const ScheduleOptions& schedule = {});
+  ~Simulation();
 
   const Model& model() const { return m_; }
   double time() const { return t_; }
@@ -73,7 +76,9 @@ class Simulation {
   Profiler& enable_profiling();
   Profiler* profiler() { return prof_.get(); }
 
-  // One RK4 step of size h, then (unless frozen) the contact statuses for the next step.
+  // One step of size h with integrator.method (RK4, or the ROS2 W-method of
+  // docs/integrators.md 12 through an OdeDriver), then (unless frozen) the contact statuses
+  // for the next step. Frozen steps (update_status false) are always RK4.
   void step(double h, bool update_status = true);
   // Channels of the current state.
   Sample sample();
@@ -104,6 +109,8 @@ class Simulation {
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   std::unique_ptr<Profiler> prof_;
   Rk4 rk_;
+  std::unique_ptr<OdeDriver> ros2_;  // integrator.method = "ros2", made at the first step
+  double ros2_h_ = 0;
   Eigen::VectorXd y_, dy_;
   double t_ = 0, t0_ = 0;
   long steps_ = 0, steps0_ = 0;

@@ -101,6 +101,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.freeze_friction = opt.freeze_friction;
   jac_opt.w_every = opt.w_every;
   jac_opt.w_secant = opt.w_secant;
+  jac_opt.w_blocks = !opt.ros2_full_jacobian;
 
   // ---- (a) one-step error -------------------------------------------------------------
   std::vector<OneStep> one;
@@ -138,7 +139,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
         if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
           ws.friction_branch = Workspace::FrictionBranch::record;
-        ws.record_damping = method == OdeMethod::Ros2;  // the W-method's matrix
+        ws.record_damping = method == OdeMethod::Ros2 && !opt.ros2_full_jacobian;  // the W-method's matrix
         ws.damping_secant = opt.w_secant;
         ode.offset() = start.state;
         Eigen::VectorXd z;

@@ -39,6 +39,7 @@ struct IntegratorStudyOptions {
   double jac_theta = 0.3;
   int w_every = 1;              // ModelOdeOptions::w_every (ROS2)
   bool w_secant = false;        // ModelOdeOptions::w_secant (ROS2)
+  bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
   ScheduleOptions schedule;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
 };

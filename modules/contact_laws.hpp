@@ -89,20 +89,31 @@ inline double friction_slope(FrictionLaw law, double f0, double v0, double v) {
 // direction) and mu_t = N f'(v) (along it). Workspace::record_damping.
 inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc)[3], const double n[3],
                                  const double u[3], double speed, double mu, double mu_t) {
-  double ng[Workspace::kDampDim], tg[Workspace::kDampDim];
-  const bool along = speed > 0 && mu_t != mu;
-  const double inv = speed > 0 ? 1.0 / speed : 0.0;
-  const double t[3] = {u[0] * inv, u[1] * inv, u[2] * inv};
-  for (int c = 0; c < cols; ++c) {
-    ng[c] = n[0] * Gc[c][0] + n[1] * Gc[c][1] + n[2] * Gc[c][2];
-    tg[c] = along ? t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2] : 0.0;
+  // D = mu_t t t^T + mu s s^T with s = n x t: two rank-one updates.
+  double t[3];
+  if (speed > 0) {
+    for (int i = 0; i < 3; ++i) t[i] = u[i] / speed;
+  } else {  // no sliding direction: any unit tangent (D = mu P then, as mu_t = mu at v = 0)
+    const int k = std::abs(n[0]) < 0.6 ? 0 : std::abs(n[1]) < 0.6 ? 1 : 2;
+    double e[3] = {0, 0, 0};
+    e[k] = 1;
+    const double en = n[k];
+    double l = 0;
+    for (int i = 0; i < 3; ++i) t[i] = e[i] - en * n[i], l += t[i] * t[i];
+    l = 1 / std::sqrt(l);
+    for (double& x : t) x *= l;
   }
-  const double dt = mu_t - mu;
+  const double sv[3] = {n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]};
+  double gt[Workspace::kDampDim], gs[Workspace::kDampDim];
+  for (int c = 0; c < cols; ++c) {
+    gt[c] = t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2];
+    gs[c] = sv[0] * Gc[c][0] + sv[1] * Gc[c][1] + sv[2] * Gc[c][2];
+  }
   for (int a = 0; a < cols; ++a) {
-    if (Gc[a][0] == 0 && Gc[a][1] == 0 && Gc[a][2] == 0) continue;
-    for (int b = 0; b < cols; ++b)
-      K[a * dim + b] += mu * (Gc[a][0] * Gc[b][0] + Gc[a][1] * Gc[b][1] + Gc[a][2] * Gc[b][2] - ng[a] * ng[b]) +
-                        dt * tg[a] * tg[b];
+    const double ta = mu_t * gt[a], sa = mu * gs[a];
+    if (ta == 0 && sa == 0) continue;
+    double* row = K + a * dim;
+    for (int b = 0; b < cols; ++b) row[b] += ta * gt[b] + sa * gs[b];
   }
 }
 
