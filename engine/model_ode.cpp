@@ -148,7 +148,11 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     for (int r = 0; r < 2; ++r)
       for (int c = 0; c < 2; ++c) a0_joint_(o + z[r], o + z[c]) = m.axial_mass(r, c);
   }
-  w_llt_.resize(N);
+  w_chol_.assign(static_cast<std::size_t>(N) * 2 * Workspace::kDampDim * Workspace::kDampDim, 0.0);
+  w_inv_diag_.assign(static_cast<std::size_t>(N) * Workspace::kDampDim, 0.0);
+  for (int r = 0; r < Workspace::kDampDim; ++r)
+    for (int c = 0; c < Workspace::kDampDim; ++c)
+      if (a0_joint_(r, c) != 0) a0_entries_.push_back({r, c, a0_joint_(r, c)});
   if (opt.w_blocks) {
     sys_.w_factor = [this](double, const double*, double gh) { w_factor(gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
@@ -229,35 +233,78 @@ void ModelOde::w_factor(double gh) {
   ws_.record_damping = w_due();
   if (!rebuild) return;
   w_gh_ = gh;
+  constexpr int kE = Workspace::kExportDim;
   for (int j = 0; j < m_.links; ++j) {
-    const std::size_t o = static_cast<std::size_t>(j) * kD * kD;
-    const Eigen::Map<const Block> kr(ws_.rocker_damping.data() + o), kp(ws_.pulley_damping.data() + o);
-    // Row-major storage read column-major is the transpose; K is symmetric.
-    Block k = kr + kp;
-    // What the neighbours' contacts export onto this joint's halves through the link spins:
-    // joint j-1's export [1] onto a_j, joint j+1's export [0] onto b_j.
-    constexpr int kE = Workspace::kExportDim;
-    const std::size_t prev = static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
-    const std::size_t next = static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
-    using EBlock = Eigen::Matrix<double, kE, kE>;
-    k.topLeftCorner<kE, kE>() += Eigen::Map<const EBlock>(ws_.rocker_export.data() + prev) +
-                                 Eigen::Map<const EBlock>(ws_.pulley_export.data() + prev);
-    k.bottomRightCorner<kE, kE>() += Eigen::Map<const EBlock>(ws_.rocker_export.data() + next) +
-                                     Eigen::Map<const EBlock>(ws_.pulley_export.data() + next);
-    // (Forming (A0_j + gh K_j)^-1 A0_j here instead made a rebuild 6x dearer, 8.7 us per
-    // joint, for 20 right-hand sides, and lost more than the two solves per step it saved.)
-    w_llt_[j].compute(a0_joint_ + gh * k);
+    // M = A0_j + gh (K_rocker + K_pulley + what the neighbours' contacts export onto this
+    // joint's halves through the link spins: joint j-1's export [1] onto a_j, joint j+1's
+    // export [0] onto b_j), all row-major; only the lower triangle is used.
+    double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;  // L, then L^T
+    const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD;
+    const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD;
+    const double* er = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
+    const double* ep = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
+    const double* nr = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
+    const double* np = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
+    for (int r = 0; r < kD; ++r)
+      for (int c = 0; c <= r; ++c) {
+        double k = kr[r * kD + c] + kp[r * kD + c];
+        if (r < kE && c < kE) k += er[r * kE + c] + ep[r * kE + c];
+        if (r >= kE && c >= kE) k += nr[(r - kE) * kE + c - kE] + np[(r - kE) * kE + c - kE];
+        L[r * kD + c] = a0_joint_(r, c) + gh * k;
+      }
+    // Cholesky in place (lower), with the reciprocal diagonal kept for the solves. (An
+    // Eigen::LLT of the fixed 20 x 20 took 5.6 us per joint here; forming (A0 + gh K)^-1 A0
+    // for one product per solve was 6x dearer still.)
+    double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
+    for (int c = 0; c < kD; ++c) {
+      double d = L[c * kD + c];
+      for (int k = 0; k < c; ++k) d -= L[c * kD + k] * L[c * kD + k];
+      const double lc = std::sqrt(d);  // > 0: A0 is positive definite, K semi-definite
+      inv[c] = 1.0 / lc;
+      L[c * kD + c] = lc;
+      for (int r = c + 1; r < kD; ++r) {
+        double v = L[r * kD + c];
+        for (int k = 0; k < c; ++k) v -= L[r * kD + k] * L[c * kD + k];
+        L[r * kD + c] = v * inv[c];
+      }
+    }
+    double* Lt = L + kD * kD;
+    for (int r = 0; r < kD; ++r)
+      for (int c = 0; c < kD; ++c) Lt[c * kD + r] = c <= r ? L[r * kD + c] : 0.0;
   }
 }
 
 void ModelOde::w_solve(double* x) const {
+  constexpr int kD = Workspace::kDampDim;
   const int n = m_.ndof;
   for (int j = 0; j < m_.links; ++j) {
     const int r0 = n + m_.joint(j);
-    BlockVec b;
-    for (int i = 0; i < Workspace::kDampDim; ++i) b[i] = x[r0 + i] * unit_[r0 + i];
-    const BlockVec sol = w_llt_[j].solve(a0_joint_ * b);
-    for (int i = 0; i < Workspace::kDampDim; ++i) x[r0 + i] = sol[i] / unit_[r0 + i];
+    const double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;
+    const double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
+    double b[kD], y[kD];
+    if (opt_.scaled)
+      for (int i = 0; i < kD; ++i) b[i] = x[r0 + i] * unit_[r0 + i], y[i] = 0;
+    else
+      for (int i = 0; i < kD; ++i) b[i] = x[r0 + i], y[i] = 0;
+    for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0_j b
+    // L z = A0 b by columns (L^T stored row-major), then L^T x = z by rows of L: each inner
+    // loop is a set of independent updates (row-by-row dot products were one long chain of
+    // dependent additions, and a solve cost 43 us).
+    const double* Lt = L + kD * kD;
+    for (int k = 0; k < kD; ++k) {
+      const double yk = y[k] *= inv[k];
+      const double* col = Lt + k * kD;
+      for (int i = k + 1; i < kD; ++i) y[i] -= col[i] * yk;
+    }
+    for (int i = kD - 1; i >= 0; --i) {
+      const double xi = y[i] *= inv[i];
+      const double* row = L + i * kD;
+      for (int k = 0; k < i; ++k) y[k] -= row[k] * xi;
+    }
+    if (opt_.scaled)
+      for (int i = 0; i < kD; ++i) x[r0 + i] = y[i] / unit_[r0 + i];
+    else
+      for (int i = 0; i < kD; ++i) x[r0 + i] = y[i];
   }
 }
 

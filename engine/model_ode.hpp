@@ -120,9 +120,14 @@ class ModelOde {
   Eigen::VectorXd acc_p_;
   // W-method blocks.
   using Block = Eigen::Matrix<double, Workspace::kDampDim, Workspace::kDampDim>;
-  using BlockVec = Eigen::Matrix<double, Workspace::kDampDim, 1>;
   Block a0_joint_;                // A0 of the two halves of a joint (constant)
-  std::vector<Eigen::LLT<Block>> w_llt_;  // per joint
+  struct A0Entry {
+    int r, c;
+    double v;
+  };
+  std::vector<A0Entry> a0_entries_;     // its nonzeros (72 of 400)
+  std::vector<double> w_chol_;          // per joint: Cholesky factor L of A0_j + gh K_j, then L^T (row-major)
+  std::vector<double> w_inv_diag_;      // per joint: 1 / its diagonal
   double w_gh_ = 0;                       // gh of the factorization (0: none yet)
   long w_index_ = 0;                      // index of the next step
 };

@@ -99,8 +99,9 @@ struct Workspace {
   //   K_j += mu G^T (I - n n^T) G,   mu = N_el f(|u|)/|u|  (the secant slope of the law),
   // where u = G v is the contact's slip velocity restricted to the joint's own 20 half
   // coordinates (a_j then b_j, the link-angle rates through these halves included; the
-  // shafts and the neighbouring joints' halves left out). Row-major 20 x 20 per joint; each
-  // kernel zeroes and fills only its own joints' blocks.
+  // shafts and the neighbouring joints' halves left out). Row-major 20 x 20 per joint, lower
+  // triangle only (the blocks are symmetric); each kernel zeroes and fills only its own
+  // joints' blocks.
   static constexpr int kDampDim = 20;
   bool record_damping = false;
   // true: the secant slope N f(v)/v also along the sliding direction (over-damps sliding

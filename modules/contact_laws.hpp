@@ -82,7 +82,8 @@ inline double friction_slope(FrictionLaw law, double f0, double v0, double v) {
   return 0.0;
 }
 
-// Adds G^T D G to the row-major dim x dim block K for a contact whose slip velocity is
+// Adds G^T D G to the lower triangle (row >= column) of the row-major dim x dim block K
+// (symmetric; the upper triangle is left alone) for a contact whose slip velocity is
 // u = G v (G given by columns, Gc[c] the 3 entries of column c, over `cols` columns), with
 // D = -dR/du of R = -N f(|u|) u/|u| at fixed N: D = mu (P - t t^T) + mu_t t t^T on the
 // tangent plane (P = I - n n^T, t = u/|u|), mu = N f(v)/v (the secant: turning the sliding
@@ -113,7 +114,7 @@ inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc
     const double ta = mu_t * gt[a], sa = mu * gs[a];
     if (ta == 0 && sa == 0) continue;
     double* row = K + a * dim;
-    for (int b = 0; b < cols; ++b) row[b] += ta * gt[b] + sa * gs[b];
+    for (int b = 0; b <= a; ++b) row[b] += ta * gt[b] + sa * gs[b];  // lower triangle
   }
 }
 

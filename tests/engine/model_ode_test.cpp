@@ -143,6 +143,19 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   Eigen::VectorXd y = r.y, dy(m.nstate);
   rhs_serial(m, ws, r.t, y.data(), dy.data());
   std::vector<double> kr = ws.rocker_damping, kp = ws.pulley_damping;
+  // The kernels fill the lower triangles: mirror them (and the exports') first.
+  auto mirror = [](std::vector<double>& v, int dim) {
+    for (std::size_t b = 0; b + dim * dim <= v.size(); b += dim * dim)
+      for (int r = 0; r < dim; ++r)
+        for (int c = r + 1; c < dim; ++c) {
+          EXPECT_EQ(v[b + r * dim + c], 0.0);
+          v[b + r * dim + c] = v[b + c * dim + r];
+        }
+  };
+  mirror(kr, Workspace::kDampDim);
+  mirror(kp, Workspace::kDampDim);
+  mirror(ws.rocker_export, Workspace::kExportDim);
+  mirror(ws.pulley_export, Workspace::kExportDim);
   // What the neighbours export onto joint j's halves through the link spins, as ModelOde adds it.
   constexpr int kE = Workspace::kExportDim;
   for (int j = 0; j < m.links; ++j)
