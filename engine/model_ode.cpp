@@ -6,6 +6,10 @@
 #include <set>
 #include <stdexcept>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
+
 #include "modules/beam.hpp"
 #include "modules/inertia.hpp"
 
@@ -222,7 +226,6 @@ void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& 
 }
 
 void ModelOde::w_factor(double gh) {
-  constexpr int kD = Workspace::kDampDim;
   // The matrix is rebuilt at the steps whose index is a multiple of w_every (so a run
   // resumed at such a step repeats the bits), and whenever gh changed or none exists yet
   // (a fixed step taken as t1 - t0 varies in its last bits: that is no change of gh); in
@@ -233,8 +236,29 @@ void ModelOde::w_factor(double gh) {
   ws_.record_damping = w_due();
   if (!rebuild) return;
   w_gh_ = gh;
+  for_joints([this, gh](int j) { w_factor_joint(j, gh); });
+}
+
+// Each joint's block is independent of the others: any split over threads gives the same bits.
+template <class F>
+void ModelOde::for_joints(const F& f) const {
+  if (schedule_.threads() <= 1) {
+    for (int j = 0; j < m_.links; ++j) f(j);
+    return;
+  }
+  // Inside the schedule's arena (OdeDriver runs in Schedule::within): its threads share them.
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, m_.links),
+      [&](const tbb::blocked_range<int>& r) {
+        for (int j = r.begin(); j < r.end(); ++j) f(j);
+      },
+      tbb::static_partitioner());
+}
+
+void ModelOde::w_factor_joint(int j, double gh) {
+  constexpr int kD = Workspace::kDampDim;
   constexpr int kE = Workspace::kExportDim;
-  for (int j = 0; j < m_.links; ++j) {
+  {
     // M = A0_j + gh (K_rocker + K_pulley + what the neighbours' contacts export onto this
     // joint's halves through the link spins: joint j-1's export [1] onto a_j, joint j+1's
     // export [0] onto b_j), all row-major; only the lower triangle is used.
@@ -275,9 +299,13 @@ void ModelOde::w_factor(double gh) {
 }
 
 void ModelOde::w_solve(double* x) const {
+  for_joints([this, x](int j) { w_solve_joint(j, x); });
+}
+
+void ModelOde::w_solve_joint(int j, double* x) const {
   constexpr int kD = Workspace::kDampDim;
   const int n = m_.ndof;
-  for (int j = 0; j < m_.links; ++j) {
+  {
     const int r0 = n + m_.joint(j);
     const double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;
     const double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;

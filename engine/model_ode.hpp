@@ -97,6 +97,10 @@ class ModelOde {
     if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
   }
   void eval_scaled(double t, const double* z, double* dz);
+  template <class F>
+  void for_joints(const F& f) const;  // f(j) for every joint, over the schedule's threads
+  void w_factor_joint(int j, double gh);
+  void w_solve_joint(int j, double* x) const;
   // The per-pin parts of the dense rows after an evaluation: shaft forces [N][14] and
   // dissipated power [N] of the chain and pulley slots.
   void read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const;

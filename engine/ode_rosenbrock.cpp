@@ -34,6 +34,7 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
   // f(t, y) afresh at every step: callers such as OdeDriver change the system between
   // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
   eval(t, y, f0_);
+  t0 = std::chrono::steady_clock::now();  // the matrix's time, not the evaluation's
   if (sys_.w_factor) {
     sys_.w_factor(t, y.data(), gh);
     ++stats.jac_evals;
