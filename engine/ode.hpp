@@ -104,6 +104,10 @@ struct OdeOptions {
   // systems (the CVT) whose error concentrates in a few of many components, which an RMS over
   // all of them dilutes by sqrt(n).
   bool max_norm = false;
+  // Ros2 without a system W (finite-difference or analytic Jacobian): keep the Jacobian and
+  // the LU of W for this many steps (a W-method keeps its order with a stale matrix);
+  // rebuilt earlier when gamma h changes.
+  int w_reuse_steps = 1;
 };
 
 struct OdeStats {

@@ -83,6 +83,7 @@ class OdeSolverImpl {
   Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
   // ode_rosenbrock.cpp
   void step_ros2(double t, double h, const Eigen::VectorXd& y, double* err);
+  int w_age_ = 0;  // Ros2: steps since its Jacobian was taken (OdeOptions::w_reuse_steps)
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,

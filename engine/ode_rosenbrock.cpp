@@ -40,8 +40,10 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
     ++stats.jac_evals;
     ++stats.lu_factorizations;
     stats.lu_seconds += seconds_since(t0);
-  } else {
-    // A fresh Jacobian at every step (Rosenbrock proper) and its LU.
+  } else if (!newton_->factored() || ++w_age_ >= opt_.w_reuse_steps ||
+             std::abs(newton_->factored_dh() / gh - 1) > 1e-9) {
+    // A fresh Jacobian (every step by default: Rosenbrock proper) and its LU.
+    w_age_ = 0;
     newton_->evaluate_jacobian(t, y, f0_, stats);
     stats.jac_seconds += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();

@@ -268,6 +268,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
               ro.ode.fixed_step = true;
               ro.ode.h0 = p;
             }
+            ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
             ro.jac = jac_opt;
             ro.status_interval = opt.status_interval;
             OdeDriver drv(s, ro);

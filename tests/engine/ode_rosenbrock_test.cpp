@@ -66,6 +66,28 @@ TEST(OdeRos2, SecondOrderForAnyMatrix) {
   }
 }
 
+// OdeOptions::w_reuse_steps: the finite-difference Jacobian and its LU kept for 5 steps.
+// Still second order (the W-method property), with a fifth of the Jacobians.
+TEST(OdeRos2, StaleJacobianKeepsSecondOrder) {
+  auto error = [](int n, std::int64_t* jacs) {
+    Eigen::VectorXd y = smooth_exact(0);
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = 2.0 / n;
+    opt.w_reuse_steps = 5;
+    const OdeStats st = integrate(smooth_system(), OdeMethod::Ros2, 0, 2, y, opt);
+    *jacs = st.jac_evals;
+    return (y - smooth_exact(2)).lpNorm<Eigen::Infinity>();
+  };
+  std::int64_t j1 = 0, j2 = 0, j3 = 0;
+  const double e1 = error(40, &j1), e2 = error(80, &j2), e3 = error(160, &j3);
+  std::printf("[ode] order ros2 (Jacobian every 5 steps) n = 40 80 160  errors %.3e %.3e %.3e  orders %.2f %.2f  "
+              "Jacobians %lld %lld %lld\n", e1, e2, e3, std::log2(e1 / e2), std::log2(e2 / e3),
+              static_cast<long long>(j1), static_cast<long long>(j2), static_cast<long long>(j3));
+  EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.1);
+  EXPECT_EQ(j3, 32);
+}
+
 // A stiff component tracking a slow one: y1' = -1e8 (y1 - y2), y2' = -y2, y(0) = (0, 1);
 // y2 = exp(-t) and y1 = y2 after a layer of 1e-8. At h = 0.05 (h lambda = -5e6) ROS2 with
 // J~ = J is L-stable and lands on the slow solution at once; J~ = 0 (explicit) explodes. A
