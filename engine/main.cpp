@@ -321,7 +321,7 @@ int main(int argc, char** argv) {
   study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
-  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3")->delimiter(',')
+  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3,ros2")->delimiter(',')
       ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2"}))->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')

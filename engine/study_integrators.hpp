@@ -22,7 +22,7 @@ struct IntegratorStudyOptions {
   double sample_dt = 1e-5;    // spacing of the curve's samples [s]
   double ref_step = 1e-8;     // RK4 step of the reference curve [s]
   double one_step_ref = 2e-9; // RK4 step of the one-step reference [s]
-  std::vector<std::string> methods = {"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3"};
+  std::vector<std::string> methods = {"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2"};
   std::vector<double> one_step_h = {1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 4e-6};
   std::vector<double> rk4_steps = {5e-8, 4e-8, 3e-8, 2e-8};       // tried largest first
   // ROS2 (the W-method) runs fixed steps, tried largest first (empty: adaptive with the tolerances).

@@ -207,6 +207,25 @@ TEST_F(CliTest, NegativeStep) {
                       "must be positive");
 }
 
+TEST_F(CliTest, UnknownMethod) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--method", "euler"}, "integrator.method", "euler",
+                      "unknown integrator method");
+}
+
+TEST_F(CliTest, ZeroWEvery) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--set", "integrator.w_every=0"}, "integrator.w_every", "0",
+                      "");
+}
+
+TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "1e-7", "--method", "ros2", "--set",
+                           "integrator.w_every=4", "--quiet", "--out", "ros2.h5"});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("steps                      20"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(dir_ / "ros2.h5"));
+}
+
 TEST_F(CliTest, MissingConfigFile) {
   const std::string missing = (dir_ / "no_such_config.toml").string();
   expect_config_error({"run", missing}, "<file>", missing, "cannot open file");

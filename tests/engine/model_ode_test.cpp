@@ -310,8 +310,8 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   const std::string csv = (dir / "study.csv").string();
   const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
                           test::shell_quote(test::config_path("mini")) +
-                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2 "
-                          "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --tols 1 --max-dev 0.2 --out " +
+                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2,ros2 "
+                          "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --ros2-steps 1e-7 --tols 1 --max-dev 0.2 --out " +
                           test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);
   auto slurp = [](const fs::path& p) {
@@ -325,7 +325,9 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   EXPECT_NE(table.find("one_step,trbdf2,h,1e-07"), std::string::npos);
   EXPECT_NE(table.find("curve,rk4,h,5e-08"), std::string::npos);
   EXPECT_NE(table.find("curve,trbdf2,tol,1"), std::string::npos);
-  EXPECT_EQ(curves.rfind("t_s,reference,rk4,trbdf2", 0), 0u) << curves.substr(0, 80);
+  EXPECT_NE(table.find("one_step,ros2,h,1e-07"), std::string::npos);
+  EXPECT_NE(table.find("curve,ros2,h,1e-07"), std::string::npos);
+  EXPECT_EQ(curves.rfind("t_s,reference,rk4,trbdf2,ros2", 0), 0u) << curves.substr(0, 80);
   EXPECT_GE(std::count(curves.begin(), curves.end(), '\n'), 11);
   fs::remove_all(dir);
 }
