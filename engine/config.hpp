@@ -122,7 +122,7 @@ struct Config {
   struct Integrator {
     std::string method = "rk4";  // "rk4" | "ros2" (docs/integrators.md 12)
     double step = 1.0e-8;  // [s]
-    int w_every = 1;       // ros2: rebuild its friction matrix every this many steps
+    int w_every = 4;       // ros2: rebuild its friction matrix every this many steps
   } integrator;
   struct Run {
     double t_end = 5.0e-3;            // [s]

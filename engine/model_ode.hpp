@@ -39,7 +39,7 @@ struct ModelOdeOptions {
   // W-method (Ros2): rebuild the friction blocks and refactorize at every step whose index
   // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
   // part must be captured).
-  int w_every = 1;
+  int w_every = 1;  // (Config's integrator.w_every defaults to 4 for cvt-engine run)
   bool w_secant = false;  // Workspace::damping_secant
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).

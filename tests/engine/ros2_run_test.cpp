@@ -55,36 +55,40 @@ TEST(Ros2Run, ResumedAtAMultipleOfWEveryRepeatsTheBits) {
   }
 }
 
-// Against RK4 at the production step over 20 us of a running mini model (restored from an
-// RK4 run at 1e-8, continued at 1e-7: the clock is re-anchored): ROS2 at 1e-7 s keeps the
-// pins within a micrometre, as close as RK4 at 1e-7 (1.5e-7 m both; the mini model's
-// friction is 3x less stiff than the reference's, where ROS2 gains, docs/integrators.md 12).
+// Against RK4 at the production step over 20 us of the mini model in its load ramp (restored
+// from an RK4 run at 1e-8, continued at 1e-7: the clock is re-anchored): ROS2 at 1e-7 s keeps
+// the pins within a micrometre, with a fresh matrix every step as close as RK4 at 1e-7 (the
+// mini model's friction is 3x less stiff than the reference's, where ROS2 gains). In this
+// transient a stale matrix costs accuracy (printed), unlike at the reference's full load.
 TEST(Ros2Run, CloseToRk4AtTheProductionStep) {
   const Model rk = test::model("mini", {"ramp.time=1e-4"});
-  const Model w = test::model("mini", {"ramp.time=1e-4", "integrator.method=ros2"});
   Simulation warm(rk);
   for (int k = 0; k < 5000; ++k) warm.step(rk.cfg.integrator.step);
   const Checkpoint c = warm.checkpoint();
-  auto pins_off = [&](const Model& m, double h, double* vel) {
-    Simulation ref(rk), s(m);
-    ref.restore(c), s.restore(c);
-    for (int k = 0; k < 2000; ++k) ref.step(1e-8);
+  Simulation ref(rk);
+  ref.restore(c);
+  for (int k = 0; k < 2000; ++k) ref.step(1e-8);
+  auto pins_off = [&](const Model& m, double h) {
+    Simulation s(m);
+    s.restore(c);
     const int n = static_cast<int>(std::lround(2e-5 / h));
     for (int k = 0; k < n; ++k) s.step(h);
-    double dq = 0, dv = 0;
-    for (int i = 0; i < kJointSize * m.links; ++i) {
-      dq = std::max(dq, std::abs(s.state()[i] - ref.state()[i]));
-      dv = std::max(dv, std::abs(s.state()[m.ndof + i] - ref.state()[m.ndof + i]));
-    }
-    *vel = dv;
+    double dq = 0;
+    for (int i = 0; i < kJointSize * m.links; ++i) dq = std::max(dq, std::abs(s.state()[i] - ref.state()[i]));
     return dq;
   };
-  double dv_w = 0, dv_rk = 0;
-  const double dq_w = pins_off(w, 1e-7, &dv_w), dq_rk = pins_off(rk, 1e-7, &dv_rk);
-  std::printf("[ros2] 20 us of the running mini model vs RK4 h = 1e-8: ros2 h = 1e-7 max |dq| %.3e m, |dv| %.3e m/s; "
-              "rk4 h = 1e-7 %.3e m, %.3e m/s\n", dq_w, dv_w, dq_rk, dv_rk);
-  EXPECT_LT(dq_w, 1e-6);
-  EXPECT_LT(dq_w, 2 * dq_rk);
+  const double dq_rk = pins_off(rk, 1e-7);
+  double dq_w[3];
+  const int every[3] = {1, 4, 16};
+  for (int i = 0; i < 3; ++i)
+    dq_w[i] = pins_off(test::model("mini", {"ramp.time=1e-4", "integrator.method=ros2",
+                                            "integrator.w_every=" + std::to_string(every[i])}),
+                       1e-7);
+  std::printf("[ros2] 20 us of the mini model in its load ramp vs RK4 h = 1e-8, max |dq| of the pins: ros2 h = 1e-7 "
+              "with the matrix every 1 / 4 / 16 steps %.3e / %.3e / %.3e m; rk4 h = 1e-7 %.3e m\n",
+              dq_w[0], dq_w[1], dq_w[2], dq_rk);
+  EXPECT_LT(dq_w[0], 2 * dq_rk);
+  for (double d : dq_w) EXPECT_LT(d, 1e-6);
 }
 
 }  // namespace
