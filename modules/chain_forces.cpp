@@ -195,16 +195,10 @@ void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int l
     const int l = side == 0 ? lp : lc;
     const double c = (side == 0 ? 0.5 : -0.5) * kin.inv_len[l];
     const double nx = -kin.ey[l], ny = kin.ex[l];
-    const double lx = side == 0 ? -ray : -rby, ly = side == 0 ? rax : rbx;
-    for (int e = 0; e < 2; ++e) {
-      double* gx = G[o + e * half::kEnd + half::kX];
-      double* gy = G[o + e * half::kEnd + half::kY];
-      gx[0] += sg * c * nx * lx, gx[1] += sg * c * nx * ly;
-      gy[0] += sg * c * ny * lx, gy[1] += sg * c * ny * ly;
-    }
+    add_spin_columns(G + o, sg * c, nx, ny, side == 0 ? -ray : -rby, side == 0 ? rax : rbx);
   }
   const double n[3] = {r.mx, r.my, 0.0};
-  add_friction_damping(K, Workspace::kDampDim, Workspace::kDampDim, G, n, u, speed, mu, mu_t);
+  add_friction_damping(K, Workspace::kDampDim, G, n, u, speed, mu, mu_t);
   // Through psi_dot_{j-1} onto b_{j-1} (-n/(2|Delta|), on the a side of u), through psi_dot_j
   // onto a_{j+1} (+n/(2|Delta|), on the b side of u: sign -).
   add_exported_damping(E, -0.5 * kin.inv_len[lp], -kin.ey[lp], kin.ex[lp], -ray, rax, n, u, speed, mu, mu_t);

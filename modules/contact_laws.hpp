@@ -84,11 +84,11 @@ inline double friction_slope(FrictionLaw law, double f0, double v0, double v) {
 
 // Adds G^T D G to the lower triangle (row >= column) of the row-major dim x dim block K
 // (symmetric; the upper triangle is left alone) for a contact whose slip velocity is
-// u = G v (G given by columns, Gc[c] the 3 entries of column c, over `cols` columns), with
+// u = G v (G given by its dim columns, Gc[c] the 3 entries of column c), with
 // D = -dR/du of R = -N f(|u|) u/|u| at fixed N: D = mu (P - t t^T) + mu_t t t^T on the
 // tangent plane (P = I - n n^T, t = u/|u|), mu = N f(v)/v (the secant: turning the sliding
 // direction) and mu_t = N f'(v) (along it). Workspace::record_damping.
-inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc)[3], const double n[3],
+inline void add_friction_damping(double* K, int dim, const double (*Gc)[3], const double n[3],
                                  const double u[3], double speed, double mu, double mu_t) {
   // D = mu_t t t^T + mu s s^T with s = n x t: two rank-one updates.
   double t[3];
@@ -106,11 +106,11 @@ inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc
   }
   const double sv[3] = {n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]};
   double gt[Workspace::kDampDim], gs[Workspace::kDampDim];
-  for (int c = 0; c < cols; ++c) {
+  for (int c = 0; c < dim; ++c) {
     gt[c] = t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2];
     gs[c] = sv[0] * Gc[c][0] + sv[1] * Gc[c][1] + sv[2] * Gc[c][2];
   }
-  for (int a = 0; a < cols; ++a) {
+  for (int a = 0; a < dim; ++a) {
     const double ta = mu_t * gt[a], sa = mu * gs[a];
     if (ta == 0 && sa == 0) continue;
     double* row = K + a * dim;
@@ -118,19 +118,26 @@ inline void add_friction_damping(double* K, int dim, int cols, const double (*Gc
   }
 }
 
+// The slip velocity's dependence on a link spin through one half (its 10 columns Gh):
+// u += psi_dot (l_x, l_y, 0) with psi_dot's part c (n_l,x (x0 + x1) + n_l,y (y0 + y1)) through
+// this half's mid-point (c = +-1/(2|Delta|) times the sign of u).
+inline void add_spin_columns(double (*Gh)[3], double c, double nlx, double nly, double lx, double ly) {
+  for (int e = 0; e < 2; ++e) {
+    double* gx = Gh[e * half::kEnd + half::kX];
+    double* gy = Gh[e * half::kEnd + half::kY];
+    gx[0] += c * nlx * lx, gx[1] += c * nlx * ly;
+    gy[0] += c * nly * lx, gy[1] += c * nly * ly;
+  }
+}
+
 // The exported part of a contact's damping (Workspace::rocker_export / pulley_export): the
-// slip velocity's dependence on the other half of a link through that link's spin,
-// u += c (-l_y, l_x, 0) psi_dot-part with psi_dot-part = (n_l,x (x0 + x1) + n_l,y (y0 + y1))
-// of that half (c already holds +-1/(2|Delta|) and the sign of u); adds G^T D G on its 10
-// coordinates to E.
+// slip velocity's dependence on the other half of a link through that link's spin
+// (add_spin_columns); adds G^T D G on that half's 10 coordinates to E.
 inline void add_exported_damping(double* E, double c, double nlx, double nly, double lx, double ly, const double n[3],
                                  const double u[3], double speed, double mu, double mu_t) {
   double G[Workspace::kExportDim][3] = {};
-  for (int e = 0; e < 2; ++e) {
-    G[e * 5 + 0][0] = c * nlx * lx, G[e * 5 + 0][1] = c * nlx * ly;
-    G[e * 5 + 1][0] = c * nly * lx, G[e * 5 + 1][1] = c * nly * ly;
-  }
-  add_friction_damping(E, Workspace::kExportDim, Workspace::kExportDim, G, n, u, speed, mu, mu_t);
+  add_spin_columns(G, c, nlx, nly, lx, ly);
+  add_friction_damping(E, Workspace::kExportDim, G, n, u, speed, mu, mu_t);
 }
 
 }  // namespace cvt

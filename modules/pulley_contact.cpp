@@ -152,13 +152,10 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             Gh[b + half::kSy][1] += -sigma * R + oz, Gh[b + half::kSy][2] += -oy;
             const double cp = (h == 0 ? 0.5 : -0.5) * ws.kin.inv_len[link];
             const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
-            for (int e2 = 0; e2 < 2; ++e2) {
-              Gh[e2 * half::kEnd + half::kX][0] += cp * lnx * -oy, Gh[e2 * half::kEnd + half::kX][1] += cp * lnx * ox;
-              Gh[e2 * half::kEnd + half::kY][0] += cp * lny * -oy, Gh[e2 * half::kEnd + half::kY][1] += cp * lny * ox;
-            }
+            add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
             const double mu = Nel * friction_over_speed(law, f0, v0, speed);
             const double mu_t = ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed);
-            add_friction_damping(Kd, kD, kD, G, nrm, u, speed, mu, mu_t);
+            add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
             // The link's other half: b_{j-1} for a_j (export 0), a_{j+1} for b_j (export 1).
             add_exported_damping(Ed + h * Workspace::kExportDim * Workspace::kExportDim, -cp, lnx, lny, -oy, ox, nrm, u,
                                  speed, mu, mu_t);
@@ -194,37 +191,43 @@ void pulley_contact(const Model& m, Workspace& ws, int begin, int end) {
   for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr);
 }
 
-double pulley_energy(const Model& m, const double* q, const ContactStatus* status) {
-  double E = 0;
+namespace {
+
+// Calls f(j, h, e, k, penetration) for every pin end whose half is near pulley k, in pin
+// order; stops early when f returns false.
+template <class F>
+void for_each_near_end(const Model& m, const double* q, const F& f) {
   for (int j = 0; j < m.links; ++j)
     for (int h = 0; h < 2; ++h) {
       const double* hq = q + (h == 0 ? m.half_a(j) : m.half_b(j));
       for (int k = 0; k < 2; ++k) {
         if (!near_pulley(m, hq, k)) continue;
-        for (int e = 0; e < 2; ++e) {
-          if (status && !status->pulley[ContactStatus::pulley_index(j, h, e, k)]) continue;
-          E += hertz_energy(m.cfg.pulley_contact.stiffness, end_geometry(m, hq, e, k, q + m.shaft(k)).pen);
-        }
+        for (int e = 0; e < 2; ++e)
+          if (!f(j, h, e, k, end_geometry(m, hq, e, k, q + m.shaft(k)).pen)) return;
       }
     }
+}
+
+}  // namespace
+
+double pulley_energy(const Model& m, const double* q, const ContactStatus* status) {
+  double E = 0;
+  for_each_near_end(m, q, [&](int j, int h, int e, int k, double pen) {
+    if (!status || status->pulley[ContactStatus::pulley_index(j, h, e, k)])
+      E += hertz_energy(m.cfg.pulley_contact.stiffness, pen);
+    return true;
+  });
   return E;
 }
 
 double max_pulley_penetration(const Model& m, const double* q, int* joint) {
   double worst = -1e300;
   *joint = -1;
-  for (int j = 0; j < m.links; ++j)
-    for (int h = 0; h < 2; ++h) {
-      const double* hq = q + (h == 0 ? m.half_a(j) : m.half_b(j));
-      for (int k = 0; k < 2; ++k) {
-        if (!near_pulley(m, hq, k)) continue;
-        for (int e = 0; e < 2; ++e) {
-          const double pen = end_geometry(m, hq, e, k, q + m.shaft(k)).pen;
-          if (pen > worst || std::isnan(pen)) worst = pen, *joint = j;
-          if (std::isnan(pen)) return pen;
-        }
-      }
-    }
+  for_each_near_end(m, q, [&](int j, int, int, int, double pen) {
+    if (pen > worst || std::isnan(pen)) worst = pen, *joint = j;
+    return !std::isnan(pen);
+  });
+  if (std::isnan(worst)) return worst;
   return *joint < 0 ? 0.0 : worst;
 }
 

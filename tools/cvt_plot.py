@@ -87,6 +87,16 @@ def has_channel(f, name):
     return f"observables/{name}/value" in f and f"observables/{name}/time" in f
 
 
+def window_mask(t, t0=None, t1=None):
+    """Samples of t inside [t0, t1] (either end open when None)."""
+    m = np.ones(len(t), dtype=bool)
+    if t0 is not None:
+        m &= t >= t0
+    if t1 is not None:
+        m &= t <= t1
+    return m
+
+
 def read_channel(f, name, t0=None, t1=None):
     """(time [s], value [T] or [T][k], unit) of /observables/NAME, cut to [t0, t1]."""
     if not has_channel(f, name):
@@ -98,11 +108,7 @@ def read_channel(f, name, t0=None, t1=None):
     n = min(len(t), len(v))  # a file still being written may differ by a row
     t, v = t[:n], v[:n]
     unit = as_str(d.attrs.get("unit", "")) if "unit" in d.attrs else ""
-    m = np.ones(n, dtype=bool)
-    if t0 is not None:
-        m &= t >= t0
-    if t1 is not None:
-        m &= t <= t1
+    m = window_mask(t, t0, t1)
     return t[m], v[m], unit
 
 
@@ -211,11 +217,7 @@ def _windowed_ratio(f, num, den, t0, t1, window):
     dn = wn - wn[j]
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.where(ok & (np.abs(dd) > 0), dn / dd, np.nan)
-    m = np.ones(n, dtype=bool)
-    if t0 is not None:
-        m &= t >= t0
-    if t1 is not None:
-        m &= t <= t1
+    m = window_mask(t, t0, t1)
     return t[m], r[m], w
 
 

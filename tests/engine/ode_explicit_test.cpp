@@ -13,26 +13,7 @@ namespace {
 
 using namespace ode_test;
 
-// Error at t = 2 of a fixed-step run with n steps.
-double fixed_step_error(OdeMethod method, int n) {
-  const OdeSystem sys = smooth_system();
-  Eigen::VectorXd y = smooth_exact(0);
-  OdeOptions opt;
-  opt.fixed_step = true;
-  opt.h0 = 2.0 / n;
-  integrate(sys, method, 0, 2, y, opt);
-  return (y - smooth_exact(2)).lpNorm<Eigen::Infinity>();
-}
-
-// Observed order from halving the step twice; printed for docs/integrators.md.
-double observed_order(OdeMethod method, int n) {
-  const double e1 = fixed_step_error(method, n), e2 = fixed_step_error(method, 2 * n),
-               e3 = fixed_step_error(method, 4 * n);
-  const double p = std::log2(e2 / e3);
-  std::printf("[ode] order %-10s n = %4d %4d %4d  errors %.3e %.3e %.3e  orders %.2f %.2f\n", to_string(method), n,
-              2 * n, 4 * n, e1, e2, e3, std::log2(e1 / e2), p);
-  return p;
-}
+double observed_order(OdeMethod method, int n) { return smooth_order(smooth_system(), method, n, to_string(method)); }
 
 TEST(OdeRk4, AgreesWithRk4ClassBitForBit) {
   const OdeSystem sys = smooth_system();

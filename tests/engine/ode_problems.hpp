@@ -113,6 +113,28 @@ inline double mescd(const Eigen::VectorXd& y, const Eigen::VectorXd& ref, double
   return -std::log10(e);
 }
 
+// Error at t = 2 of a fixed-step run of n steps of `method` on the smooth system `sys`
+// (smooth_system(), possibly with a W added); tol > 0 sets rtol = atol (Newton's tolerance).
+inline double smooth_fixed_step_error(const OdeSystem& sys, OdeMethod method, int n, double tol = 0) {
+  Eigen::VectorXd y = smooth_exact(0);
+  OdeOptions opt;
+  opt.fixed_step = true;
+  opt.h0 = 2.0 / n;
+  if (tol > 0) opt.rtol = opt.atol = tol;
+  integrate(sys, method, 0, 2, y, opt);
+  return (y - smooth_exact(2)).lpNorm<Eigen::Infinity>();
+}
+
+// Observed order from n, 2n, 4n steps (the last halving); printed for docs/integrators.md.
+inline double smooth_order(const OdeSystem& sys, OdeMethod method, int n, const char* label, double tol = 0) {
+  const double e1 = smooth_fixed_step_error(sys, method, n, tol), e2 = smooth_fixed_step_error(sys, method, 2 * n, tol),
+               e3 = smooth_fixed_step_error(sys, method, 4 * n, tol);
+  const double p = std::log2(e2 / e3);
+  std::printf("[ode] order %-10s n = %4d %4d %4d  errors %.3e %.3e %.3e  orders %.2f %.2f\n", label, n, 2 * n, 4 * n,
+              e1, e2, e3, std::log2(e1 / e2), p);
+  return p;
+}
+
 inline void print_stats(const char* label, const OdeStats& s) {
   std::printf(
       "[ode] %-28s steps %7lld  rejected %5lld  f-evals %8lld  jac %5lld  lu %5lld  newton %7lld  "
