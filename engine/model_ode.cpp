@@ -230,10 +230,11 @@ void ModelOde::w_factor(double gh) {
   // resumed at such a step repeats the bits), and whenever gh changed or none exists yet
   // (a fixed step taken as t1 - t0 varies in its last bits: that is no change of gh); in
   // between, the stale one is kept. The blocks come from the evaluation that starts a
-  // rebuilding step, the only one that records them.
+  // rebuilding step: OdeDriver arms Workspace::record_damping for it and eval() disarms it
+  // (within an integrate() call of several steps only the first is armed; later rebuilds
+  // use the blocks last recorded).
   const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
   ++w_index_;
-  ws_.record_damping = w_due();
   if (!rebuild) return;
   w_gh_ = gh;
   for_joints([this, gh](int j) { w_factor_joint(j, gh); });
@@ -258,44 +259,42 @@ void ModelOde::for_joints(const F& f) const {
 void ModelOde::w_factor_joint(int j, double gh) {
   constexpr int kD = Workspace::kDampDim;
   constexpr int kE = Workspace::kExportDim;
-  {
-    // M = A0_j + gh (K_rocker + K_pulley + what the neighbours' contacts export onto this
-    // joint's halves through the link spins: joint j-1's export [1] onto a_j, joint j+1's
-    // export [0] onto b_j), all row-major; only the lower triangle is used.
-    double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;  // L, then L^T
-    const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD;
-    const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD;
-    const double* er = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
-    const double* ep = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
-    const double* nr = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
-    const double* np = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
-    for (int r = 0; r < kD; ++r)
-      for (int c = 0; c <= r; ++c) {
-        double k = kr[r * kD + c] + kp[r * kD + c];
-        if (r < kE && c < kE) k += er[r * kE + c] + ep[r * kE + c];
-        if (r >= kE && c >= kE) k += nr[(r - kE) * kE + c - kE] + np[(r - kE) * kE + c - kE];
-        L[r * kD + c] = a0_joint_(r, c) + gh * k;
-      }
-    // Cholesky in place (lower), with the reciprocal diagonal kept for the solves. (An
-    // Eigen::LLT of the fixed 20 x 20 took 5.6 us per joint here; forming (A0 + gh K)^-1 A0
-    // for one product per solve was 6x dearer still.)
-    double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
-    for (int c = 0; c < kD; ++c) {
-      double d = L[c * kD + c];
-      for (int k = 0; k < c; ++k) d -= L[c * kD + k] * L[c * kD + k];
-      const double lc = std::sqrt(d);  // > 0: A0 is positive definite, K semi-definite
-      inv[c] = 1.0 / lc;
-      L[c * kD + c] = lc;
-      for (int r = c + 1; r < kD; ++r) {
-        double v = L[r * kD + c];
-        for (int k = 0; k < c; ++k) v -= L[r * kD + k] * L[c * kD + k];
-        L[r * kD + c] = v * inv[c];
-      }
+  // M = A0_j + gh (K_rocker + K_pulley + what the neighbours' contacts export onto this
+  // joint's halves through the link spins: joint j-1's export [1] onto a_j, joint j+1's
+  // export [0] onto b_j), all row-major; only the lower triangle is used.
+  double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;  // L, then L^T
+  const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD;
+  const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD;
+  const double* er = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
+  const double* ep = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
+  const double* nr = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
+  const double* np = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
+  for (int r = 0; r < kD; ++r)
+    for (int c = 0; c <= r; ++c) {
+      double k = kr[r * kD + c] + kp[r * kD + c];
+      if (r < kE && c < kE) k += er[r * kE + c] + ep[r * kE + c];
+      if (r >= kE && c >= kE) k += nr[(r - kE) * kE + c - kE] + np[(r - kE) * kE + c - kE];
+      L[r * kD + c] = a0_joint_(r, c) + gh * k;
     }
-    double* Lt = L + kD * kD;
-    for (int r = 0; r < kD; ++r)
-      for (int c = 0; c < kD; ++c) Lt[c * kD + r] = c <= r ? L[r * kD + c] : 0.0;
+  // Cholesky in place (lower), with the reciprocal diagonal kept for the solves. (An
+  // Eigen::LLT of the fixed 20 x 20 took 5.6 us per joint here; forming (A0 + gh K)^-1 A0
+  // for one product per solve was 6x dearer still.)
+  double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
+  for (int c = 0; c < kD; ++c) {
+    double d = L[c * kD + c];
+    for (int k = 0; k < c; ++k) d -= L[c * kD + k] * L[c * kD + k];
+    const double lc = std::sqrt(d);  // > 0: A0 is positive definite, K semi-definite
+    inv[c] = 1.0 / lc;
+    L[c * kD + c] = lc;
+    for (int r = c + 1; r < kD; ++r) {
+      double v = L[r * kD + c];
+      for (int k = 0; k < c; ++k) v -= L[r * kD + k] * L[c * kD + k];
+      L[r * kD + c] = v * inv[c];
+    }
   }
+  double* Lt = L + kD * kD;
+  for (int r = 0; r < kD; ++r)
+    for (int c = 0; c < kD; ++c) Lt[c * kD + r] = c <= r ? L[r * kD + c] : 0.0;
 }
 
 void ModelOde::w_solve(double* x) const {
@@ -305,35 +304,33 @@ void ModelOde::w_solve(double* x) const {
 void ModelOde::w_solve_joint(int j, double* x) const {
   constexpr int kD = Workspace::kDampDim;
   const int n = m_.ndof;
-  {
-    const int r0 = n + m_.joint(j);
-    const double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;
-    const double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
-    double b[kD], y[kD];
-    if (opt_.scaled)
-      for (int i = 0; i < kD; ++i) b[i] = x[r0 + i] * unit_[r0 + i], y[i] = 0;
-    else
-      for (int i = 0; i < kD; ++i) b[i] = x[r0 + i], y[i] = 0;
-    for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0_j b
-    // L z = A0 b by columns (L^T stored row-major), then L^T x = z by rows of L: each inner
-    // loop is a set of independent updates (row-by-row dot products were one long chain of
-    // dependent additions, and a solve cost 43 us).
-    const double* Lt = L + kD * kD;
-    for (int k = 0; k < kD; ++k) {
-      const double yk = y[k] *= inv[k];
-      const double* col = Lt + k * kD;
-      for (int i = k + 1; i < kD; ++i) y[i] -= col[i] * yk;
-    }
-    for (int i = kD - 1; i >= 0; --i) {
-      const double xi = y[i] *= inv[i];
-      const double* row = L + i * kD;
-      for (int k = 0; k < i; ++k) y[k] -= row[k] * xi;
-    }
-    if (opt_.scaled)
-      for (int i = 0; i < kD; ++i) x[r0 + i] = y[i] / unit_[r0 + i];
-    else
-      for (int i = 0; i < kD; ++i) x[r0 + i] = y[i];
+  const int r0 = n + m_.joint(j);
+  const double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;
+  const double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
+  double b[kD], y[kD];
+  if (opt_.scaled)
+    for (int i = 0; i < kD; ++i) b[i] = x[r0 + i] * unit_[r0 + i], y[i] = 0;
+  else
+    for (int i = 0; i < kD; ++i) b[i] = x[r0 + i], y[i] = 0;
+  for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0_j b
+  // L z = A0 b by columns (L^T stored row-major), then L^T x = z by rows of L: each inner
+  // loop is a set of independent updates (row-by-row dot products were one long chain of
+  // dependent additions, and a solve cost 43 us).
+  const double* Lt = L + kD * kD;
+  for (int k = 0; k < kD; ++k) {
+    const double yk = y[k] *= inv[k];
+    const double* col = Lt + k * kD;
+    for (int i = k + 1; i < kD; ++i) y[i] -= col[i] * yk;
   }
+  for (int i = kD - 1; i >= 0; --i) {
+    const double xi = y[i] *= inv[i];
+    const double* row = L + i * kD;
+    for (int k = 0; k < i; ++k) y[k] -= row[k] * xi;
+  }
+  if (opt_.scaled)
+    for (int i = 0; i < kD; ++i) x[r0 + i] = y[i] / unit_[r0 + i];
+  else
+    for (int i = 0; i < kD; ++i) x[r0 + i] = y[i];
 }
 
 OdeMethod parse_ode_method(const std::string& name) {
@@ -373,8 +370,6 @@ void OdeDriver::advance(double t1) {
       ws.record_damping = false;
     }
   } plain{ws};
-  // The W-method takes its matrix from the damping blocks of each evaluation.
-  ws.record_damping = opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks;
   ws.damping_secant = opt_.jac.w_secant;
   sched.within([&] {
     while (t < t1) {
