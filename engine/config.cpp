@@ -142,6 +142,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, method, string, "", Range{}),
       CVT_KEY(integrator, step, real, "s", positive),
       CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
+      CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
 
       CVT_KEY(run, t_end, real, "s", positive),
       CVT_KEY(run, sample_interval, real, "s", positive),
@@ -502,6 +503,10 @@ class Validator {
     if (c.run.snapshot_interval != 0.0 && !(c.run.snapshot_interval >= c.integrator.step))
       fail_rel("run", "snapshot_interval", num(c.run.snapshot_interval),
                "must be 0 (off) or >= integrator.step = " + num(c.integrator.step));
+    if (c.integrator.w_k_every % c.integrator.w_every != 0)
+      fail_rel("integrator", "w_k_every", std::to_string(c.integrator.w_k_every),
+               "must be a multiple of integrator.w_every = " + std::to_string(c.integrator.w_every) +
+                   " (the stiffness is taken when the matrix is rebuilt)");
     const std::string links_range = "must be in [0, chain.links) = [0, " + std::to_string(c.chain.links) + ")";
     if (c.run.tracked_pin >= c.chain.links) fail_rel("run", "tracked_pin", std::to_string(c.run.tracked_pin), links_range);
     if (c.run.tracked_link >= c.chain.links) fail_rel("run", "tracked_link", std::to_string(c.run.tracked_link), links_range);

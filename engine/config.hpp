@@ -122,7 +122,8 @@ struct Config {
   struct Integrator {
     std::string method = "rk4";  // "rk4" | "ros2" (docs/integrators.md 12)
     double step = 1.0e-8;  // [s]
-    int w_every = 4;       // ros2: rebuild its friction matrix every this many steps
+    int w_every = 4;       // ros2: rebuild its matrix (friction blocks) every this many steps
+    int w_k_every = 16;    // ros2: and its stiffness blocks (finite differences) every this many
   } integrator;
   struct Run {
     double t_end = 5.0e-3;            // [s]

@@ -148,7 +148,11 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
               1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
   std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
               cfg.integrator.step,
-              cfg.integrator.method == "ros2" ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps)").c_str() : "",
+              cfg.integrator.method == "ros2"
+                  ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+                     std::to_string(cfg.integrator.w_k_every) + ")")
+                        .c_str()
+                  : "",
               to_string(cfg.friction.law));
   std::fflush(stdout);
   RunOptions opt;
@@ -342,6 +346,9 @@ int main(int argc, char** argv) {
   study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
                      "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
   study_int->add_flag("--w-secant", si.w_secant, "ROS2: secant friction slope along the sliding direction too");
+  study_int->add_option("--w-k-every", si.w_k_every, "ROS2: rebuild its stiffness blocks every N steps")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");

@@ -1,6 +1,7 @@
 #include "engine/model_ode.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <set>
@@ -139,26 +140,42 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     a0_inverse_shafts(m, F.data(), Y.data());
     for (int r = 0; r < 2 * kShaftSize + 1; ++r) a0_shaft_inv_(r, k) = Y[tail0 + r];
   }
-  // W-method: A0 of a joint's two halves (bending per plane, axial bar), and the hooks.
-  a0_joint_.setZero();
+  // W-method: A0 of a link's coordinates (two halves: bending per plane, axial bar; the
+  // plate pack's axial mass), and the hooks.
+  a0_link_.setZero();
   for (int h = 0; h < 2; ++h) {
     const int o = h * half::kSize;
     for (int pl = 0; pl < 2; ++pl) {
       const auto d = plane_dofs(pl);
       for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) a0_joint_(o + d[r], o + d[c]) = m.bend_mass(r, c);
+        for (int c = 0; c < 4; ++c) a0_link_(o + d[r], o + d[c]) = m.bend_mass(r, c);
     }
     const int z[2] = {half::kZ, half::kEnd + half::kZ};
     for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 2; ++c) a0_joint_(o + z[r], o + z[c]) = m.axial_mass(r, c);
+      for (int c = 0; c < 2; ++c) a0_link_(o + z[r], o + z[c]) = m.axial_mass(r, c);
   }
-  w_chol_.assign(static_cast<std::size_t>(N) * 2 * Workspace::kDampDim * Workspace::kDampDim, 0.0);
-  w_inv_diag_.assign(static_cast<std::size_t>(N) * Workspace::kDampDim, 0.0);
-  for (int r = 0; r < Workspace::kDampDim; ++r)
-    for (int c = 0; c < Workspace::kDampDim; ++c)
-      if (a0_joint_(r, c) != 0) a0_entries_.push_back({r, c, a0_joint_(r, c)});
+  a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
+  w_lu_.resize(N);
+  w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N);
+  w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
+  w_delta_.assign(N, 0.0);
+  // Link colours for the stiffness differences: greedy around the cycle, links within two
+  // of each other differ (3 colours when 3 divides N, at most 5).
+  w_color_.assign(N, -1);
+  w_colors_ = 0;
+  for (int l = 0; l < N; ++l) {
+    int c = 0;
+    for (bool clash = true; clash; ++c) {
+      clash = false;
+      for (int d = -2; d <= 2; ++d)
+        if (d != 0 && w_color_[m.wrap(l + d)] == c) clash = true;
+      if (!clash) break;
+    }
+    w_color_[l] = c;
+    w_colors_ = std::max(w_colors_, c + 1);
+  }
   if (opt.w_blocks) {
-    sys_.w_factor = [this](double, const double*, double gh) { w_factor(gh); };
+    sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
   }
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
@@ -225,19 +242,72 @@ void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& 
   }
 }
 
-void ModelOde::w_factor(double gh) {
+void ModelOde::w_factor(double t, const double* y, double gh) {
   // The matrix is rebuilt at the steps whose index is a multiple of w_every (so a run
   // resumed at such a step repeats the bits), and whenever gh changed or none exists yet
   // (a fixed step taken as t1 - t0 varies in its last bits: that is no change of gh); in
-  // between, the stale one is kept. The blocks come from the evaluation that starts a
-  // rebuilding step: OdeDriver arms Workspace::record_damping for it and eval() disarms it
+  // between, the stale one is kept. The friction blocks come from the evaluation that starts
+  // a rebuilding step: OdeDriver arms Workspace::record_damping for it and eval() disarms it
   // (within an integrate() call of several steps only the first is armed; later rebuilds
-  // use the blocks last recorded).
+  // use the blocks last recorded). The stiffness blocks are dearer (finite differences):
+  // they are taken at the rebuilding steps whose index is a multiple of w_k_every.
+  const long index = w_index_;
+  const bool first = w_gh_ == 0;
   const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
   ++w_index_;
   if (!rebuild) return;
+  if (opt_.w_stiffness && (first || opt_.w_k_every <= 1 || index % opt_.w_k_every == 0)) w_stiffness(t, y);
   w_gh_ = gh;
-  for_joints([this, gh](int j) { w_factor_joint(j, gh); });
+  for_joints([this, gh](int l) { w_assemble_link(l, gh); });
+  if (!w_lu_.factor()) throw std::runtime_error("ROS2: the W matrix is singular");
+}
+
+void ModelOde::w_stiffness(double t, const double* y) {
+  // K = -dF/dq on the chain by finite differences of the generalized forces (ws.force), in
+  // link order: a link's coordinates reach the forces of itself and its two neighbours
+  // only, so the links of one colour (3 or more apart) are perturbed together, one link
+  // coordinate at a time: 21 evaluations per colour.
+  const auto t0 = std::chrono::steady_clock::now();
+  const int n = m_.ndof, N = m_.links;
+  const double eps = std::numeric_limits<double>::epsilon();
+  Eigen::VectorXd& yp = yp_;
+  if (opt_.scaled)
+    to_y(Eigen::Map<const Eigen::VectorXd>(y, m_.nstate), yp);
+  else
+    yp = Eigen::Map<const Eigen::VectorXd>(y, m_.nstate);
+  ys_ = yp;  // the unperturbed physical state
+  schedule_.rhs(t, ys_.data(), f1_.data(), nullptr);
+  ++rhs_evals_;
+  std::vector<double>& F0 = w_force0_;
+  F0.assign(ws_.force.begin(), ws_.force.begin() + n);
+  for (int color = 0; color < w_colors_; ++color) {
+    for (int i = 0; i < kLinkDim; ++i) {
+      for (int l = 0; l < N; ++l) {
+        if (w_color_[l] != color) continue;
+        const int c = link_coord(l, i);
+        w_delta_[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
+        yp[c] = ys_[c] + w_delta_[l];
+      }
+      schedule_.rhs(t, yp.data(), f1_.data(), nullptr);
+      ++rhs_evals_;
+      const double* F1 = ws_.force.data();
+      for_joints([&](int l) {
+        if (w_color_[l] != color) return;
+        const double inv = 1.0 / w_delta_[l];
+        // Column i of link l: rows of links l-1 (sub of l, as M(l-1, l): super(l)), l, l+1.
+        for (int r = 0; r < kLinkDim; ++r) {
+          const int rp = link_coord(m_.wrap(l - 1), r), ro = link_coord(l, r), rn = link_coord(m_.wrap(l + 1), r);
+          w_k_super_[l](r, i) = -(F1[rp] - F0[rp]) * inv;
+          w_k_diag_[l](r, i) = -(F1[ro] - F0[ro]) * inv;
+          w_k_sub_[m_.wrap(l + 1)](r, i) = -(F1[rn] - F0[rn]) * inv;
+        }
+      });
+      for (int l = 0; l < N; ++l)
+        if (w_color_[l] == color) yp[link_coord(l, i)] = ys_[link_coord(l, i)];
+    }
+  }
+  ++jac_evals_;
+  w_k_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 // Each joint's block is independent of the others: any split over threads gives the same bits.
@@ -256,81 +326,112 @@ void ModelOde::for_joints(const F& f) const {
       tbb::static_partitioner());
 }
 
-void ModelOde::w_factor_joint(int j, double gh) {
-  constexpr int kD = Workspace::kDampDim;
-  constexpr int kE = Workspace::kExportDim;
-  // M = A0_j + gh (K_rocker + K_pulley + what the neighbours' contacts export onto this
-  // joint's halves through the link spins: joint j-1's export [1] onto a_j, joint j+1's
-  // export [0] onto b_j), all row-major; only the lower triangle is used.
-  double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;  // L, then L^T
-  const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD;
-  const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD;
-  const double* er = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
-  const double* ep = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j - 1)) * 2 * kE * kE + kE * kE;
-  const double* nr = ws_.rocker_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
-  const double* np = ws_.pulley_export.data() + static_cast<std::size_t>(m_.wrap(j + 1)) * 2 * kE * kE;
-  for (int r = 0; r < kD; ++r)
-    for (int c = 0; c <= r; ++c) {
-      double k = kr[r * kD + c] + kp[r * kD + c];
-      if (r < kE && c < kE) k += er[r * kE + c] + ep[r * kE + c];
-      if (r >= kE && c >= kE) k += nr[(r - kE) * kE + c - kE] + np[(r - kE) * kE + c - kE];
-      L[r * kD + c] = a0_joint_(r, c) + gh * k;
-    }
-  // Cholesky in place (lower), with the reciprocal diagonal kept for the solves. (An
-  // Eigen::LLT of the fixed 20 x 20 took 5.6 us per joint here; forming (A0 + gh K)^-1 A0
-  // for one product per solve was 6x dearer still.)
-  double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
-  for (int c = 0; c < kD; ++c) {
-    double d = L[c * kD + c];
-    for (int k = 0; k < c; ++k) d -= L[c * kD + k] * L[c * kD + k];
-    const double lc = std::sqrt(d);  // > 0: A0 is positive definite, K semi-definite
-    inv[c] = 1.0 / lc;
-    L[c * kD + c] = lc;
-    for (int r = c + 1; r < kD; ++r) {
-      double v = L[r * kD + c];
-      for (int k = 0; k < c; ++k) v -= L[r * kD + k] * L[c * kD + k];
-      L[r * kD + c] = v * inv[c];
-    }
+void ModelOde::link_gradient(int l, LinkVector& g) const {
+  // d psi_l / d(b_l, a_{l+1}, s_l) (modules/inertia.hpp link_g): -+ n/(2|Delta|) on both
+  // ends' x, y; 0 on the pack.
+  double gx, gy;
+  link_g(ws_.kin, l, gx, gy);
+  g.setZero();
+  for (int e = 0; e < 2; ++e) {
+    g[e * half::kEnd + half::kX] = -gx, g[e * half::kEnd + half::kY] = -gy;
+    g[half::kSize + e * half::kEnd + half::kX] = gx, g[half::kSize + e * half::kEnd + half::kY] = gy;
   }
-  double* Lt = L + kD * kD;
-  for (int r = 0; r < kD; ++r)
-    for (int c = 0; c < kD; ++c) Lt[c * kD + r] = c <= r ? L[r * kD + c] : 0.0;
+}
+
+void ModelOde::w_assemble_link(int l, double gh) {
+  // Link l's coordinates: b_l, a_{l+1}, pack s_l. Joint j's 40 x 40 friction blocks are over
+  // links j-1 (rows 0..19) and j (20..39), lower triangle only: link l's diagonal block is
+  // the lower-right of joint l's plus the upper-left of joint l+1's; M(l, l-1) is joint l's
+  // lower-left, M(l-1, l) its transpose.
+  constexpr int kD = Workspace::kDampDim, kH = 2 * half::kSize;
+  const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(l) * kD * kD;
+  const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(l) * kD * kD;
+  const double* nr = ws_.rocker_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
+  const double* np = ws_.pulley_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
+  LinkBlock& D = w_lu_.diag(l);
+  LinkBlock& S = w_lu_.sub(l);
+  LinkBlock& P = w_lu_.super(l);
+  D = a0_link_;
+  S.setZero();
+  for (int c = 0; c < kH; ++c)
+    for (int r = c; r < kH; ++r) {
+      const int o = (r + kH) * kD + c + kH;
+      const double k = gh * (kr[o] + kp[o] + nr[r * kD + c] + np[r * kD + c]);
+      D(r, c) += k;
+      if (r != c) D(c, r) += k;
+    }
+  for (int c = 0; c < kH; ++c)
+    for (int r = 0; r < kH; ++r) S(r, c) = gh * (kr[(r + kH) * kD + c] + kp[(r + kH) * kD + c]);
+  P = S.transpose();
+  if (opt_.w_link_inertia) {
+    // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
+    const double J = m_.cfg.chain.link_inertia;
+    LinkVector& g = w_g_[l];
+    link_gradient(l, g);
+    D.noalias() += J * g * g.transpose();
+  }
+  if (opt_.w_stiffness) {
+    const double gh2 = gh * gh;
+    D += gh2 * w_k_diag_[l];
+    S += gh2 * w_k_sub_[l];
+    P += gh2 * w_k_super_[l];
+  }
 }
 
 void ModelOde::w_solve(double* x) const {
-  for_joints([this, x](int j) { w_solve_joint(j, x); });
-}
-
-void ModelOde::w_solve_joint(int j, double* x) const {
-  constexpr int kD = Workspace::kDampDim;
+  // W = [I, -gh I; gh A^-1 K, I + gh A^-1 C] on the chain (identity on the other
+  // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
   const int n = m_.ndof;
-  const int r0 = n + m_.joint(j);
-  const double* L = w_chol_.data() + static_cast<std::size_t>(j) * 2 * kD * kD;
-  const double* inv = w_inv_diag_.data() + static_cast<std::size_t>(j) * kD;
-  double b[kD], y[kD];
-  if (opt_.scaled)
-    for (int i = 0; i < kD; ++i) b[i] = x[r0 + i] * unit_[r0 + i], y[i] = 0;
-  else
-    for (int i = 0; i < kD; ++i) b[i] = x[r0 + i], y[i] = 0;
-  for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0_j b
-  // L z = A0 b by columns (L^T stored row-major), then L^T x = z by rows of L: each inner
-  // loop is a set of independent updates (row-by-row dot products were one long chain of
-  // dependent additions, and a solve cost 43 us).
-  const double* Lt = L + kD * kD;
-  for (int k = 0; k < kD; ++k) {
-    const double yk = y[k] *= inv[k];
-    const double* col = Lt + k * kD;
-    for (int i = k + 1; i < kD; ++i) y[i] -= col[i] * yk;
+  const double gh = w_gh_;
+  auto phys = [&](int r) { return opt_.scaled ? x[r] * unit_[r] : x[r]; };
+  LinkVector* v = w_rhs_.data();
+  LinkVector* bq = w_bq_.data();
+  if (opt_.w_stiffness)
+    for_joints([&](int l) {
+      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = phys(link_coord(l, i));
+    });
+  for_joints([&](int l) {
+    LinkVector b;
+    for (int i = 0; i < kLinkDim; ++i) b[i] = phys(n + link_coord(l, i));
+    LinkVector& y = v[l];
+    y.noalias() = a0_link_ * b;
+    if (opt_.w_link_inertia) y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
+    if (opt_.w_stiffness) {
+      const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
+      y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
+    }
+    if (opt_.w_shaft_coupling) {
+      // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
+      constexpr int kD = Workspace::kDampDim, kX = 2 * kD * kShaftSize, kH = 2 * half::kSize;
+      const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
+      const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
+      for (int k = 0; k < 2; ++k) {
+        double xs[kShaftSize];
+        for (int i = 0; i < kShaftSize; ++i) xs[i] = phys(n + m_.shaft(k) + i);
+        const double* X1 = here + k * kD * kShaftSize + kH * kShaftSize;  // joint l, rows 20..39
+        const double* X0 = next + k * kD * kShaftSize;                    // joint l+1, rows 0..19
+        for (int i = 0; i < kH; ++i) {
+          double a = 0;
+          for (int c = 0; c < kShaftSize; ++c) a += (X1[i * kShaftSize + c] + X0[i * kShaftSize + c]) * xs[c];
+          y[i] -= gh * a;
+        }
+      }
+    }
+  });
+  w_lu_.solve(v);
+  for_joints([&](int l) {
+    for (int i = 0; i < kLinkDim; ++i) {
+      const int r = n + link_coord(l, i);
+      x[r] = opt_.scaled ? v[l][i] / unit_[r] : v[l][i];
+    }
+  });
+  if (opt_.w_position_coupling) {
+    // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v.
+    if (opt_.scaled)
+      for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * unit_[n + i] / unit_[i];
+    else
+      for (int i = 0; i < n; ++i) x[i] += gh * x[n + i];
   }
-  for (int i = kD - 1; i >= 0; --i) {
-    const double xi = y[i] *= inv[i];
-    const double* row = L + i * kD;
-    for (int k = 0; k < i; ++k) y[k] -= row[k] * xi;
-  }
-  if (opt_.scaled)
-    for (int i = 0; i < kD; ++i) x[r0 + i] = y[i] / unit_[r0 + i];
-  else
-    for (int i = 0; i < kD; ++i) x[r0 + i] = y[i];
 }
 
 OdeMethod parse_ode_method(const std::string& name) {

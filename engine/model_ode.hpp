@@ -9,6 +9,7 @@
 #include <utility>
 #include <vector>
 
+#include "engine/block_cyclic.hpp"
 #include "engine/ode.hpp"
 #include "engine/simulation.hpp"
 
@@ -44,6 +45,20 @@ struct ModelOdeOptions {
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).
   bool w_blocks = true;
+  // true: W's mass part is A0 + J_link g g^T per link (A(q) exactly, docs/model.md 3);
+  // false: A0 alone.
+  bool w_link_inertia = true;
+  // true: W's position rows are those of I - gh J exactly (dq/dt = v: [I, -gh I]);
+  // false: the identity.
+  bool w_position_coupling = true;
+  // true: the pins' rows carry the pulley friction's dependence on the shafts' velocities
+  // (W block-triangular: shaft rows stay the identity); false: the sheaves taken as fixed.
+  bool w_shaft_coupling = true;
+  // true: W carries the chain's stiffness K = -dF/dq (finite differences over link colours,
+  // 21 evaluations per colour: 63 for 3 colours), taken at every w_k_every-th step's rebuild
+  // (the elastic forces change slowly; the friction blocks, every w_every steps).
+  bool w_stiffness = true;
+  int w_k_every = 16;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -74,14 +89,20 @@ class ModelOde {
   std::int64_t rhs_evals() const { return rhs_evals_; }
   std::int64_t jacobian_evals() const { return jac_evals_; }
   int colors() const { return n_colors_; }
+  // Wall seconds spent in the W-method's stiffness differences (part of its w_factor time).
+  double w_stiffness_seconds() const { return w_k_seconds_; }
   // The coloured finite-difference Jacobian at (t, y) into jac (which has sys.sparsity).
   void jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac);
-  // The W-method's matrix (OdeSystem::w_factor / w_solve, docs/integrators.md 12): per
-  // joint, W_j = I + gh A0_j^-1 K_j on the velocities of its two halves, with K_j the
+  // The W-method's matrix (OdeSystem::w_factor / w_solve, docs/integrators.md 12):
+  // W = I - gh J~ with J~ = [0, I; -A^-1 K, -A^-1 C] on the chain's coordinates, C the
   // friction damping blocks that the last evaluation recorded (Workspace::record_damping,
-  // which the adapter turns on while a W-method runs), A0_j their constant mass blocks;
-  // identity on every other unknown. Solved as (A0_j + gh K_j) x = A0_j b (Cholesky, 20 x 20).
-  void w_factor(double gh);
+  // which the adapter turns on while a W-method runs), K = -dF/dq the chain's stiffness
+  // (finite differences), A the chain's mass matrix (A0, plus the link inertia); on the
+  // shafts' velocities the identity (their increments drag the pins through the pulley
+  // friction). Solved as (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, x_q = b_q + gh x_v:
+  // block-tridiagonal over the links with cyclic corners (CyclicBlockLU, 21 x 21 blocks).
+  // Each ModelOdeOptions::w_* switch leaves one part out.
+  void w_factor(double t, const double* y, double gh);
   void w_solve(double* x) const;
   // The index of the next step (OdeDriver sets it from the simulation's step count), and
   // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
@@ -99,8 +120,7 @@ class ModelOde {
   void eval_scaled(double t, const double* z, double* dz);
   template <class F>
   void for_joints(const F& f) const;  // f(j) for every joint, over the schedule's threads
-  void w_factor_joint(int j, double gh);
-  void w_solve_joint(int j, double* x) const;
+  void w_assemble_link(int l, double gh);
   // The per-pin parts of the dense rows after an evaluation: shaft forces [N][14] and
   // dissipated power [N] of the chain and pulley slots.
   void read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const;
@@ -122,16 +142,28 @@ class ModelOde {
   std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
   Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour]
   Eigen::VectorXd acc_p_;
-  // W-method blocks.
-  using Block = Eigen::Matrix<double, Workspace::kDampDim, Workspace::kDampDim>;
-  Block a0_joint_;                // A0 of the two halves of a joint (constant)
-  struct A0Entry {
-    int r, c;
-    double v;
-  };
-  std::vector<A0Entry> a0_entries_;     // its nonzeros (72 of 400)
-  std::vector<double> w_chol_;          // per joint: Cholesky factor L of A0_j + gh K_j, then L^T (row-major)
-  std::vector<double> w_inv_diag_;      // per joint: 1 / its diagonal
+  // W-method: the matrix over the chain's velocities in link order (link l: b_l, a_{l+1},
+  // then the pack s_l), block-tridiagonal with cyclic corners.
+  static constexpr int kLinkDim = 2 * half::kSize + 1;
+  using LinkBlock = CyclicBlockLU<kLinkDim>::Mat;
+  using LinkVector = CyclicBlockLU<kLinkDim>::Vec;
+  using LinkBlocks = std::vector<LinkBlock, Eigen::aligned_allocator<LinkBlock>>;
+  using LinkVectors = std::vector<LinkVector, Eigen::aligned_allocator<LinkVector>>;
+  int link_coord(int l, int i) const {  // coordinate index of entry i of link l
+    return i < half::kSize ? m_.half_b(l) + i : i < 2 * half::kSize ? m_.half_a(l + 1) + i - half::kSize : m_.pack(l);
+  }
+  void w_stiffness(double t, const double* y);
+  void link_gradient(int l, LinkVector& g) const;
+  LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
+  CyclicBlockLU<kLinkDim> w_lu_;
+  mutable LinkVectors w_rhs_, w_bq_;
+  LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
+  // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).
+  LinkBlocks w_k_diag_, w_k_sub_, w_k_super_;
+  std::vector<double> w_force0_, w_delta_;
+  std::vector<int> w_color_;
+  int w_colors_ = 0;
+  double w_k_seconds_ = 0;
   double w_gh_ = 0;                       // gh of the factorization (0: none yet)
   long w_index_ = 0;                      // index of the next step
 };

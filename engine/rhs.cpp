@@ -19,8 +19,7 @@ Workspace::Workspace(const Model& m) {
   pulley_dir.assign(3 * N * 8, 0.0);
   rocker_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
   pulley_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
-  rocker_export.assign(static_cast<std::size_t>(N) * 2 * kExportDim * kExportDim, 0.0);
-  pulley_export.assign(static_cast<std::size_t>(N) * 2 * kExportDim * kExportDim, 0.0);
+  pulley_shaft_damping.assign(static_cast<std::size_t>(N) * 2 * kDampDim * kShaftSize, 0.0);
   chain_slots.resize(N);
   pulley_slots.resize(N);
   inertia_slots.resize(N);

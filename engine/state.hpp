@@ -96,24 +96,24 @@ struct Workspace {
   // Friction damping blocks for the W-method (docs/integrators.md 12; off in the production
   // path). With record_damping set, chain_forces adds for each active rocker station of
   // joint j, and pulley_contact for each active pin end of joint j,
-  //   K_j += mu G^T (I - n n^T) G,   mu = N_el f(|u|)/|u|  (the secant slope of the law),
-  // where u = G v is the contact's slip velocity restricted to the joint's own 20 half
-  // coordinates (a_j then b_j, the link-angle rates through these halves included; the
-  // shafts and the neighbouring joints' halves left out). Row-major 20 x 20 per joint, lower
-  // triangle only (the blocks are symmetric); each kernel zeroes and fills only its own
-  // joints' blocks.
-  static constexpr int kDampDim = 20;
+  //   K_j += G^T D G,   D = mu (P - t t^T) + mu_t t t^T on the contact's tangent plane,
+  // where u = G v is the contact's slip velocity as a function of the four halves that it
+  // moves: b_{j-1}, a_j, b_j, a_{j+1} in this order (the two halves of joint j directly, and
+  // through the link spins psi_{j-1} and psi_j also the other half of each of the two links
+  // that hold them; the shafts are left out). In link order that is link j-1 (b_{j-1}, a_j)
+  // then link j (b_j, a_{j+1}), so the sum over joints is block-tridiagonal (cyclic) over
+  // the links. Row-major 40 x 40 per joint, lower triangle only (the blocks are symmetric);
+  // each kernel zeroes and fills only its own joints' blocks.
+  static constexpr int kDampDim = 40;
   bool record_damping = false;
   // true: the secant slope N f(v)/v also along the sliding direction (over-damps sliding
   // contacts in W, but keeps a contact about to stick stiff in W); false: the exact N f'(v).
   bool damping_secant = false;
   std::vector<double> rocker_damping, pulley_damping;
-  // The same contacts through the link spins reach one half of each neighbouring joint:
-  // a_j turns with link j-1, whose spin also moves b_{j-1}; b_j with link j, which also
-  // moves a_{j+1}. Their 10 x 10 diagonal blocks on those halves, per joint [j][2][10][10]:
-  // [0] onto b_{j-1}, [1] onto a_{j+1} (the couplings between joints are left out).
-  static constexpr int kExportDim = 10;
-  std::vector<double> rocker_export, pulley_export;
+  // The pulley contacts' cross damping between those 40 half coordinates and the 7
+  // coordinates of each shaft (the slip velocity's sheave part), per joint [j][shaft][40][7]
+  // row-major: K_ps with the pins' friction force -K_ps v_shaft.
+  std::vector<double> pulley_shaft_damping;
 };
 
 }  // namespace cvt

@@ -38,6 +38,8 @@ struct IntegratorStudyOptions {
   bool max_norm = false;
   double jac_theta = 0.3;
   int w_every = 1;              // ModelOdeOptions::w_every (ROS2)
+  int w_k_every = 16;           // ModelOdeOptions::w_k_every (ROS2)
+  bool w_no_stiffness = false;  // ModelOdeOptions::w_stiffness = false (ROS2)
   bool w_secant = false;        // ModelOdeOptions::w_secant (ROS2)
   bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
   ScheduleOptions schedule;

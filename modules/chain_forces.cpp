@@ -175,15 +175,17 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
 }
 
 // Workspace::record_damping: the slip velocity u = v_a - v_b at a rocker station as a
-// function of the joint's own 20 coordinates (a_j: 0..9, b_j: 10..19): the centre lines'
-// velocities at the station, their axial rates, and the link spins psi_dot_{j-1} (through
-// a_j's mid-point, +n/(2|Delta|)) and psi_dot_j (through b_j's, -n/(2|Delta|)).
+// function of the four halves it moves (b_{j-1}: 0..9, a_j: 10..19, b_j: 20..29, a_{j+1}:
+// 30..39): the centre lines' velocities at the station, their axial rates, and the link
+// spins psi_dot_{j-1} (a_j turns with link j-1: +n/(2|Delta|) through a_j's mid-point,
+// -n/(2|Delta|) through b_{j-1}'s) and psi_dot_j (b_j with link j: -n/(2|Delta|) through
+// b_j's mid-point, +n/(2|Delta|) through a_{j+1}'s), each times the sign of its side in u.
 void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int lp, int lc, double rax, double ray,
-                           double rbx, double rby, const double u[3], double speed, double mu, double mu_t, double* K,
-                           double* E) {
+                           double rbx, double rby, const double u[3], double speed, double mu, double mu_t, double* K) {
   double G[Workspace::kDampDim][3] = {};
   for (int side = 0; side < 2; ++side) {
-    const int o = side == 0 ? 0 : 10;
+    const int o = side == 0 ? 10 : 20;     // the joint's own half
+    const int other = side == 0 ? 0 : 30;  // the other half of the link that holds it
     const double sg = side == 0 ? 1.0 : -1.0;  // u = v_a - v_b
     for (int pl = 0; pl < 2; ++pl) {
       const auto d = plane_dofs(pl);
@@ -191,19 +193,16 @@ void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int l
     }
     G[o + half::kZ][2] += sg * (1 - r.xi);
     G[o + half::kEnd + half::kZ][2] += sg * r.xi;
-    // psi_dot (-r_y, r_x, 0): a_j is the a-half of link j-1 (+), b_j the b-half of link j (-).
+    // psi_dot (-r_y, r_x, 0).
     const int l = side == 0 ? lp : lc;
     const double c = (side == 0 ? 0.5 : -0.5) * kin.inv_len[l];
     const double nx = -kin.ey[l], ny = kin.ex[l];
-    add_spin_columns(G + o, sg * c, nx, ny, side == 0 ? -ray : -rby, side == 0 ? rax : rbx);
+    const double lx = side == 0 ? -ray : -rby, ly = side == 0 ? rax : rbx;
+    add_spin_columns(G + o, sg * c, nx, ny, lx, ly);
+    add_spin_columns(G + other, -sg * c, nx, ny, lx, ly);
   }
   const double n[3] = {r.mx, r.my, 0.0};
   add_friction_damping(K, Workspace::kDampDim, G, n, u, speed, mu, mu_t);
-  // Through psi_dot_{j-1} onto b_{j-1} (-n/(2|Delta|), on the a side of u), through psi_dot_j
-  // onto a_{j+1} (+n/(2|Delta|), on the b side of u: sign -).
-  add_exported_damping(E, -0.5 * kin.inv_len[lp], -kin.ey[lp], kin.ex[lp], -ray, rax, n, u, speed, mu, mu_t);
-  add_exported_damping(E + Workspace::kExportDim * Workspace::kExportDim, -0.5 * kin.inv_len[lc], -kin.ey[lc],
-                       kin.ex[lc], -rby, rbx, n, u, speed, mu, mu_t);
 }
 
 }  // namespace
@@ -239,9 +238,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
     const int lp = m.wrap(j - 1), lc = j;
     constexpr int kD = Workspace::kDampDim;
     double* Kd = ws.record_damping ? ws.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
-    constexpr int kE2 = 2 * Workspace::kExportDim * Workspace::kExportDim;
-    double* Ed = ws.record_damping ? ws.rocker_export.data() + static_cast<std::size_t>(j) * kE2 : nullptr;
-    if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Ed, Ed + kE2, 0.0);
+    if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
       const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
@@ -280,7 +277,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
         if (Kd) {
           const double mu = Nel * friction_over_speed(law, f0, v0, speed);
           record_rocker_damping(kin, r, lp, lc, rax, ray, rbx, rby, u, speed, mu,
-                                ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed), Kd, Ed);
+                                ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed), Kd);
         }
         fa[half::kZ] += (1 - xi) * Rz;
         fa[half::kEnd + half::kZ] += xi * Rz;

@@ -82,39 +82,66 @@ inline double friction_slope(FrictionLaw law, double f0, double v0, double v) {
   return 0.0;
 }
 
-// Adds G^T D G to the lower triangle (row >= column) of the row-major dim x dim block K
-// (symmetric; the upper triangle is left alone) for a contact whose slip velocity is
-// u = G v (G given by its dim columns, Gc[c] the 3 entries of column c), with
-// D = -dR/du of R = -N f(|u|) u/|u| at fixed N: D = mu (P - t t^T) + mu_t t t^T on the
-// tangent plane (P = I - n n^T, t = u/|u|), mu = N f(v)/v (the secant: turning the sliding
-// direction) and mu_t = N f'(v) (along it). Workspace::record_damping.
+// The friction damping D = -dR/du of R = -N f(|u|) u/|u| at fixed N, for a contact whose
+// slip velocity u lies in the tangent plane of the unit normal n: D = mu (P - t t^T) +
+// mu_t t t^T (P = I - n n^T, t = u/|u|), mu = N f(v)/v (the secant: turning the sliding
+// direction) and mu_t = N f'(v) (along it), i.e. D = mu_t t t^T + mu s s^T with s = n x t.
+// FrictionAxes holds t and s (at v = 0, any unit tangent t: D = mu P then, as mu_t = mu).
+struct FrictionAxes {
+  double t[3], s[3];
+  FrictionAxes(const double n[3], const double u[3], double speed) {
+    if (speed > 0) {
+      for (int i = 0; i < 3; ++i) t[i] = u[i] / speed;
+    } else {
+      const int k = std::abs(n[0]) < 0.6 ? 0 : std::abs(n[1]) < 0.6 ? 1 : 2;
+      double e[3] = {0, 0, 0};
+      e[k] = 1;
+      const double en = n[k];
+      double l = 0;
+      for (int i = 0; i < 3; ++i) t[i] = e[i] - en * n[i], l += t[i] * t[i];
+      l = 1 / std::sqrt(l);
+      for (double& x : t) x *= l;
+    }
+    s[0] = n[1] * t[2] - n[2] * t[1], s[1] = n[2] * t[0] - n[0] * t[2], s[2] = n[0] * t[1] - n[1] * t[0];
+  }
+  // t . G_c and s . G_c for each of the dim columns of G (Gc[c]: the 3 entries of column c).
+  void project(int dim, const double (*Gc)[3], double* gt, double* gs) const {
+    for (int c = 0; c < dim; ++c) {
+      gt[c] = t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2];
+      gs[c] = s[0] * Gc[c][0] + s[1] * Gc[c][1] + s[2] * Gc[c][2];
+    }
+  }
+};
+
+// Adds G^T D G (FrictionAxes) to the lower triangle (row >= column) of the row-major
+// dim x dim block K (symmetric; the upper triangle is left alone) for a contact whose slip
+// velocity is u = G v. Workspace::record_damping.
 inline void add_friction_damping(double* K, int dim, const double (*Gc)[3], const double n[3],
                                  const double u[3], double speed, double mu, double mu_t) {
-  // D = mu_t t t^T + mu s s^T with s = n x t: two rank-one updates.
-  double t[3];
-  if (speed > 0) {
-    for (int i = 0; i < 3; ++i) t[i] = u[i] / speed;
-  } else {  // no sliding direction: any unit tangent (D = mu P then, as mu_t = mu at v = 0)
-    const int k = std::abs(n[0]) < 0.6 ? 0 : std::abs(n[1]) < 0.6 ? 1 : 2;
-    double e[3] = {0, 0, 0};
-    e[k] = 1;
-    const double en = n[k];
-    double l = 0;
-    for (int i = 0; i < 3; ++i) t[i] = e[i] - en * n[i], l += t[i] * t[i];
-    l = 1 / std::sqrt(l);
-    for (double& x : t) x *= l;
-  }
-  const double sv[3] = {n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]};
+  const FrictionAxes ax(n, u, speed);
   double gt[Workspace::kDampDim], gs[Workspace::kDampDim];
-  for (int c = 0; c < dim; ++c) {
-    gt[c] = t[0] * Gc[c][0] + t[1] * Gc[c][1] + t[2] * Gc[c][2];
-    gs[c] = sv[0] * Gc[c][0] + sv[1] * Gc[c][1] + sv[2] * Gc[c][2];
-  }
+  ax.project(dim, Gc, gt, gs);
   for (int a = 0; a < dim; ++a) {
     const double ta = mu_t * gt[a], sa = mu * gs[a];
     if (ta == 0 && sa == 0) continue;
     double* row = K + a * dim;
     for (int b = 0; b <= a; ++b) row[b] += ta * gt[b] + sa * gs[b];  // lower triangle
+  }
+}
+
+// Adds G_r^T D G_c to the row-major rows x cols block X: the cross damping between two sets
+// of coordinates when u = G_r v_r + G_c v_c (a pin and the shaft it touches).
+inline void add_friction_cross(double* X, int rows, const double (*Gr)[3], int cols, const double (*Gc)[3],
+                               const double n[3], const double u[3], double speed, double mu, double mu_t) {
+  const FrictionAxes ax(n, u, speed);
+  double rt[Workspace::kDampDim], rs[Workspace::kDampDim], ct[Workspace::kDampDim], cs[Workspace::kDampDim];
+  ax.project(rows, Gr, rt, rs);
+  ax.project(cols, Gc, ct, cs);
+  for (int a = 0; a < rows; ++a) {
+    const double ta = mu_t * rt[a], sa = mu * rs[a];
+    if (ta == 0 && sa == 0) continue;
+    double* row = X + a * cols;
+    for (int b = 0; b < cols; ++b) row[b] += ta * ct[b] + sa * cs[b];
   }
 }
 
@@ -128,16 +155,6 @@ inline void add_spin_columns(double (*Gh)[3], double c, double nlx, double nly, 
     gx[0] += c * nlx * lx, gx[1] += c * nlx * ly;
     gy[0] += c * nly * lx, gy[1] += c * nly * ly;
   }
-}
-
-// The exported part of a contact's damping (Workspace::rocker_export / pulley_export): the
-// slip velocity's dependence on the other half of a link through that link's spin
-// (add_spin_columns); adds G^T D G on that half's 10 coordinates to E.
-inline void add_exported_damping(double* E, double c, double nlx, double nly, double lx, double ly, const double n[3],
-                                 const double u[3], double speed, double mu, double mu_t) {
-  double G[Workspace::kExportDim][3] = {};
-  add_spin_columns(G, c, nlx, nly, lx, ly);
-  add_friction_damping(E, Workspace::kExportDim, G, n, u, speed, mu, mu_t);
 }
 
 }  // namespace cvt

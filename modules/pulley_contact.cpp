@@ -77,9 +77,9 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   s.clear();
   constexpr int kD = Workspace::kDampDim;
   double* Kd = ws.record_damping ? ws.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
-  constexpr int kE2 = 2 * Workspace::kExportDim * Workspace::kExportDim;
-  double* Ed = ws.record_damping ? ws.pulley_export.data() + static_cast<std::size_t>(j) * kE2 : nullptr;
-  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Ed, Ed + kE2, 0.0);
+  constexpr int kX = 2 * kD * kShaftSize;
+  double* Xd = ws.record_damping ? ws.pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
+  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;
@@ -139,11 +139,13 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
           if (Kd) {
-            // Workspace::record_damping: u as a function of the half's own 10 coordinates
-            // (the sheave's velocity left out): c_dot, the cap's tilt, and the link spin
-            // through this half's mid-point (a_j: +n/(2|Delta|), b_j: -n/(2|Delta|)).
+            // Workspace::record_damping: u as a function of the two halves of the link that
+            // this half turns with (the sheave's velocity left out): c_dot, the cap's tilt, and
+            // the link spin through this half's mid-point (a_j: +n/(2|Delta|), b_j:
+            // -n/(2|Delta|)) and through the link's other half (the opposite sign). Columns:
+            // b_{j-1} 0..9, a_j 10..19 (link j-1); b_j 20..29, a_{j+1} 30..39 (link j).
             double G[Workspace::kDampDim][3] = {};
-            double(*Gh)[3] = G + (h == 0 ? 0 : 10);
+            double(*Gh)[3] = G + (h == 0 ? 10 : 20);
             const int b = e * half::kEnd;
             Gh[b + half::kX][0] += 1;
             Gh[b + half::kY][1] += 1;
@@ -153,12 +155,18 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             const double cp = (h == 0 ? 0.5 : -0.5) * ws.kin.inv_len[link];
             const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
             add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
+            add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
             const double mu = Nel * friction_over_speed(law, f0, v0, speed);
             const double mu_t = ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed);
             add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
-            // The link's other half: b_{j-1} for a_j (export 0), a_{j+1} for b_j (export 1).
-            add_exported_damping(Ed + h * Workspace::kExportDim * Workspace::kExportDim, -cp, lnx, lny, -oy, ox, nrm, u,
-                                 speed, mu, mu_t);
+            // The sheave point's velocity enters u with the sign -.
+            double Gs[kShaftSize][3] = {};
+            Gs[kUx][0] = -1, Gs[kUy][1] = -1, Gs[kUz][2] = -1;
+            Gs[kTx][1] = rsz, Gs[kTx][2] = -rsy;
+            Gs[kTy][0] = -rsz, Gs[kTy][2] = rsx;
+            Gs[kPhi][0] = rsy, Gs[kPhi][1] = -rsx;
+            if (g.gw != 0) Gs[kW][2] = -1;
+            add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
           }
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).

@@ -11,6 +11,7 @@
 #include "engine/model_ode.hpp"
 #include "engine/rhs.hpp"
 #include "modules/chain_forces.hpp"
+#include "modules/inertia.hpp"
 #include <memory>
 #include <algorithm>
 #include <cstdlib>
@@ -132,6 +133,35 @@ std::unique_ptr<Simulation> at_running_state(const Running& r) {
 // j's halves alone, (P(v + d) + P(v - d) - 2 P(v)) / 2 = d^T K_j d, where K_j is built from
 // the restriction of each G_c to those coordinates: the joint's own contacts, and those of
 // the neighbouring halves that turn with a link through one of joint j's halves (exported).
+// The friction damping of the whole chain, assembled from each joint's 40 x 40 blocks
+// (lower triangles, over b_{j-1}, a_j, b_j, a_{j+1}) and mirrored: ndof x ndof.
+Eigen::MatrixXd assembled_damping(const Model& m, const Workspace& ws, int* pulley_joints) {
+  constexpr int kD = Workspace::kDampDim;
+  const int n = m.ndof;
+  Eigen::MatrixXd K = Eigen::MatrixXd::Zero(n, n);
+  *pulley_joints = 0;
+  for (int j = 0; j < m.links; ++j) {
+    const int base[4] = {m.half_b(j - 1), m.half_a(j), m.half_b(j), m.half_a(j + 1)};
+    auto coord = [&](int i) { return base[i / half::kSize] + i % half::kSize; };
+    bool pulley = false;
+    for (int r = 0; r < kD; ++r)
+      for (int c = 0; c < kD; ++c) {
+        const double kr = ws.rocker_damping[static_cast<std::size_t>(j) * kD * kD + r * kD + c];
+        const double kp = ws.pulley_damping[static_cast<std::size_t>(j) * kD * kD + r * kD + c];
+        if (c > r) {  // the kernels fill the lower triangles only
+          EXPECT_EQ(kr, 0.0);
+          EXPECT_EQ(kp, 0.0);
+          continue;
+        }
+        pulley = pulley || kp != 0;
+        K(coord(r), coord(c)) += kr + kp;
+        if (c != r) K(coord(c), coord(r)) += kr + kp;
+      }
+    *pulley_joints += pulley;
+  }
+  return K;
+}
+
 TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   const Running& r = running();
   const Model m = test::model("mini", {"ramp.time=1e-4", "friction.v0=1000", "rocker.damping=0",
@@ -142,63 +172,102 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   ws.record_damping = true;
   Eigen::VectorXd y = r.y, dy(m.nstate);
   rhs_serial(m, ws, r.t, y.data(), dy.data());
-  std::vector<double> kr = ws.rocker_damping, kp = ws.pulley_damping;
-  // The kernels fill the lower triangles: mirror them (and the exports') first.
-  auto mirror = [](std::vector<double>& v, int dim) {
-    for (std::size_t b = 0; b + dim * dim <= v.size(); b += dim * dim)
-      for (int r = 0; r < dim; ++r)
-        for (int c = r + 1; c < dim; ++c) {
-          EXPECT_EQ(v[b + r * dim + c], 0.0);
-          v[b + r * dim + c] = v[b + c * dim + r];
-        }
-  };
-  mirror(kr, Workspace::kDampDim);
-  mirror(kp, Workspace::kDampDim);
-  mirror(ws.rocker_export, Workspace::kExportDim);
-  mirror(ws.pulley_export, Workspace::kExportDim);
-  // What the neighbours export onto joint j's halves through the link spins, as ModelOde adds it.
-  constexpr int kE = Workspace::kExportDim;
-  for (int j = 0; j < m.links; ++j)
-    for (int r2 = 0; r2 < kE; ++r2)
-      for (int c2 = 0; c2 < kE; ++c2) {
-        const std::size_t prev = static_cast<std::size_t>(m.wrap(j - 1)) * 2 * kE * kE + kE * kE + r2 * kE + c2;
-        const std::size_t next = static_cast<std::size_t>(m.wrap(j + 1)) * 2 * kE * kE + r2 * kE + c2;
-        kr[j * 400 + r2 * 20 + c2] += ws.rocker_export[prev] + ws.pulley_export[prev];
-        kr[j * 400 + (r2 + kE) * 20 + c2 + kE] += ws.rocker_export[next] + ws.pulley_export[next];
-      }
+  int pulley_joints = 0;
+  const Eigen::MatrixXd K = assembled_damping(m, ws, &pulley_joints);
+  const int n = m.ndof;
   ws.record_damping = false;
   const double p0 = ws.p_diss;
-  constexpr int kD = Workspace::kDampDim;
   std::srand(7);
   double worst = 0, smallest_form = 1e300;
-  int pulley_joints = 0;
-  for (int j = 0; j < m.links; ++j) {
-    Eigen::Map<const Eigen::Matrix<double, kD, kD, Eigen::RowMajor>> Kr(kr.data() + j * kD * kD),
-        Kp(kp.data() + j * kD * kD);
-    if (Kp.norm() > 0) ++pulley_joints;
-    EXPECT_LT((Kr + Kp - (Kr + Kp).transpose()).norm(), 1e-12 * (Kr + Kp).norm()) << "joint " << j;
-    for (int trial = 0; trial < 3; ++trial) {
-      Eigen::Matrix<double, kD, 1> d;
-      for (int i = 0; i < kD; ++i) d[i] = 1e-2 * (std::rand() / double(RAND_MAX) - 0.5);
-      auto power = [&](double sign) {
-        Eigen::VectorXd yp = y;
-        for (int i = 0; i < kD; ++i) yp[m.ndof + m.joint(j) + i] += sign * d[i];
-        rhs_serial(m, ws, r.t, yp.data(), dy.data());
-        return ws.p_diss;
-      };
-      const double second = 0.5 * (power(1) + power(-1) - 2 * p0);
-      const double form = d.dot((Kr + Kp) * d);
-      smallest_form = std::min(smallest_form, form);
-      worst = std::max(worst, std::abs(second - form) / std::abs(form));
-    }
-  }
+  // Perturb the half velocities of a few neighbouring joints at a time (and, last, of all
+  // joints): the couplings between joints through the link spins are in the quadratic form.
+  auto trial = [&](int j0, int span) {
+    Eigen::VectorXd d = Eigen::VectorXd::Zero(n);
+    for (int k = 0; k < span; ++k)
+      for (int i = 0; i < 2 * half::kSize; ++i) d[m.joint(j0 + k) + i] = 1e-2 * (std::rand() / double(RAND_MAX) - 0.5);
+    auto power = [&](double sign) {
+      Eigen::VectorXd yp = y;
+      yp.segment(n, n) += sign * d;
+      rhs_serial(m, ws, r.t, yp.data(), dy.data());
+      return ws.p_diss;
+    };
+    const double second = 0.5 * (power(1) + power(-1) - 2 * p0);
+    const double form = d.dot(K * d);
+    smallest_form = std::min(smallest_form, form);
+    worst = std::max(worst, std::abs(second - form) / std::abs(form));
+  };
+  for (int j = 0; j < m.links; ++j)
+    for (int k = 0; k < 2; ++k) trial(j, 3);
+  trial(0, m.links);
   std::printf("[model_ode] friction blocks vs dissipation Hessian: worst relative difference %.2e over %d joints "
               "(%d with pulley contacts), smallest d^T K d %.3e W\n", worst, m.links, pulley_joints, smallest_form);
-  // 3e-6 measured (the second difference of a total power of ~1e-2 W); without the
-  // neighbours' exports it was 8e-2.
+  // 3e-6 measured with joint-only perturbations (the second difference of a total power of
+  // ~1e-2 W); leaving out the couplings between joints made it 8e-2.
   EXPECT_LT(worst, 1e-4);
   EXPECT_GT(smallest_form, 0);
   EXPECT_GT(pulley_joints, 4);
+}
+
+// ROS2's solve is W x = b with W = I - gh J~, J~ = [0, I; -A^-1 K, -A^-1 C] on the chain
+// (A its mass matrix, link inertia included; C the recorded friction damping; K = -dF/dq
+// by dense finite differences here) and, on the other velocities, the identity, whose
+// increments reach the pins through the pulley friction (-A^-1 C_ps): checked as
+//   (A + gh C + gh^2 K) x_v + gh C_ps x_s = A b_v - gh K b_q,   x_q = b_q + gh x_v.
+TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
+  const Running& r = running();
+  const Model& m = r.m;
+  Workspace ws(m);
+  ws.status = r.status;
+  auto sched = make_schedule(m, ws, {});
+  const int n = m.ndof, tail = m.shaft(0);  // the chain's coordinates are 0 .. tail-1
+  // K = -dF/dq on the chain from the generalized forces ws.force, dense.
+  Eigen::VectorXd dy(m.nstate), yp = r.y;
+  rhs_serial(m, ws, r.t, r.y.data(), dy.data());
+  const std::vector<double> F0(ws.force.begin(), ws.force.begin() + n);
+  Eigen::MatrixXd K(tail, tail);
+  for (int c = 0; c < tail; ++c) {
+    const double d = std::sqrt(std::numeric_limits<double>::epsilon() * std::max(1e-5, std::abs(r.y[c])));
+    yp[c] = r.y[c] + d;
+    rhs_serial(m, ws, r.t, yp.data(), dy.data());
+    for (int i = 0; i < tail; ++i) K(i, c) = -(ws.force[i] - F0[i]) / d;
+    yp[c] = r.y[c];
+  }
+  const Eigen::MatrixXd A = dense_inertia(m, r.y.data()).topLeftCorner(tail, tail);
+  const double gh = 3e-7;
+  ModelOdeOptions opt;
+  opt.w_every = 1;
+  for (bool stiffness : {false, true}) {
+    opt.w_stiffness = stiffness;
+    ModelOde ode(m, ws, *sched, opt);
+    ws.record_damping = true;
+    ode.system().rhs(r.t, r.y.data(), dy.data());
+    int pj = 0;
+    const Eigen::MatrixXd C = assembled_damping(m, ws, &pj).topLeftCorner(tail, tail);
+    ode.system().w_factor(r.t, r.y.data(), gh);
+    // C_ps: the pins' rows against each shaft's 7 velocities, from the recorded joint blocks.
+    constexpr int kD = Workspace::kDampDim;
+    Eigen::MatrixXd Cps = Eigen::MatrixXd::Zero(tail, 2 * kShaftSize);
+    for (int j = 0; j < m.links; ++j) {
+      const int base[4] = {m.half_b(j - 1), m.half_a(j), m.half_b(j), m.half_a(j + 1)};
+      for (int k = 0; k < 2; ++k)
+        for (int i = 0; i < kD; ++i)
+          for (int c = 0; c < kShaftSize; ++c)
+            Cps(base[i / half::kSize] + i % half::kSize, k * kShaftSize + c) +=
+                ws.pulley_shaft_damping[(static_cast<std::size_t>(j) * 2 + k) * kD * kShaftSize + i * kShaftSize + c];
+    }
+    EXPECT_GT(Cps.norm(), 0);
+    Eigen::VectorXd b = Eigen::VectorXd::Random(m.nstate), x = b;
+    ode.system().w_solve(x.data());
+    const Eigen::VectorXd bq = b.head(tail), bv = b.segment(n, tail), xv = x.segment(n, tail);
+    const Eigen::VectorXd xs = x.segment(n + tail, 2 * kShaftSize);
+    Eigen::VectorXd lhs = (A + gh * C) * xv + gh * Cps * xs, rhs = A * bv;
+    if (stiffness) lhs += gh * gh * K * xv, rhs -= gh * K * bq;
+    EXPECT_LT((lhs - rhs).norm(), 1e-6 * rhs.norm()) << "stiffness " << stiffness;
+    // The stiffness matters at this gh: the same solve without it misses by more.
+    if (stiffness) EXPECT_GT((gh * gh * K * xv + gh * K * bq).norm(), 1e-3 * rhs.norm());
+    for (int i = 0; i < n; ++i) ASSERT_NEAR(x[i], b[i] + gh * x[n + i], 1e-12 * (std::abs(x[i]) + 1)) << i;
+    for (int i = n + tail; i < m.nstate; ++i) ASSERT_EQ(x[i], b[i]) << "unknown " << i;
+  }
 }
 
 TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {

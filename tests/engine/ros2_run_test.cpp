@@ -24,7 +24,8 @@ bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
 }
 
 TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
-  const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=3"});
+  const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=3",
+                                       "integrator.w_k_every=6"});
   const Eigen::VectorXd ref = run(m, {}, 300, 1e-7);
   Simulation start(m);
   EXPECT_GT((ref - start.state()).norm(), 1e-6) << "the run must move";
@@ -38,20 +39,35 @@ TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
   }
 }
 
-TEST(Ros2Run, ResumedAtAMultipleOfWEveryRepeatsTheBits) {
-  const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=4"});
+TEST(Ros2Run, ResumedAtAMultipleOfWKEveryRepeatsTheBits) {
+  const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=4",
+                                       "integrator.w_k_every=16"});
   const Eigen::VectorXd ref = run(m, {}, 240, 1e-7);
-  for (int at : {120, 121}) {
+  for (int at : {128, 121}) {
     Simulation first(m);
     for (int k = 0; k < at; ++k) first.step(1e-7);
     const Checkpoint c = first.checkpoint();
     Simulation second(m);
     second.restore(c);
     for (int k = at; k < 240; ++k) second.step(1e-7);
-    if (at % 4 == 0)
+    if (at % 16 == 0)
       EXPECT_TRUE(same_bits(second.state(), ref)) << "resumed at step " << at;
-    else  // the stale matrix of the uninterrupted run is not in the checkpoint: close, not equal
-      EXPECT_LT((second.state() - ref).lpNorm<Eigen::Infinity>(), 1e-3) << "resumed at step " << at;
+    else {
+      // The stale matrix of the uninterrupted run is not in the checkpoint: close, not equal
+      // (in the pins' positions; their end slopes, the stiffest and least damped unknowns,
+      // follow W more closely: 2.8e-6 rad measured).
+      double dq = 0;
+      for (int j = 0; j < m.links; ++j)
+        for (int h = 0; h < 2; ++h)
+          for (int e = 0; e < 2; ++e)
+            for (int c : {half::kX, half::kY, half::kZ}) {
+              const int i = m.joint(j) + h * half::kSize + e * half::kEnd + c;
+              dq = std::max(dq, std::abs(second.state()[i] - ref[i]));
+            }
+      std::printf("[ros2] resumed at step %d (not a multiple of w_k_every): max |dx| of the pin ends %.3e m\n", at, dq);
+      EXPECT_LT(dq, 1e-7) << "resumed at step " << at;
+      EXPECT_GT(dq, 0) << "resumed at step " << at;
+    }
   }
 }
 

@@ -1,0 +1,54 @@
+// ROS2's linear algebra on the reference chain's shape (84 links, 21 x 21 blocks):
+// CyclicBlockLU factorization and one solve, on a random diagonally dominant matrix of that
+// structure (docs/integrators.md 12.6).
+#include <benchmark/benchmark.h>
+
+#include <random>
+
+#include "engine/block_cyclic.hpp"
+
+namespace {
+
+constexpr int kB = 21, kLinks = 84;
+using LU = cvt::CyclicBlockLU<kB>;
+
+void fill(LU& lu) {
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<double> u(-1, 1);
+  lu.resize(kLinks);
+  for (int l = 0; l < kLinks; ++l) {
+    for (int r = 0; r < kB; ++r)
+      for (int c = 0; c < kB; ++c) {
+        lu.diag(l)(r, c) = (r == c ? 3.0 * kB : 0.0) + u(rng);
+        lu.sub(l)(r, c) = u(rng);
+        lu.super(l)(r, c) = u(rng);
+      }
+  }
+}
+
+void BM_CyclicBlockLUFactor(benchmark::State& st) {
+  LU lu, fresh;
+  fill(fresh);
+  for (auto _ : st) {
+    st.PauseTiming();
+    lu = fresh;
+    st.ResumeTiming();
+    benchmark::DoNotOptimize(lu.factor());
+  }
+}
+void BM_CyclicBlockLUSolve(benchmark::State& st) {
+  LU lu;
+  fill(lu);
+  lu.factor();
+  std::vector<LU::Vec, Eigen::aligned_allocator<LU::Vec>> x(kLinks, LU::Vec::Ones());
+  for (auto _ : st) {
+    lu.solve(x.data());
+    benchmark::DoNotOptimize(x.data());
+  }
+}
+
+}  // namespace
+
+BENCHMARK(BM_CyclicBlockLUFactor)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CyclicBlockLUSolve)->Unit(benchmark::kMicrosecond);
+BENCHMARK_MAIN();
