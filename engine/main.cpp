@@ -345,10 +345,14 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)->capture_default_str();
   study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
                      "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
-  study_int->add_flag("--w-secant", si.w_secant, "ROS2: secant friction slope along the sliding direction too");
+  bool si_exact_slope = false;
+  study_int->add_flag("--w-exact-slope", si_exact_slope,
+                      "ROS2: the exact friction slope along the sliding direction (default: the secant)");
   study_int->add_option("--w-k-every", si.w_k_every, "ROS2: rebuild its stiffness blocks every N steps")
       ->check(CLI::PositiveNumber)->capture_default_str();
   study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
+  study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
+                      "ROS2: rebuild its whole matrix when the contact statuses change");
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
@@ -405,6 +409,7 @@ int main(int argc, char** argv) {
       si.curve = !si_no_curve;
       si.exact_dense_rows = !si_approx;
       si.freeze_friction = !si_plain_friction;
+      si.w_secant = !si_exact_slope;
       si.schedule = si_sched.options();
       const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
       return cvt::run_integrator_study(model, si);

@@ -11,8 +11,11 @@
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
 
+#include "engine/rhs.hpp"
 #include "modules/beam.hpp"
+#include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
+#include "modules/pulley_contact.hpp"
 
 namespace cvt {
 
@@ -156,7 +159,10 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   }
   a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
   w_lu_.resize(N);
-  w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N);
+  w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
+  for (int r = 0; r < kLinkDim; ++r)
+    for (int c = 0; c < kLinkDim; ++c)
+      if (a0_link_(r, c) != 0) a0_entries_.push_back({r, c, a0_link_(r, c)});
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
   w_delta_.assign(N, 0.0);
   // Link colours for the stiffness differences: greedy around the cycle, links within two
@@ -252,11 +258,13 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   // use the blocks last recorded). The stiffness blocks are dearer (finite differences):
   // they are taken at the rebuilding steps whose index is a multiple of w_k_every.
   const long index = w_index_;
-  const bool first = w_gh_ == 0;
+  const bool first = w_gh_ == 0 || w_invalid_;
   const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
   ++w_index_;
   if (!rebuild) return;
   if (opt_.w_stiffness && (first || opt_.w_k_every <= 1 || index % opt_.w_k_every == 0)) w_stiffness(t, y);
+  if (w_invalid_) ++w_status_rebuilds_;
+  w_invalid_ = false;
   w_gh_ = gh;
   for_joints([this, gh](int l) { w_assemble_link(l, gh); });
   if (!w_lu_.factor()) throw std::runtime_error("ROS2: the W matrix is singular");
@@ -276,8 +284,7 @@ void ModelOde::w_stiffness(double t, const double* y) {
   else
     yp = Eigen::Map<const Eigen::VectorXd>(y, m_.nstate);
   ys_ = yp;  // the unperturbed physical state
-  schedule_.rhs(t, ys_.data(), f1_.data(), nullptr);
-  ++rhs_evals_;
+  chain_forces_at(t, ys_.data());
   std::vector<double>& F0 = w_force0_;
   F0.assign(ws_.force.begin(), ws_.force.begin() + n);
   for (int color = 0; color < w_colors_; ++color) {
@@ -288,8 +295,7 @@ void ModelOde::w_stiffness(double t, const double* y) {
         w_delta_[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
         yp[c] = ys_[c] + w_delta_[l];
       }
-      schedule_.rhs(t, yp.data(), f1_.data(), nullptr);
-      ++rhs_evals_;
+      chain_forces_at(t, yp.data());
       const double* F1 = ws_.force.data();
       for_joints([&](int l) {
         if (w_color_[l] != color) return;
@@ -308,6 +314,28 @@ void ModelOde::w_stiffness(double t, const double* y) {
   }
   ++jac_evals_;
   w_k_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void ModelOde::chain_forces_at(double t, const double* y) {
+  // The passes of an evaluation that the chain's generalized forces need: the link angles,
+  // the chain and pulley kernels, the gather. The inertia's velocity terms keep the values of
+  // the last full evaluation (a constant, which the differences cancel).
+  set_stage_input(m_, ws_, t, y);
+  for_ranges([this](int b, int e) { link_kinematics(m_, ws_, b, e); });
+  for_ranges([this](int b, int e) {
+    chain_forces(m_, ws_, b, e);
+    pulley_contact(m_, ws_, b, e);
+  });
+  for_ranges([this](int b, int e) { gather_joints(m_, ws_, b, e); });
+  ++rhs_evals_;  // counted as an evaluation (about 3/4 of one)
+}
+
+template <class F>
+void ModelOde::for_ranges(const F& f) const {
+  if (schedule_.threads() <= 1) return f(0, m_.links);
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, m_.links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
+      tbb::static_partitioner());
 }
 
 // Each joint's block is independent of the others: any split over threads gives the same bits.
@@ -370,6 +398,20 @@ void ModelOde::w_assemble_link(int l, double gh) {
     link_gradient(l, g);
     D.noalias() += J * g * g.transpose();
   }
+  if (opt_.w_shaft_coupling) {
+    // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
+    constexpr int kX = 2 * kD * kShaftSize;
+    const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
+    const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
+    auto& X = w_cps_[l];
+    X.setZero();
+    for (int k = 0; k < 2; ++k)
+      for (int i = 0; i < kH; ++i)
+        for (int c = 0; c < kShaftSize; ++c)
+          X(i, k * kShaftSize + c) =
+              here[(k * kD + kH + i) * kShaftSize + c] + next[(k * kD + i) * kShaftSize + c];
+    w_cps_on_[l] = X.cwiseAbs().maxCoeff() > 0;
+  }
   if (opt_.w_stiffness) {
     const double gh2 = gh * gh;
     D += gh2 * w_k_diag_[l];
@@ -394,28 +436,19 @@ void ModelOde::w_solve(double* x) const {
     LinkVector b;
     for (int i = 0; i < kLinkDim; ++i) b[i] = phys(n + link_coord(l, i));
     LinkVector& y = v[l];
-    y.noalias() = a0_link_ * b;
+    y.setZero();
+    for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0 b (73 nonzeros of 441)
     if (opt_.w_link_inertia) y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
       y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
     }
-    if (opt_.w_shaft_coupling) {
+    if (opt_.w_shaft_coupling && w_cps_on_[l]) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
-      constexpr int kD = Workspace::kDampDim, kX = 2 * kD * kShaftSize, kH = 2 * half::kSize;
-      const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
-      const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
-      for (int k = 0; k < 2; ++k) {
-        double xs[kShaftSize];
-        for (int i = 0; i < kShaftSize; ++i) xs[i] = phys(n + m_.shaft(k) + i);
-        const double* X1 = here + k * kD * kShaftSize + kH * kShaftSize;  // joint l, rows 20..39
-        const double* X0 = next + k * kD * kShaftSize;                    // joint l+1, rows 0..19
-        for (int i = 0; i < kH; ++i) {
-          double a = 0;
-          for (int c = 0; c < kShaftSize; ++c) a += (X1[i * kShaftSize + c] + X0[i * kShaftSize + c]) * xs[c];
-          y[i] -= gh * a;
-        }
-      }
+      Eigen::Matrix<double, 2 * kShaftSize, 1> xs;
+      for (int k = 0; k < 2; ++k)
+        for (int i = 0; i < kShaftSize; ++i) xs[k * kShaftSize + i] = phys(n + m_.shaft(k) + i);
+      y.noalias() -= gh * (w_cps_[l] * xs);
     }
   });
   w_lu_.solve(v);
@@ -495,7 +528,10 @@ void OdeDriver::advance(double t1) {
       if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
       t = t_end;
       ++k;
+      const bool watch = opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks && opt_.jac.w_status_rebuild;
+      if (watch) rocker0_ = ws.status.rocker, pulley0_ = ws.status.pulley;
       sched.update_status(t, y.data());
+      if (watch && (rocker0_ != ws.status.rocker || pulley0_ != ws.status.pulley)) ode_.w_invalidate();
       y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
       ++macro_;
     }

@@ -41,7 +41,11 @@ struct ModelOdeOptions {
   // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
   // part must be captured).
   int w_every = 1;  // (Config's integrator.w_every defaults to 4 for cvt-engine run)
-  bool w_secant = false;  // Workspace::damping_secant
+  // Workspace::damping_secant: true (the secant slope N f(v)/v along the sliding direction
+  // too, never below the exact one) keeps a sliding contact that is about to stick stiff in
+  // W; with the exact slope (0 above v0 for the nonsmooth law) a stale W meets such a
+  // contact explicitly, and its friction chatters (docs/integrators.md 12.6).
+  bool w_secant = true;
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).
   bool w_blocks = true;
@@ -59,6 +63,11 @@ struct ModelOdeOptions {
   // (the elastic forces change slowly; the friction blocks, every w_every steps).
   bool w_stiffness = true;
   int w_k_every = 16;
+  // true: a change of the contact statuses (after a step) makes the next step rebuild the
+  // whole matrix. Off: measured worse (8-10 % against 0.8 % over the 5 ms window at 2.5e-7,
+  // and 5x further from RK4 in the mini model's load ramp), as the stiffness differences
+  // taken right where a contact switches step across its boundary (docs/integrators.md 12.6).
+  bool w_status_rebuild = false;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -107,7 +116,11 @@ class ModelOde {
   // The index of the next step (OdeDriver sets it from the simulation's step count), and
   // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
   void set_step_index(long i) { w_index_ = i; }
-  bool w_due() const { return w_gh_ == 0 || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0; }
+  bool w_due() const { return w_gh_ == 0 || w_invalid_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0; }
+  // The contact statuses changed (OdeDriver): the next step rebuilds the whole matrix, its
+  // stiffness included (a contact that turned on is stiff in J but absent from a stale W).
+  void w_invalidate() { w_invalid_ = true; }
+  std::int64_t w_status_rebuilds() const { return w_status_rebuilds_; }
 
  private:
   void eval(double t, const double* y, double* dy) {
@@ -153,8 +166,22 @@ class ModelOde {
     return i < half::kSize ? m_.half_b(l) + i : i < 2 * half::kSize ? m_.half_a(l + 1) + i - half::kSize : m_.pack(l);
   }
   void w_stiffness(double t, const double* y);
+  void chain_forces_at(double t, const double* y);  // ws.force of the chain at (t, y)
+  template <class F>
+  void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads
   void link_gradient(int l, LinkVector& g) const;
   LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
+  struct A0Entry {
+    int r, c;
+    double v;
+  };
+  std::vector<A0Entry> a0_entries_;  // its nonzeros
+  // Per link: the pulley friction's K_ps on its rows (21 x 14, both shafts) at the last
+  // rebuild, and whether it is nonzero (the link touches a sheave).
+  std::vector<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>,
+              Eigen::aligned_allocator<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>>>
+      w_cps_;
+  std::vector<std::uint8_t> w_cps_on_;
   CyclicBlockLU<kLinkDim> w_lu_;
   mutable LinkVectors w_rhs_, w_bq_;
   LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
@@ -164,6 +191,8 @@ class ModelOde {
   std::vector<int> w_color_;
   int w_colors_ = 0;
   double w_k_seconds_ = 0;
+  bool w_invalid_ = false;
+  std::int64_t w_status_rebuilds_ = 0;
   double w_gh_ = 0;                       // gh of the factorization (0: none yet)
   long w_index_ = 0;                      // index of the next step
 };
@@ -201,6 +230,7 @@ class OdeDriver {
   double h_next_ = 0;
   std::int64_t macro_ = 0;
   Eigen::VectorXd z_;
+  std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
 };
 
 // Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws

@@ -56,6 +56,7 @@ void Simulation::step(double h, bool update_status) {
       ro.jac.scaled = false;
       ro.jac.w_every = m_.cfg.integrator.w_every;
       ro.jac.w_k_every = m_.cfg.integrator.w_k_every;
+      ro.jac.w_secant = m_.cfg.integrator.w_secant;
       ros2_ = std::make_unique<OdeDriver>(*this, ro);
       ros2_h_ = h;
     }

@@ -46,6 +46,7 @@ struct CurveRun {
   double wall_s = 0;
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
   double jac_s = 0, lu_s = 0, solve_s = 0;
+  long long status_rebuilds = 0;  // ROS2: matrix rebuilds forced by contact status changes
   double reached = kNaN;  // model time covered when stopped by the timeout [s]
   double h_mean = 0;
   bool chosen = false;
@@ -103,6 +104,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.w_k_every = opt.w_k_every;
   jac_opt.w_stiffness = !opt.w_no_stiffness;
   jac_opt.w_secant = opt.w_secant;
+  jac_opt.w_status_rebuild = opt.w_status_rebuild;
   jac_opt.w_blocks = !opt.ros2_full_jacobian;
 
   // ---- (a) one-step error -------------------------------------------------------------
@@ -287,6 +289,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                 r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
                 // ROS2's stiffness differences run inside its w_factor: report them as the Jacobian's.
                 r.jac_s += drv.model_ode().w_stiffness_seconds(), r.lu_s -= drv.model_ode().w_stiffness_seconds();
+                r.status_rebuilds = drv.model_ode().w_status_rebuilds();
                 r.reached = times[k] - t0;
                 throw std::runtime_error("timeout");
               }
@@ -297,6 +300,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             r.newton_iterations = st.newton_iterations;
             r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
             r.jac_s += drv.model_ode().w_stiffness_seconds(), r.lu_s -= drv.model_ode().w_stiffness_seconds();
+            r.status_rebuilds = drv.model_ode().w_status_rebuilds();
           }
         } catch (const BlowUpError&) {
           r.status = "blow-up";
@@ -316,6 +320,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                     "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
                     r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
+        if (method == OdeMethod::Ros2 && !opt.ros2_full_jacobian)
+          std::printf("             (ROS2: %lld of its matrix rebuilds forced by contact status changes)\n",
+                      static_cast<long long>(r.status_rebuilds));
         std::fflush(stdout);
         runs.push_back(std::move(r));
         if (found) break;

@@ -40,7 +40,8 @@ struct IntegratorStudyOptions {
   int w_every = 1;              // ModelOdeOptions::w_every (ROS2)
   int w_k_every = 16;           // ModelOdeOptions::w_k_every (ROS2)
   bool w_no_stiffness = false;  // ModelOdeOptions::w_stiffness = false (ROS2)
-  bool w_secant = false;        // ModelOdeOptions::w_secant (ROS2)
+  bool w_status_rebuild = false;  // ModelOdeOptions::w_status_rebuild (ROS2)
+  bool w_secant = true;         // ModelOdeOptions::w_secant (ROS2)
   bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
   ScheduleOptions schedule;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
