@@ -122,8 +122,8 @@ struct Config {
   struct Integrator {
     std::string method = "rk4";  // "rk4" | "ros2" (docs/integrators.md 12)
     double step = 1.0e-8;  // [s]
-    int w_every = 4;       // ros2: rebuild its matrix (friction blocks) every this many steps
-    int w_k_every = 16;    // ros2: and its stiffness blocks (finite differences) every this many
+    int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
+    int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
   } integrator;
   struct Run {

@@ -40,7 +40,7 @@ struct ModelOdeOptions {
   // W-method (Ros2): rebuild the friction blocks and refactorize at every step whose index
   // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
   // part must be captured).
-  int w_every = 1;  // (Config's integrator.w_every defaults to 4 for cvt-engine run)
+  int w_every = 1;  // (Config's integrator.w_every defaults to 8 for cvt-engine run, w_k_every to 64)
   // Workspace::damping_secant: true (the secant slope N f(v)/v along the sliding direction
   // too, never below the exact one) keeps a sliding contact that is about to stick stiff in
   // W; with the exact slope (0 above v0 for the nonsmooth law) a stale W meets such a

@@ -100,6 +100,8 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.exact_dense_rows = opt.exact_dense_rows;
   jac_opt.scaled = true;
   jac_opt.freeze_friction = opt.freeze_friction;
+  if (opt.w_every < 1 || opt.w_k_every < 1 || opt.w_k_every % opt.w_every != 0)
+    throw std::invalid_argument("--w-k-every must be a multiple of --w-every");
   jac_opt.w_every = opt.w_every;
   jac_opt.w_k_every = opt.w_k_every;
   jac_opt.w_stiffness = !opt.w_no_stiffness;

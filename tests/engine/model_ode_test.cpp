@@ -264,7 +264,9 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
     if (stiffness) lhs += gh * gh * K * xv, rhs -= gh * K * bq;
     EXPECT_LT((lhs - rhs).norm(), 1e-6 * rhs.norm()) << "stiffness " << stiffness;
     // The stiffness matters at this gh: the same solve without it misses by more.
-    if (stiffness) EXPECT_GT((gh * gh * K * xv + gh * K * bq).norm(), 1e-3 * rhs.norm());
+    if (stiffness) {
+      EXPECT_GT((gh * gh * K * xv + gh * K * bq).norm(), 1e-3 * rhs.norm());
+    }
     for (int i = 0; i < n; ++i) ASSERT_NEAR(x[i], b[i] + gh * x[n + i], 1e-12 * (std::abs(x[i]) + 1)) << i;
     for (int i = n + tail; i < m.nstate; ++i) ASSERT_EQ(x[i], b[i]) << "unknown " << i;
   }
