@@ -517,7 +517,20 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
                                 " m, closure residual = " + std::to_string(m.closure_residual) + " m");
   Recorder rec(file, m);
   Simulation sim(m, opt.schedule);
-  if (opt.resume) sim.restore(*opt.resume);
+  if (opt.resume) {
+    sim.restore(*opt.resume);
+    // A checkpoint of a run at another step (RK4 warmed at 1e-8, continued with ROS2 at
+    // 2e-7): the run counts steps of the new h, so its step count is t / h.
+    const double t = sim.time();
+    if (std::abs(static_cast<double>(sim.steps()) * h - t) > 1e-6 * h) {
+      const long k = std::lround(t / h);
+      if (std::abs(static_cast<double>(k) * h - t) > 1e-6 * h)
+        throw std::runtime_error("the checkpoint's time t = " + std::to_string(t) +
+                                 " s is not a multiple of the step h = " + std::to_string(h) +
+                                 " s: choose a step that divides it");
+      sim.set_clock(t, k);
+    }
+  }
   const long start = sim.steps();
   if (start >= total)
     throw std::runtime_error("the checkpoint is at step " + std::to_string(start) + " (t = " + std::to_string(sim.time()) +

@@ -23,8 +23,9 @@ class CheckpointTest : public ::testing::Test {
   void TearDown() override { fs::remove_all(dir_); }
   // Runs the mini model to t_end (from `resume` if given) and returns its final checkpoint.
   Checkpoint run(const std::string& name, const std::string& t_end, const Checkpoint* resume,
-                 const ScheduleOptions& schedule = {}) {
-    const std::vector<std::string> sets = {"run.t_end=" + t_end, "run.sample_interval=1e-6"};
+                 const ScheduleOptions& schedule = {}, std::vector<std::string> sets = {}) {
+    sets.push_back("run.t_end=" + t_end);
+    sets.push_back("run.sample_interval=1e-6");
     const Config cfg = resume ? parse_config(resume->config_toml, sets) : load_config(test::config_path("mini"), sets);
     const Model m = build_model(cfg);
     RunOptions o;
@@ -60,6 +61,19 @@ TEST_F(CheckpointTest, ResumeContinuesBitIdentically) {
   fg.threads = 2;
   const Checkpoint resumed_fg = run("resumed_fg", "8e-6", &half, fg);
   EXPECT_TRUE(same_bits(resumed_fg, whole));
+}
+
+// Warm up with RK4 at 1e-8, continue with ROS2 at 1e-7: the resumed run counts steps of
+// the new step from the checkpoint's time, and ends at t_end with the steps that make it.
+TEST_F(CheckpointTest, ResumeWithAnotherStepContinuesFromTheCheckpointsTime) {
+  const Checkpoint warm = run("warm", "4e-6", nullptr);
+  EXPECT_EQ(warm.steps, 400);
+  const Checkpoint on = run("on", "8e-6", &warm, {}, {"integrator.method=ros2", "integrator.step=1e-7"});
+  EXPECT_EQ(on.steps, 80);
+  EXPECT_NEAR(on.t, 8e-6, 1e-18);
+  EXPECT_GT((on.state - warm.state).norm(), 0);
+  // A step that does not divide the checkpoint's time is refused, not rounded.
+  EXPECT_THROW(run("odd", "8e-6", &warm, {}, {"integrator.step=3e-7"}), std::runtime_error);
 }
 
 TEST_F(CheckpointTest, ResumeAtOrPastTheEndIsRefused) {
