@@ -12,7 +12,6 @@
 #include <tbb/partitioner.h>
 
 #include "engine/rhs.hpp"
-#include "modules/beam.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
 #include "modules/pulley_contact.hpp"
@@ -146,17 +145,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   // W-method: A0 of a link's coordinates (two halves: bending per plane, axial bar; the
   // plate pack's axial mass), and the hooks.
   a0_link_.setZero();
-  for (int h = 0; h < 2; ++h) {
-    const int o = h * half::kSize;
-    for (int pl = 0; pl < 2; ++pl) {
-      const auto d = plane_dofs(pl);
-      for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) a0_link_(o + d[r], o + d[c]) = m.bend_mass(r, c);
-    }
-    const int z[2] = {half::kZ, half::kEnd + half::kZ};
-    for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 2; ++c) a0_link_(o + z[r], o + z[c]) = m.axial_mass(r, c);
-  }
+  for (int h = 0; h < 2; ++h) set_half_mass(m, a0_link_, h * half::kSize);
   a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
   w_lu_.resize(N);
   w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
@@ -333,6 +322,7 @@ void ModelOde::chain_forces_at(double t, const double* y) {
 template <class F>
 void ModelOde::for_ranges(const F& f) const {
   if (schedule_.threads() <= 1) return f(0, m_.links);
+  // Inside the schedule's arena (OdeDriver runs in Schedule::within): its threads share them.
   tbb::parallel_for(
       tbb::blocked_range<int>(0, m_.links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
       tbb::static_partitioner());
@@ -341,17 +331,9 @@ void ModelOde::for_ranges(const F& f) const {
 // Each joint's block is independent of the others: any split over threads gives the same bits.
 template <class F>
 void ModelOde::for_joints(const F& f) const {
-  if (schedule_.threads() <= 1) {
-    for (int j = 0; j < m_.links; ++j) f(j);
-    return;
-  }
-  // Inside the schedule's arena (OdeDriver runs in Schedule::within): its threads share them.
-  tbb::parallel_for(
-      tbb::blocked_range<int>(0, m_.links),
-      [&](const tbb::blocked_range<int>& r) {
-        for (int j = r.begin(); j < r.end(); ++j) f(j);
-      },
-      tbb::static_partitioner());
+  for_ranges([&](int b, int e) {
+    for (int j = b; j < e; ++j) f(j);
+  });
 }
 
 void ModelOde::link_gradient(int l, LinkVector& g) const {
@@ -391,27 +373,21 @@ void ModelOde::w_assemble_link(int l, double gh) {
   for (int c = 0; c < kH; ++c)
     for (int r = 0; r < kH; ++r) S(r, c) = gh * (kr[(r + kH) * kD + c] + kp[(r + kH) * kD + c]);
   P = S.transpose();
-  if (opt_.w_link_inertia) {
-    // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
-    const double J = m_.cfg.chain.link_inertia;
-    LinkVector& g = w_g_[l];
-    link_gradient(l, g);
-    D.noalias() += J * g * g.transpose();
-  }
-  if (opt_.w_shaft_coupling) {
-    // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
-    constexpr int kX = 2 * kD * kShaftSize;
-    const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
-    const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
-    auto& X = w_cps_[l];
-    X.setZero();
-    for (int k = 0; k < 2; ++k)
-      for (int i = 0; i < kH; ++i)
-        for (int c = 0; c < kShaftSize; ++c)
-          X(i, k * kShaftSize + c) =
-              here[(k * kD + kH + i) * kShaftSize + c] + next[(k * kD + i) * kShaftSize + c];
-    w_cps_on_[l] = X.cwiseAbs().maxCoeff() > 0;
-  }
+  // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
+  LinkVector& g = w_g_[l];
+  link_gradient(l, g);
+  D.noalias() += m_.cfg.chain.link_inertia * g * g.transpose();
+  // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
+  constexpr int kX = 2 * kD * kShaftSize;
+  const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
+  const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
+  auto& X = w_cps_[l];
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kH; ++i)
+      for (int c = 0; c < kShaftSize; ++c)
+        X(i, k * kShaftSize + c) = here[(k * kD + kH + i) * kShaftSize + c] + next[(k * kD + i) * kShaftSize + c];
+  X.row(kH).setZero();  // the pack
+  w_cps_on_[l] = X.cwiseAbs().maxCoeff() > 0;
   if (opt_.w_stiffness) {
     const double gh2 = gh * gh;
     D += gh2 * w_k_diag_[l];
@@ -438,12 +414,12 @@ void ModelOde::w_solve(double* x) const {
     LinkVector& y = v[l];
     y.setZero();
     for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0 b (73 nonzeros of 441)
-    if (opt_.w_link_inertia) y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
+    y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
       y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
     }
-    if (opt_.w_shaft_coupling && w_cps_on_[l]) {
+    if (w_cps_on_[l]) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
       Eigen::Matrix<double, 2 * kShaftSize, 1> xs;
       for (int k = 0; k < 2; ++k)
@@ -458,13 +434,11 @@ void ModelOde::w_solve(double* x) const {
       x[r] = opt_.scaled ? v[l][i] / unit_[r] : v[l][i];
     }
   });
-  if (opt_.w_position_coupling) {
-    // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v.
-    if (opt_.scaled)
-      for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * unit_[n + i] / unit_[i];
-    else
-      for (int i = 0; i < n; ++i) x[i] += gh * x[n + i];
-  }
+  // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v.
+  if (opt_.scaled)
+    for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * unit_[n + i] / unit_[i];
+  else
+    for (int i = 0; i < n; ++i) x[i] += gh * x[n + i];
 }
 
 OdeMethod parse_ode_method(const std::string& name) {

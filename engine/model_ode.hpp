@@ -49,15 +49,6 @@ struct ModelOdeOptions {
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).
   bool w_blocks = true;
-  // true: W's mass part is A0 + J_link g g^T per link (A(q) exactly, docs/model.md 3);
-  // false: A0 alone.
-  bool w_link_inertia = true;
-  // true: W's position rows are those of I - gh J exactly (dq/dt = v: [I, -gh I]);
-  // false: the identity.
-  bool w_position_coupling = true;
-  // true: the pins' rows carry the pulley friction's dependence on the shafts' velocities
-  // (W block-triangular: shaft rows stay the identity); false: the sheaves taken as fixed.
-  bool w_shaft_coupling = true;
   // true: W carries the chain's stiffness K = -dF/dq (finite differences over link colours,
   // 21 evaluations per colour: 63 for 3 colours), taken at every w_k_every-th step's rebuild
   // (the elastic forces change slowly; the friction blocks, every w_every steps).
@@ -110,7 +101,7 @@ class ModelOde {
   // shafts' velocities the identity (their increments drag the pins through the pulley
   // friction). Solved as (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, x_q = b_q + gh x_v:
   // block-tridiagonal over the links with cyclic corners (CyclicBlockLU, 21 x 21 blocks).
-  // Each ModelOdeOptions::w_* switch leaves one part out.
+  // ModelOdeOptions::w_stiffness = false leaves K out.
   void w_factor(double t, const double* y, double gh);
   void w_solve(double* x) const;
   // The index of the next step (OdeDriver sets it from the simulation's step count), and

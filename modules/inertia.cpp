@@ -176,17 +176,7 @@ Eigen::MatrixXd dense_inertia(const Model& m, const double* q) {
   Eigen::MatrixXd A = Eigen::MatrixXd::Zero(n, n);
   // A0 (3.1), block by block.
   for (int j = 0; j < m.links; ++j) {
-    for (int h = 0; h < 2; ++h) {
-      const int o = m.joint(j) + (h == 0 ? kJointA : kJointB);
-      for (int p = 0; p < 2; ++p) {
-        const auto d = plane_dofs(p);
-        for (int r = 0; r < 4; ++r)
-          for (int c = 0; c < 4; ++c) A(o + d[r], o + d[c]) = m.bend_mass(r, c);
-      }
-      const int z[2] = {o + half::kZ, o + half::kEnd + half::kZ};
-      for (int r = 0; r < 2; ++r)
-        for (int c = 0; c < 2; ++c) A(z[r], z[c]) = m.axial_mass(r, c);
-    }
+    for (int h = 0; h < 2; ++h) set_half_mass(m, A, m.joint(j) + (h == 0 ? kJointA : kJointB));
     A(m.pack(j), m.pack(j)) = m.pack_mass;
   }
   const Config& c = m.cfg;

@@ -4,6 +4,7 @@
 #include <Eigen/Dense>
 
 #include "engine/state.hpp"
+#include "modules/beam.hpp"
 
 namespace cvt {
 
@@ -39,6 +40,20 @@ void add_link_torques(const Model& m, const LinkKinematics& kin, const double* t
 
 // T = 1/2 qdot^T A(q) qdot.
 double kinetic_energy(const Model& m, const double* q, const double* v);
+
+// Writes the constant mass block of one pin half (A0, 3.1: bending per plane, axial bar)
+// into A at rows and columns o .. o + 9 (any matrix type with operator()(r, c)).
+template <class Matrix>
+void set_half_mass(const Model& m, Matrix& A, int o) {
+  for (int p = 0; p < 2; ++p) {
+    const auto d = plane_dofs(p);
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) A(o + d[r], o + d[c]) = m.bend_mass(r, c);
+  }
+  const int z[2] = {o + half::kZ, o + half::kEnd + half::kZ};
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 2; ++c) A(z[r], z[c]) = m.axial_mass(r, c);
+}
 
 // The dense A(q) (tests and modal analysis).
 Eigen::MatrixXd dense_inertia(const Model& m, const double* q);
