@@ -35,10 +35,12 @@ void BM_CyclicBlockLUFactor(benchmark::State& st) {
     st.ResumeTiming();
     benchmark::DoNotOptimize(lu.factor());
   }
+  st.counters["fill_blocks"] = lu.fill_blocks();
 }
 void BM_CyclicBlockLUSolve(benchmark::State& st) {
   LU lu;
   fill(lu);
+  lu.set_compact(st.range(0) != 0);
   lu.factor();
   std::vector<LU::Vec, Eigen::aligned_allocator<LU::Vec>> x(kLinks, LU::Vec::Ones());
   for (auto _ : st) {
@@ -50,5 +52,5 @@ void BM_CyclicBlockLUSolve(benchmark::State& st) {
 }  // namespace
 
 BENCHMARK(BM_CyclicBlockLUFactor)->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_CyclicBlockLUSolve)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CyclicBlockLUSolve)->Arg(0)->Arg(1)->ArgName("compact")->Unit(benchmark::kMicrosecond);
 BENCHMARK_MAIN();

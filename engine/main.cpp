@@ -341,15 +341,16 @@ int main(int argc, char** argv) {
   study_int->add_option("--status-interval", si.status_interval,
                         "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
-  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its friction matrix every N steps")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its matrix every N steps (default: integrator.w_every)")
+      ->check(CLI::PositiveNumber);
   study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
                      "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
   bool si_exact_slope = false;
   study_int->add_flag("--w-exact-slope", si_exact_slope,
                       "ROS2: the exact friction slope along the sliding direction (default: the secant)");
-  study_int->add_option("--w-k-every", si.w_k_every, "ROS2: rebuild its stiffness blocks every N steps")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+  study_int->add_option("--w-k-every", si.w_k_every,
+                        "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
+      ->check(CLI::PositiveNumber);
   study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
   study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
                       "ROS2: rebuild its whole matrix when the contact statuses change");
@@ -359,6 +360,9 @@ int main(int argc, char** argv) {
   study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
   study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
   study_int->add_flag("--approximate-jacobian", si_approx, "leave the pins -> shaft rows out of the Jacobian");
+  study_int->add_option("--cache", si.cache_dir,
+                        "reuse the running state and reference curve kept in this folder (made if missing)")
+      ->check(CLI::ExistingDirectory);
   study_int->add_option("--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
   study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(study_int, si_sched);
@@ -412,6 +416,8 @@ int main(int argc, char** argv) {
       si.w_secant = !si_exact_slope;
       si.schedule = si_sched.options();
       const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
+      if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
+      if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
       return cvt::run_integrator_study(model, si);
     }
   } catch (const cvt::ConfigError& e) {

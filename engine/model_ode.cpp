@@ -148,6 +148,18 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int h = 0; h < 2; ++h) set_half_mass(m, a0_link_, h * half::kSize);
   a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
   w_lu_.resize(N);
+  // The chain's coordinates in link order, and their units (1 unless scaled).
+  w_coord_.resize(static_cast<size_t>(N) * kLinkDim);
+  w_unit_q_.assign(w_coord_.size(), 1.0), w_unit_v_.assign(w_coord_.size(), 1.0);
+  for (int l = 0; l < N; ++l)
+    for (int i = 0; i < kLinkDim; ++i) {
+      const int o = l * kLinkDim + i, c = link_coord(l, i);
+      w_coord_[o] = c;
+      if (opt.scaled) w_unit_q_[o] = unit_[c], w_unit_v_[o] = unit_[m.ndof + c];
+    }
+  w_unit_ratio_.assign(m.ndof, 1.0);
+  if (opt.scaled)
+    for (int i = 0; i < m.ndof; ++i) w_unit_ratio_[i] = unit_[m.ndof + i] / unit_[i];
   w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
   for (int r = 0; r < kLinkDim; ++r)
     for (int c = 0; c < kLinkDim; ++c)
@@ -376,7 +388,8 @@ void ModelOde::w_assemble_link(int l, double gh) {
   // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
   LinkVector& g = w_g_[l];
   link_gradient(l, g);
-  D.noalias() += m_.cfg.chain.link_inertia * g * g.transpose();
+  const LinkVector jg = m_.cfg.chain.link_inertia * g;
+  for (int c = 0; c < kLinkDim; ++c) D.col(c) += jg * g[c];
   // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
   constexpr int kX = 2 * kD * kShaftSize;
   const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
@@ -399,46 +412,55 @@ void ModelOde::w_assemble_link(int l, double gh) {
 void ModelOde::w_solve(double* x) const {
   // W = [I, -gh I; gh A^-1 K, I + gh A^-1 C] on the chain (identity on the other
   // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
+  // (Scaled: the chain's entries through w_unit_q_ / w_unit_v_, tables in link order.)
   const int n = m_.ndof;
   const double gh = w_gh_;
-  auto phys = [&](int r) { return opt_.scaled ? x[r] * unit_[r] : x[r]; };
+  const int* coord = w_coord_.data();
+  const double* uq = w_unit_q_.data();
+  const double* uv = w_unit_v_.data();
   LinkVector* v = w_rhs_.data();
   LinkVector* bq = w_bq_.data();
   if (opt_.w_stiffness)
     for_joints([&](int l) {
-      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = phys(link_coord(l, i));
+      const int o = l * kLinkDim;
+      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = x[coord[o + i]] * uq[o + i];
     });
   for_joints([&](int l) {
+    const int o = l * kLinkDim;
     LinkVector b;
-    for (int i = 0; i < kLinkDim; ++i) b[i] = phys(n + link_coord(l, i));
+    for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + coord[o + i]] * uv[o + i];
     LinkVector& y = v[l];
     y.setZero();
     for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0 b (73 nonzeros of 441)
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
-      const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
-      y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
+      const int lp = l == 0 ? m_.links - 1 : l - 1, ln = l + 1 == m_.links ? 0 : l + 1;
+      LinkVector kb = LinkVector::Zero();
+      small::mv_sub(kb, w_k_diag_[l], bq[l]);
+      small::mv_sub(kb, w_k_sub_[l], bq[lp]);
+      small::mv_sub(kb, w_k_super_[ln], bq[ln]);
+      y += gh * kb;
     }
     if (w_cps_on_[l]) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
       Eigen::Matrix<double, 2 * kShaftSize, 1> xs;
       for (int k = 0; k < 2; ++k)
-        for (int i = 0; i < kShaftSize; ++i) xs[k * kShaftSize + i] = phys(n + m_.shaft(k) + i);
+        for (int i = 0; i < kShaftSize; ++i) {
+          const int r = n + m_.shaft(k) + i;
+          xs[k * kShaftSize + i] = opt_.scaled ? x[r] * unit_[r] : x[r];
+        }
       y.noalias() -= gh * (w_cps_[l] * xs);
     }
   });
   w_lu_.solve(v);
   for_joints([&](int l) {
-    for (int i = 0; i < kLinkDim; ++i) {
-      const int r = n + link_coord(l, i);
-      x[r] = opt_.scaled ? v[l][i] / unit_[r] : v[l][i];
-    }
+    const int o = l * kLinkDim;
+    for (int i = 0; i < kLinkDim; ++i) x[n + coord[o + i]] = v[l][i] / uv[o + i];
   });
-  // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v.
-  if (opt_.scaled)
-    for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * unit_[n + i] / unit_[i];
-  else
-    for (int i = 0; i < n; ++i) x[i] += gh * x[n + i];
+  // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v (scaled: times
+  // the ratio of the units, w_unit_ratio_).
+  const double* ratio = w_unit_ratio_.data();
+  for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * ratio[i];
 }
 
 OdeMethod parse_ode_method(const std::string& name) {

@@ -174,6 +174,9 @@ class ModelOde {
       w_cps_;
   std::vector<std::uint8_t> w_cps_on_;
   CyclicBlockLU<kLinkDim> w_lu_;
+  std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
+  std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
+  std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
   mutable LinkVectors w_rhs_, w_bq_;
   LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
   // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).

@@ -8,6 +8,7 @@
 #include <limits>
 #include <memory>
 
+#include "engine/checkpoint.hpp"
 #include "engine/model_ode.hpp"
 #include "engine/rhs.hpp"
 #include "engine/simulation.hpp"
@@ -66,17 +67,89 @@ void state_errors(const Model& m, const Eigen::VectorXd& a, const Eigen::VectorX
   if (!a.allFinite()) ep = ev = kNaN;
 }
 
+// FNV-1a over the text: a stable key for the cache files (the same on every build).
+std::uint64_t fnv1a(const std::string& s) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
+  return h;
+}
+
+// The study's cache (--cache DIR): the running state and the reference curve depend only on
+// the resolved configuration, t_warm, t_sample, sample_dt and ref_step (the bits are the
+// same on any thread count), so they are kept under a key of those and reused.
+struct StudyCache {
+  std::string ckpt, ref;  // empty: no cache
+  StudyCache(const Model& m, const IntegratorStudyOptions& opt) {
+    if (opt.cache_dir.empty()) return;
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "|%.17g|%.17g|%.17g|%.17g", opt.t_warm, opt.t_sample, opt.sample_dt, opt.ref_step);
+    char key[32];
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + buf)));
+    ckpt = opt.cache_dir + "/study-" + key + ".ckpt";
+    ref = opt.cache_dir + "/study-" + key + "-reference.txt";
+  }
+  static bool exists(const std::string& p) { return !p.empty() && std::ifstream(p).good(); }
+};
+
+struct Reference {
+  int tracked = -1;
+  double wall = 0;
+  std::vector<double> curve;
+  std::vector<int> touch;  // the tracked half touches a sheave at each sample
+};
+
+void write_reference(const std::string& path, const Reference& r) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp);
+    f << "# cvt-engine study integrators: reference curve (tracked half, wall s, then sample force touch)\n";
+    char buf[64];
+    f << r.tracked << " " << r.curve.size() << "\n";
+    std::snprintf(buf, sizeof buf, "%.17g", r.wall);
+    f << buf << "\n";
+    for (size_t k = 0; k < r.curve.size(); ++k) {
+      std::snprintf(buf, sizeof buf, "%.17g", r.curve[k]);
+      f << buf << " " << r.touch[k] << "\n";
+    }
+    if (!f) throw std::runtime_error("cannot write the study cache " + tmp);
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error("cannot rename " + tmp + " to " + path);
+}
+
+Reference read_reference(const std::string& path, size_t samples) {
+  std::ifstream f(path);
+  std::string comment;
+  std::getline(f, comment);
+  Reference r;
+  size_t n = 0;
+  f >> r.tracked >> n >> r.wall;
+  r.curve.resize(n), r.touch.resize(n);
+  for (size_t k = 0; k < n; ++k) f >> r.curve[k] >> r.touch[k];
+  if (!f || n != samples || r.tracked < 0)
+    throw std::runtime_error("the study cache " + path + " is damaged (delete it to recompute)");
+  return r;
+}
+
 }  // namespace
 
 int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   const double h_prod = m.cfg.integrator.step;
   // The running state.
+  const StudyCache cache(m, opt);
   Simulation warm(m, opt.schedule);
   const long warm_steps = std::lround(opt.t_warm / h_prod);
   std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m.links,
               m.nstate, h_prod, warm_steps * h_prod);
   std::fflush(stdout);
-  for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
+  if (StudyCache::exists(cache.ckpt)) {
+    const Checkpoint c = read_checkpoint(cache.ckpt);
+    if (c.config_toml != m.cfg.resolved_toml) throw std::runtime_error("the study cache " + cache.ckpt + " is of another configuration");
+    warm.restore(c);
+    std::printf("  (running state from the cache %s)\n", cache.ckpt.c_str());
+  } else {
+    for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
+    if (!cache.ckpt.empty()) write_checkpoint(cache.ckpt, warm.checkpoint());
+  }
   const Checkpoint start = warm.checkpoint();
   const double t0 = warm.time();
   {
@@ -170,13 +243,19 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   std::vector<double> times, ref_curve;
   int tracked = -1;
   double ref_wall = 0;
+  bool ref_from_cache = false;
   if (opt.curve) {
     const long n_samples = std::max(1L, std::lround(opt.t_sample / opt.sample_dt));
     for (long k = 0; k <= n_samples; ++k) times.push_back(t0 + k * opt.sample_dt);
-    // Reference: production RK4 at ref_step, all pins' axial forces.
-    std::vector<std::vector<double>> all_f;
-    std::vector<std::vector<int>> all_touch;
-    {
+    Reference ref;
+    ref_from_cache = StudyCache::exists(cache.ref);
+    if (ref_from_cache) {
+      ref = read_reference(cache.ref, times.size());
+      std::printf("  (reference curve from the cache %s)\n", cache.ref.c_str());
+    } else {
+      // Reference: production RK4 at ref_step, all pins' axial forces.
+      std::vector<std::vector<double>> all_f;
+      std::vector<std::vector<int>> all_touch;
       Simulation s(m, opt.schedule);
       s.restore(start);
       s.set_clock(t0, 0);
@@ -191,34 +270,38 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         pin_forces(m, s.state(), s.workspace().status, f, touch);
         all_f.push_back(f), all_touch.push_back(touch);
       }
-      ref_wall = seconds_since(w0);
+      ref.wall = seconds_since(w0);
+      // The tracked half: one that starts off the sheaves and touches them from 10 % .. 60 % of
+      // the window on; among those the one with the largest range of axial force.
+      double best_range = -1;
+      for (int i = 0; i < 2 * m.links; ++i) {
+        if (all_touch[0][i]) continue;
+        long first = -1;
+        for (long k = 0; k <= n_samples; ++k)
+          if (all_touch[k][i]) {
+            first = k;
+            break;
+          }
+        if (first < 0) continue;
+        const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
+        double lo = 1e300, hi = -1e300;
+        for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
+        const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
+        if (score > best_range) best_range = score, ref.tracked = i;
+      }
+      if (ref.tracked < 0) ref.tracked = 0;  // nothing enters in this window: take pin 0, half a
+      for (long k = 0; k <= n_samples; ++k) ref.curve.push_back(all_f[k][ref.tracked]), ref.touch.push_back(all_touch[k][ref.tracked]);
+      if (!cache.ref.empty()) write_reference(cache.ref, ref);
     }
-    // The tracked half: one that starts off the sheaves and touches them from 10 % .. 60 % of
-    // the window on; among those the one with the largest range of axial force.
-    double best_range = -1;
-    for (int i = 0; i < 2 * m.links; ++i) {
-      if (all_touch[0][i]) continue;
-      long first = -1;
-      for (long k = 0; k <= n_samples; ++k)
-        if (all_touch[k][i]) {
-          first = k;
-          break;
-        }
-      if (first < 0) continue;
-      const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
-      double lo = 1e300, hi = -1e300;
-      for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
-      const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
-      if (score > best_range) best_range = score, tracked = i;
-    }
-    if (tracked < 0) tracked = 0;  // nothing enters in this window: take pin 0, half a
-    for (long k = 0; k <= n_samples; ++k) ref_curve.push_back(all_f[k][tracked]);
+    tracked = ref.tracked;
+    ref_wall = ref.wall;
+    ref_curve = ref.curve;
     const double lo = *std::min_element(ref_curve.begin(), ref_curve.end());
     const double hi = *std::max_element(ref_curve.begin(), ref_curve.end());
     const double range = std::max(hi - lo, 1e-12);
     long enters = -1;
     for (long k = 0; k <= n_samples; ++k)
-      if (all_touch[k][tracked]) {
+      if (ref.touch[k]) {
         enters = k;
         break;
       }
@@ -343,8 +426,8 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       std::printf("%-10s %-12s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
                   100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, rk4_wall / r.wall_s);
     }
-    std::printf("(reference RK4 h = %.3g s: %.2f s wall)\n",
-                opt.ref_step, ref_wall);
+    std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,
+                StudyCache::exists(cache.ref) && ref_from_cache ? ", from the cache: an earlier run's time" : "");
     for (const CurveRun& r : runs)
       if (r.chosen)
         std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),

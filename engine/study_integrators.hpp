@@ -37,13 +37,17 @@ struct IntegratorStudyOptions {
   int newton_max_iter = 7;      // OdeOptions
   bool max_norm = false;
   double jac_theta = 0.3;
-  int w_every = 1;              // ModelOdeOptions::w_every (ROS2)
-  int w_k_every = 16;           // ModelOdeOptions::w_k_every (ROS2)
+  int w_every = 0;              // ModelOdeOptions::w_every (ROS2; 0: the config's integrator.w_every)
+  int w_k_every = 0;            // ModelOdeOptions::w_k_every (ROS2; 0: the config's integrator.w_k_every)
   bool w_no_stiffness = false;  // ModelOdeOptions::w_stiffness = false (ROS2)
   bool w_status_rebuild = false;  // ModelOdeOptions::w_status_rebuild (ROS2)
   bool w_secant = true;         // ModelOdeOptions::w_secant (ROS2)
   bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
   ScheduleOptions schedule;
+  // Keep the running state and the reference curve here and reuse them when the inputs that
+  // make them are the same (empty: no cache). The reference's wall time is then an earlier
+  // run's, so compare speed-ups only within a run made without the cache.
+  std::string cache_dir;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
 };
 

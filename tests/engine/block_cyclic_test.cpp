@@ -3,13 +3,15 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <random>
 
 namespace cvt {
 namespace {
 
+// Returns the factorization's fill_blocks().
 template <int B>
-void check(int n, unsigned seed, double coupling) {
+int check(int n, unsigned seed, double coupling, double diagonal = 0.1) {
   using C = CyclicBlockLU<B>;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-1, 1);
@@ -18,7 +20,7 @@ void check(int n, unsigned seed, double coupling) {
   // blocks l-1 and l (so block-tridiagonal with cyclic corners, not symmetric), D diagonal
   // and positive.
   Eigen::MatrixXd M = Eigen::MatrixXd::Zero(N, N);
-  for (int i = 0; i < N; ++i) M(i, i) = 0.1 + std::abs(u(rng));
+  for (int i = 0; i < N; ++i) M(i, i) = diagonal + std::abs(u(rng));
   for (int l = 0; l < n; ++l) {
     Eigen::MatrixXd G(3, 2 * B), H(3, 2 * B);
     for (int r = 0; r < 3; ++r)
@@ -35,7 +37,10 @@ void check(int n, unsigned seed, double coupling) {
     lu.sub(l) = M.block(l * B, ((l - 1 + n) % n) * B, B, B);
     lu.super(l) = M.block(((l - 1 + n) % n) * B, l * B, B, B);
   }
-  ASSERT_TRUE(lu.factor());
+  if (!lu.factor()) {
+    ADD_FAILURE() << "singular pivot";
+    return -1;
+  }
   const Eigen::VectorXd b = Eigen::VectorXd::Random(N);
   std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>> x(n);
   for (int l = 0; l < n; ++l) x[l] = b.segment(l * B, B);
@@ -49,6 +54,7 @@ void check(int n, unsigned seed, double coupling) {
   EXPECT_LT((M * xs - b).norm(), 1e-12 * scale) << "n " << n << " coupling " << coupling;
   EXPECT_LT((M * xd - b).norm(), 1e-12 * scale);
   EXPECT_LT((xs - xd).norm(), 1e-6 * xd.norm());
+  return lu.fill_blocks();
 }
 
 TEST(CyclicBlockLU, SolvesLikeDenseLU) {
@@ -57,6 +63,54 @@ TEST(CyclicBlockLU, SolvesLikeDenseLU) {
     check<5>(n, 2u + n, 10.0);
     check<21>(n, 3u + n, 30.0);  // the chain's link blocks, strongly coupled
   }
+}
+
+TEST(CyclicBlockLU, DropsTheCornersFillOnlyWhereItHasDecayed) {
+  // Strong diagonal: the fill decays geometrically along the ring and is dropped past the
+  // first links (it comes back where the band meets the last block row), still solving to
+  // rounding. Weak diagonal with the same couplings: little decay, more (or all) fill kept.
+  const int strong = check<21>(84, 7u, 1.0, 100.0);
+  EXPECT_LT(strong, 40);
+  EXPECT_GT(strong, 2);
+  const int weak = check<21>(84, 7u, 1.0, 0.01);
+  std::printf("fill blocks of 83: strong diagonal %d, weak %d\n", strong, weak);
+  EXPECT_GT(weak, strong);
+  EXPECT_LE(weak, 83);
+}
+
+TEST(CyclicBlockLU, CompactFactorsSolveTheirOwnMatrix) {
+  // Single-precision factors: the solve is that of a matrix within ~1e-7 of M, so the
+  // residual is at that level, not at double rounding.
+  constexpr int B = 5, n = 12;
+  using C = CyclicBlockLU<B>;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  C lu, exact;
+  for (C* c : {&lu, &exact}) c->resize(n);
+  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(n * B, n * B);
+  for (int l = 0; l < n; ++l)
+    for (int r = 0; r < B; ++r)
+      for (int c = 0; c < B; ++c) {
+        const double d = (r == c ? 4.0 * B : 0.0) + u(rng), s = u(rng), p = u(rng);
+        for (C* x : {&lu, &exact}) x->diag(l)(r, c) = d, x->sub(l)(r, c) = s, x->super(l)(r, c) = p;
+        M(l * B + r, l * B + c) = d;
+        M(l * B + r, ((l - 1 + n) % n) * B + c) = s;
+        M(((l - 1 + n) % n) * B + r, l * B + c) = p;
+      }
+  lu.set_compact(true);
+  ASSERT_TRUE(lu.factor());
+  ASSERT_TRUE(exact.factor());
+  const Eigen::VectorXd b = Eigen::VectorXd::Random(n * B);
+  std::vector<C::Vec, Eigen::aligned_allocator<C::Vec>> x(n), y(n);
+  for (int l = 0; l < n; ++l) x[l] = y[l] = b.segment(l * B, B);
+  lu.solve(x.data());
+  exact.solve(y.data());
+  Eigen::VectorXd xs(n * B), ys(n * B);
+  for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l], ys.segment(l * B, B) = y[l];
+  const double rel = (M * xs - b).norm() / b.norm();
+  EXPECT_LT(rel, 1e-5);
+  EXPECT_GT(rel, 1e-12);  // it is not the double-precision solve
+  EXPECT_LT((M * ys - b).norm() / b.norm(), 1e-13);
 }
 
 TEST(CyclicBlockLU, RejectsASingularPivot) {
