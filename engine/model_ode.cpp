@@ -388,8 +388,7 @@ void ModelOde::w_assemble_link(int l, double gh) {
   // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
   LinkVector& g = w_g_[l];
   link_gradient(l, g);
-  const LinkVector jg = m_.cfg.chain.link_inertia * g;
-  for (int c = 0; c < kLinkDim; ++c) D.col(c) += jg * g[c];
+  D.noalias() += m_.cfg.chain.link_inertia * g * g.transpose();
   // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
   constexpr int kX = 2 * kD * kShaftSize;
   const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
@@ -435,11 +434,7 @@ void ModelOde::w_solve(double* x) const {
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = l == 0 ? m_.links - 1 : l - 1, ln = l + 1 == m_.links ? 0 : l + 1;
-      LinkVector kb = LinkVector::Zero();
-      small::mv_sub(kb, w_k_diag_[l], bq[l]);
-      small::mv_sub(kb, w_k_sub_[l], bq[lp]);
-      small::mv_sub(kb, w_k_super_[ln], bq[ln]);
-      y += gh * kb;
+      y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
     }
     if (w_cps_on_[l]) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.

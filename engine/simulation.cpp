@@ -265,9 +265,14 @@ void Simulation::check_finite() {
                   at, rho, h_stable);
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
-    cause += h > h_stable ? "the step h = " + std::string(buf) + " s is above it: reduce integrator.step"
-                          : "the step is below it: look for a contact or friction instability, or an unphysical "
-                            "parameter";
+    if (m_.cfg.integrator.method == "ros2")
+      cause += "the run uses ros2 with h = " + std::string(buf) +
+               " s, stable past that limit only while its matrix holds the stiff terms: reduce integrator.step, or "
+               "rebuild the matrix more often (integrator.w_every, integrator.w_k_every)";
+    else
+      cause += h > h_stable ? "the step h = " + std::string(buf) + " s is above it: reduce integrator.step"
+                            : "the step is below it: look for a contact or friction instability, or an unphysical "
+                              "parameter";
   } else {
     cause = "no good sample to analyse";
   }

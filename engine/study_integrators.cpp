@@ -81,11 +81,12 @@ struct StudyCache {
   std::string ckpt, ref;  // empty: no cache
   StudyCache(const Model& m, const IntegratorStudyOptions& opt) {
     if (opt.cache_dir.empty()) return;
-    char buf[160];
-    std::snprintf(buf, sizeof buf, "|%.17g|%.17g|%.17g|%.17g", opt.t_warm, opt.t_sample, opt.sample_dt, opt.ref_step);
-    char key[32];
-    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + buf)));
+    char warm[64], curve[128], key[32];
+    std::snprintf(warm, sizeof warm, "|%.17g", opt.t_warm);
+    std::snprintf(curve, sizeof curve, "|%.17g|%.17g|%.17g", opt.t_sample, opt.sample_dt, opt.ref_step);
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm)));
     ckpt = opt.cache_dir + "/study-" + key + ".ckpt";
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm + curve)));
     ref = opt.cache_dir + "/study-" + key + "-reference.txt";
   }
   static bool exists(const std::string& p) { return !p.empty() && std::ifstream(p).good(); }
@@ -141,6 +142,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m.links,
               m.nstate, h_prod, warm_steps * h_prod);
   std::fflush(stdout);
+  if (!cache.ckpt.empty()) std::printf("  (cache: running state %s, reference %s)\n", cache.ckpt.c_str(), cache.ref.c_str());
   if (StudyCache::exists(cache.ckpt)) {
     const Checkpoint c = read_checkpoint(cache.ckpt);
     if (c.config_toml != m.cfg.resolved_toml) throw std::runtime_error("the study cache " + cache.ckpt + " is of another configuration");
@@ -359,6 +361,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             }
             ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
             ro.jac = jac_opt;
+            // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
+            // serve error norms, which fixed steps do not use).
+            if (w_fixed) ro.jac.scaled = false;
             ro.status_interval = opt.status_interval;
             OdeDriver drv(s, ro);
             for (size_t k = 1; k < times.size(); ++k) {

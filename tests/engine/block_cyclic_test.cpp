@@ -78,41 +78,6 @@ TEST(CyclicBlockLU, DropsTheCornersFillOnlyWhereItHasDecayed) {
   EXPECT_LE(weak, 83);
 }
 
-TEST(CyclicBlockLU, CompactFactorsSolveTheirOwnMatrix) {
-  // Single-precision factors: the solve is that of a matrix within ~1e-7 of M, so the
-  // residual is at that level, not at double rounding.
-  constexpr int B = 5, n = 12;
-  using C = CyclicBlockLU<B>;
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> u(-1, 1);
-  C lu, exact;
-  for (C* c : {&lu, &exact}) c->resize(n);
-  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(n * B, n * B);
-  for (int l = 0; l < n; ++l)
-    for (int r = 0; r < B; ++r)
-      for (int c = 0; c < B; ++c) {
-        const double d = (r == c ? 4.0 * B : 0.0) + u(rng), s = u(rng), p = u(rng);
-        for (C* x : {&lu, &exact}) x->diag(l)(r, c) = d, x->sub(l)(r, c) = s, x->super(l)(r, c) = p;
-        M(l * B + r, l * B + c) = d;
-        M(l * B + r, ((l - 1 + n) % n) * B + c) = s;
-        M(((l - 1 + n) % n) * B + r, l * B + c) = p;
-      }
-  lu.set_compact(true);
-  ASSERT_TRUE(lu.factor());
-  ASSERT_TRUE(exact.factor());
-  const Eigen::VectorXd b = Eigen::VectorXd::Random(n * B);
-  std::vector<C::Vec, Eigen::aligned_allocator<C::Vec>> x(n), y(n);
-  for (int l = 0; l < n; ++l) x[l] = y[l] = b.segment(l * B, B);
-  lu.solve(x.data());
-  exact.solve(y.data());
-  Eigen::VectorXd xs(n * B), ys(n * B);
-  for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l], ys.segment(l * B, B) = y[l];
-  const double rel = (M * xs - b).norm() / b.norm();
-  EXPECT_LT(rel, 1e-5);
-  EXPECT_GT(rel, 1e-12);  // it is not the double-precision solve
-  EXPECT_LT((M * ys - b).norm() / b.norm(), 1e-13);
-}
-
 TEST(CyclicBlockLU, RejectsASingularPivot) {
   CyclicBlockLU<2> lu;
   lu.resize(3);

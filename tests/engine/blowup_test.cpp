@@ -50,5 +50,25 @@ TEST(BlowUpTest, NonFiniteCoordinateIsNamed) {
   }
 }
 
+TEST(BlowUpTest, Ros2BlowUpPointsAtItsStepAndMatrixIntervals) {
+  // A ros2 run's step is far above RK4's limit by design: the advice is its own step and
+  // matrix intervals, not RK4's limit.
+  const Model m = test::model("mini", {"integrator.method=ros2", "integrator.step=2e-7"});
+  Simulation sim(m);
+  for (int i = 0; i < 20; ++i) sim.step(1e-8);
+  sim.check_finite();
+  for (int o : {m.half_a(3), m.half_b(3)})
+    for (int e = 0; e < 2; ++e) sim.mutable_state()[o + e * half::kEnd + half::kZ] += 5e-3;
+  try {
+    sim.check_finite();
+    FAIL() << "no blow-up reported";
+  } catch (const BlowUpError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("uses ros2"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("integrator.w_every"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find("is above it"), std::string::npos) << msg;
+  }
+}
+
 }  // namespace
 }  // namespace cvt
