@@ -165,6 +165,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     for (int c = 0; c < kLinkDim; ++c)
       if (a0_link_(r, c) != 0) a0_entries_.push_back({r, c, a0_link_(r, c)});
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
+  w_k_packed_.resize(N);
   w_delta_.assign(N, 0.0);
   // Link colours for the stiffness differences: greedy around the cycle, links within two
   // of each other differ (3 colours when 3 divides N, at most 5).
@@ -313,6 +314,10 @@ void ModelOde::w_stiffness(double t, const double* y) {
         if (w_color_[l] == color) yp[link_coord(l, i)] = ys_[link_coord(l, i)];
     }
   }
+  for_joints([this](int l) {
+    pack_columns(w_k_sub_[l], w_k_packed_[l][0]);
+    pack_columns(w_k_super_[l], w_k_packed_[l][1]);
+  });
   ++jac_evals_;
   w_k_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -408,6 +413,12 @@ void ModelOde::w_assemble_link(int l, double gh) {
   }
 }
 
+void ModelOde::pack_columns(const LinkBlock& b, PackedColumns& p) {
+  p.n = 0;
+  for (int c = 0; c < kLinkDim; ++c)
+    if (b.col(c).cwiseAbs().maxCoeff() != 0) p.index[p.n] = c, p.cols.col(p.n++) = b.col(c);
+}
+
 void ModelOde::w_solve(double* x) const {
   // W = [I, -gh I; gh A^-1 K, I + gh A^-1 C] on the chain (identity on the other
   // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
@@ -434,7 +445,14 @@ void ModelOde::w_solve(double* x) const {
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = l == 0 ? m_.links - 1 : l - 1, ln = l + 1 == m_.links ? 0 : l + 1;
-      y.noalias() -= gh * (w_k_diag_[l] * bq[l] + w_k_sub_[l] * bq[lp] + w_k_super_[ln] * bq[ln]);
+      // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
+      // columns (exact zeros skipped).
+      LinkVector kb = w_k_diag_[l] * bq[l];
+      const PackedColumns& sub = w_k_packed_[l][0];
+      const PackedColumns& sup = w_k_packed_[ln][1];
+      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * bq[lp][sub.index[c]];
+      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * bq[ln][sup.index[c]];
+      y.noalias() -= gh * kb;
     }
     if (w_cps_on_[l]) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.

@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <utility>
+#include <array>
 #include <vector>
 
 #include "engine/block_cyclic.hpp"
@@ -181,6 +182,16 @@ class ModelOde {
   LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
   // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).
   LinkBlocks w_k_diag_, w_k_sub_, w_k_super_;
+  // The coupling blocks by their nonzero columns (a coupling between links reaches about 12
+  // of a link's 21 coordinates: the halves at the joint and the link spins), for the solve's
+  // K b_q: per link, [0] sub, [1] super.
+  struct PackedColumns {
+    int n = 0;
+    std::array<int, kLinkDim> index{};
+    LinkBlock cols;
+  };
+  std::vector<std::array<PackedColumns, 2>> w_k_packed_;
+  static void pack_columns(const LinkBlock& b, PackedColumns& p);
   std::vector<double> w_force0_, w_delta_;
   std::vector<int> w_color_;
   int w_colors_ = 0;
