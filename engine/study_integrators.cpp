@@ -48,6 +48,8 @@ struct CurveRun {
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
   double jac_s = 0, lu_s = 0, solve_s = 0;
   long long status_rebuilds = 0;  // ROS2: matrix rebuilds forced by contact status changes
+  int w_every = 0, w_k_every = 0;  // ROS2: its matrix intervals
+  std::vector<double> walls;       // each repeat's wall time
   double reached = kNaN;  // model time covered when stopped by the timeout [s]
   double h_mean = 0;
   bool chosen = false;
@@ -132,6 +134,23 @@ Reference read_reference(const std::string& path, size_t samples) {
 }
 
 }  // namespace
+
+std::vector<IntegratorStudyOptions::Ros2Candidate> parse_ros2_candidates(const std::vector<std::string>& items) {
+  std::vector<IntegratorStudyOptions::Ros2Candidate> out;
+  for (const std::string& item : items) {
+    IntegratorStudyOptions::Ros2Candidate c;
+    char tail = 0;
+    const int n = std::sscanf(item.c_str(), "%lf:%d:%d%c", &c.h, &c.w_every, &c.w_k_every, &tail);
+    const bool plain = n == 1 && item.find(':') == std::string::npos;
+    if (!(plain || n == 3) || !(c.h > 0) ||
+        (n == 3 && (c.w_every < 1 || c.w_k_every < 1 || c.w_k_every % c.w_every != 0)))
+      throw std::invalid_argument("--ros2-steps: '" + item +
+                                  "' is not H or H:W:K (a step > 0 s; K a positive multiple of W > 0)");
+    if (plain) c.w_every = c.w_k_every = 0;
+    out.push_back(c);
+  }
+  return out;
+}
 
 int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   const double h_prod = m.cfg.integrator.step;
@@ -322,11 +341,26 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       const OdeMethod method = parse_ode_method(name);
       const bool fixed = method == OdeMethod::Rk4;
       const bool w_fixed = method == OdeMethod::Ros2 && !opt.ros2_steps.empty();
-      const std::vector<double>& cands = fixed ? opt.rk4_steps : w_fixed ? opt.ros2_steps : opt.tolerances;
+      std::vector<IntegratorStudyOptions::Ros2Candidate> cands;
+      if (w_fixed)
+        cands = opt.ros2_steps;
+      else
+        for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
       bool found = false;
-      for (double p : cands) {
-        CurveRun r;
+      std::vector<double> walls;
+      CurveRun first;
+      for (const auto& cand : cands) {
+       const double p = cand.h;
+       CurveRun r;
+       for (int rep = 0; rep < std::max(1, opt.repeat); ++rep) {
+        r = CurveRun{};
         r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
+        if (method == OdeMethod::Ros2) {
+          r.w_every = cand.w_every > 0 ? cand.w_every : opt.w_every;
+          r.w_k_every = cand.w_every > 0 ? cand.w_k_every : opt.w_k_every;
+          if (r.w_every < 1 || r.w_k_every < 1 || r.w_k_every % r.w_every != 0)
+            throw std::invalid_argument("ROS2 candidate: the stiffness interval must be a multiple of the matrix's");
+        }
         Simulation s(m, opt.schedule);
         s.restore(start);
         s.set_clock(t0, 0);
@@ -361,6 +395,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             }
             ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
             ro.jac = jac_opt;
+            if (method == OdeMethod::Ros2) ro.jac.w_every = r.w_every, ro.jac.w_k_every = r.w_k_every;
             // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
             // serve error norms, which fixed steps do not use).
             if (w_fixed) ro.jac.scaled = false;
@@ -400,12 +435,29 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
           r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
         }
         r.wall_s = seconds_since(w0);
+        walls.push_back(r.wall_s);
+        if (rep > 0 && (r.status != first.status || r.curve != first.curve))
+          throw std::runtime_error("study: a repeated run of " + name + " gave other bits (not reproducible)");
+        if (rep == 0) first = r;
+       }
+        // The median wall time of the repeats (the machine's load varies); the bits are the same.
+        std::sort(walls.begin(), walls.end());
+        r.walls = walls;
+        r.wall_s = walls[walls.size() / 2];
+        if (walls.size() % 2 == 0) r.wall_s = 0.5 * (walls[walls.size() / 2 - 1] + walls[walls.size() / 2]);
+        walls.clear();
         r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
         if (r.status == "timeout")
           std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
         if (r.status == "ok") r.deviation = deviation(r.curve);
         const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
         if (good && !found) r.chosen = found = true;
+        if (r.w_every > 0) std::printf("  (ROS2 matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
+        if (r.walls.size() > 1) {
+          std::printf("  (wall s of the %zu repeats:", r.walls.size());
+          for (double w : r.walls) std::printf(" %.2f", w);
+          std::printf("; the median below)\n");
+        }
         std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
                     "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
@@ -415,22 +467,27 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                       static_cast<long long>(r.status_rebuilds));
         std::fflush(stdout);
         runs.push_back(std::move(r));
-        if (found) break;
+        if (found && !opt.all) break;
       }
     }
-    // Summary table: the chosen run of each method.
+    // Summary table: every run that finished, against the chosen RK4 run of this study (*: each
+    // method's chosen run, its largest accurate step or loosest accurate tolerance).
     double rk4_wall = kNaN;
     for (const CurveRun& r : runs)
       if (r.chosen && r.method == "rk4") rk4_wall = r.wall_s;
-    std::printf("\n%-10s %-12s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
+    std::printf("\n%-10s %-22s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
                 "jac", "lu", "steps", "mean h s", "vs rk4");
     for (const CurveRun& r : runs) {
-      if (!r.chosen) continue;
-      char p[32];
-      std::snprintf(p, sizeof p, "%s=%.3g", r.param_kind.c_str(), r.param);
-      std::printf("%-10s %-12s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
+      if (r.status != "ok") continue;
+      char p[48];
+      if (r.w_every > 0)
+        std::snprintf(p, sizeof p, "%s=%.3g W%d/%d%s", r.param_kind.c_str(), r.param, r.w_every, r.w_k_every, r.chosen ? "*" : "");
+      else
+        std::snprintf(p, sizeof p, "%s=%.3g%s", r.param_kind.c_str(), r.param, r.chosen ? "*" : "");
+      std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
                   100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, rk4_wall / r.wall_s);
     }
+    if (opt.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt.repeat);
     std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,
                 StudyCache::exists(cache.ref) && ref_from_cache ? ", from the cache: an earlier run's time" : "");
     for (const CurveRun& r : runs)
@@ -442,14 +499,16 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   if (!opt.out_csv.empty()) {
     std::ofstream f(opt.out_csv);
     f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
-         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen\n";
+         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen,"
+         "w_every,w_k_every,repeats\n";
     f.precision(10);
     for (const OneStep& r : one)
-      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,\n";
+      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,,,,\n";
     for (const CurveRun& r : runs)
       f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
         << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
-        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << "\n";
+        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << ","
+        << r.w_every << "," << r.w_k_every << "," << std::max<size_t>(1, r.walls.size()) << "\n";
     if (!f) throw std::runtime_error("cannot write '" + opt.out_csv + "'");
     if (!times.empty()) {
       std::string cpath = opt.out_csv;

@@ -26,7 +26,14 @@ struct IntegratorStudyOptions {
   std::vector<double> one_step_h = {1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 4e-6};
   std::vector<double> rk4_steps = {5e-8, 4e-8, 3e-8, 2e-8};       // tried largest first
   // ROS2 (the W-method) runs fixed steps, tried largest first (empty: adaptive with the tolerances).
-  std::vector<double> ros2_steps = {5e-7, 2e-7, 1e-7, 5e-8};
+  // Each entry a step, with its own matrix intervals where w_every > 0 (else the study's).
+  struct Ros2Candidate {
+    double h = 0;
+    int w_every = 0, w_k_every = 0;
+  };
+  std::vector<Ros2Candidate> ros2_steps = {{5e-7}, {2e-7}, {1e-7}, {5e-8}};
+  bool all = false;             // (b): run every candidate, not only up to each method's first accurate one
+  int repeat = 1;               // runs of each candidate in (b); its wall time is their median
   std::vector<double> tolerances = {1.0, 0.3, 0.1, 0.03, 0.01};   // tried loosest first (scaled atol)
   double max_deviation = 0.01;  // accurate: max |F - F_ref| <= this x range of F_ref
   double max_wall = 600;        // per candidate run [s]; longer runs are stopped ("timeout")
@@ -50,6 +57,10 @@ struct IntegratorStudyOptions {
   std::string cache_dir;
   std::string out_csv;          // table as CSV; the curves go to <out without .csv>-curves.csv
 };
+
+// "H" or "H:W:K" (a step, and its matrix intervals) per entry; throws std::invalid_argument
+// naming a bad entry.
+std::vector<IntegratorStudyOptions::Ros2Candidate> parse_ros2_candidates(const std::vector<std::string>& items);
 
 // Runs the study on model m, prints the tables, writes the CSVs. Returns 0.
 int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt);
