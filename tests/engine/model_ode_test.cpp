@@ -403,5 +403,44 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   fs::remove_all(dir);
 }
 
+// The study's cache: a second run takes the running state and the reference curve from it
+// and gives the same curves; a candidate with its own matrix intervals, repeated, reports
+// them and the median; a bad candidate is refused with its text.
+TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("cvt_study_cache_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "cache");
+  auto slurp = [](const fs::path& p) {
+    std::ifstream f(p);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+  };
+  auto study = [&](const std::string& name, const std::string& extra) {
+    const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
+                            test::shell_quote(test::config_path("mini")) +
+                            " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods ros2 --no-one-step "
+                            "--max-dev 0.2 --cache " + test::shell_quote((dir / "cache").string()) + " --out " +
+                            test::shell_quote((dir / (name + ".csv")).string()) + " " + extra + " > " +
+                            test::shell_quote((dir / (name + ".txt")).string()) + " 2>&1";
+    return std::system(cmd.c_str());
+  };
+  ASSERT_EQ(study("first", "--ros2-steps 1e-7"), 0);
+  ASSERT_EQ(study("second", "--ros2-steps 1e-7,1e-7:2:4 --all --repeat 2"), 0);
+  const std::string first = slurp(dir / "first.txt"), second = slurp(dir / "second.txt");
+  std::printf("%s", second.c_str());
+  EXPECT_EQ(first.find("from the cache"), std::string::npos);
+  EXPECT_NE(second.find("running state from the cache"), std::string::npos);
+  EXPECT_NE(second.find("reference curve from the cache"), std::string::npos);
+  EXPECT_NE(second.find("W2/4"), std::string::npos);
+  EXPECT_NE(second.find("median of 2 runs"), std::string::npos);
+  // The default candidate gives the same curve from the cached start as from the computed one.
+  const std::string c1 = slurp(dir / "first-curves.csv"), c2 = slurp(dir / "second-curves.csv");
+  EXPECT_EQ(c1, c2);
+  const std::string t2 = slurp(dir / "second.csv");
+  EXPECT_NE(t2.find(",0,2,4,2\n"), std::string::npos) << t2;  // not chosen (--all), W 2 / 4, 2 repeats
+  EXPECT_NE(study("bad", "--ros2-steps 1e-7:2:3"), 0);
+  EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not H or H:W:K"), std::string::npos);
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace cvt
