@@ -125,6 +125,10 @@ struct Config {
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
+    // ros2: before this model time each step is taken as startup_substeps steps of step /
+    // startup_substeps (the pins settling onto the sheaves from rest; docs/integrators.md 12.8)
+    double startup_time = 1.0e-4;  // [s]; 0: none
+    int startup_substeps = 4;
   } integrator;
   struct Run {
     double t_end = 5.0e-3;            // [s]

@@ -48,23 +48,35 @@ void Simulation::step(double h, bool update_status) {
   // the clock re-anchored here instead of a time jump. Unchanged h: no effect on the bits.
   if (std::abs(t0_ + static_cast<double>(steps_ - steps0_) * h - t_) > 1e-6 * h) t0_ = t_, steps0_ = steps_;
   if (update_status && m_.cfg.integrator.method == "ros2") {
-    if (!ros2_ || ros2_h_ != h) {
+    auto make = [this](double hh) {
       OdeRunOptions ro;
       ro.method = OdeMethod::Ros2;
       ro.ode.fixed_step = true;
-      ro.ode.h0 = h;
+      ro.ode.h0 = hh;
       ro.jac.scaled = false;
       ro.jac.w_every = m_.cfg.integrator.w_every;
       ro.jac.w_k_every = m_.cfg.integrator.w_k_every;
       ro.jac.w_secant = m_.cfg.integrator.w_secant;
-      ros2_ = std::make_unique<OdeDriver>(*this, ro);
-      ros2_h_ = h;
+      return std::make_unique<OdeDriver>(*this, ro);
+    };
+    // Before integrator.startup_time a step is taken as startup_substeps steps of h / that
+    // (its own driver and matrix); the grid of the steps, and so the clock, is the same.
+    const int sub = m_.cfg.integrator.startup_substeps;
+    const bool startup = t_ < m_.cfg.integrator.startup_time && sub > 1;
+    OdeDriver* drv;
+    if (startup) {
+      if (!ros2_startup_ || ros2_startup_h_ != h / sub) ros2_startup_ = make(h / sub), ros2_startup_h_ = h / sub;
+      drv = ros2_startup_.get();
+    } else {
+      if (!ros2_ || ros2_h_ != h) ros2_ = make(h), ros2_h_ = h;
+      ros2_startup_.reset();
+      drv = ros2_.get();
     }
-    // The driver takes one step to exactly t0 + (n + 1) h and counts it; the clock keeps
-    // its origin, so that t has no accumulated rounding, as with RK4.
+    // The driver takes one step (or the sub-steps) to exactly t0 + (n + 1) h and counts it;
+    // the clock keeps its origin, so that t has no accumulated rounding, as with RK4.
     const double t0 = t0_, t1 = t0_ + static_cast<double>(steps_ + 1 - steps0_) * h;
     const long s0 = steps0_, n1 = steps_ + 1;
-    ros2_->advance(t1);
+    drv->advance(t1);
     t0_ = t0, steps0_ = s0, steps_ = n1, t_ = t1;
     if (prof_) prof_->add_step(Profiler::ticks() - tick0);
     return;
@@ -94,7 +106,7 @@ Checkpoint Simulation::checkpoint() const {
 }
 
 void Simulation::restore(const Checkpoint& c) {
-  ros2_.reset();  // its matrix belongs to the old state
+  ros2_.reset(), ros2_startup_.reset();  // their matrices belong to the old state
   if (c.state.size() != m_.nstate || c.rocker.size() != ws_.status.rocker.size() ||
       c.pulley.size() != ws_.status.pulley.size())
     throw std::runtime_error("checkpoint does not fit the model (state of " + std::to_string(c.state.size()) +

@@ -25,7 +25,7 @@ bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
 
 TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
   const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=3",
-                                       "integrator.w_k_every=6"});
+                                       "integrator.w_k_every=6", "integrator.startup_time=0"});
   const Eigen::VectorXd ref = run(m, {}, 300, 1e-7);
   Simulation start(m);
   EXPECT_GT((ref - start.state()).norm(), 1e-6) << "the run must move";
@@ -41,7 +41,7 @@ TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
 
 TEST(Ros2Run, ResumedAtAMultipleOfWKEveryRepeatsTheBits) {
   const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=4",
-                                       "integrator.w_k_every=16"});
+                                       "integrator.w_k_every=16", "integrator.startup_time=0"});
   const Eigen::VectorXd ref = run(m, {}, 240, 1e-7);
   for (int at : {128, 121}) {
     Simulation first(m);
@@ -98,6 +98,7 @@ TEST(Ros2Run, CloseToRk4AtTheProductionStep) {
   for (int secant = 0; secant < 2; ++secant)
     for (int i = 0; i < 3; ++i)
       dq_w[secant][i] = pins_off(test::model("mini", {"ramp.time=1e-4", "integrator.method=ros2",
+                                                      "integrator.startup_time=0",
                                                       "integrator.w_every=" + std::to_string(every[i]),
                                                       std::string("integrator.w_secant=") + (secant ? "true" : "false")}),
                                  1e-7);
@@ -111,6 +112,48 @@ TEST(Ros2Run, CloseToRk4AtTheProductionStep) {
   EXPECT_LT(dq_w[0][0], 2 * dq_rk);
   for (const auto& row : dq_w)
     for (double d : row) EXPECT_LT(d, 1e-6);
+}
+
+// The start-up phase (integrator.startup_time, startup_substeps): from rest, each step is
+// taken as sub-steps, on the same grid of steps and the same clock, closer to RK4 than whole
+// steps; past it the run goes on with whole steps; the bits are the same on any schedule.
+TEST(Ros2Run, StartupSubStepsFollowRk4FromRestOnTheSameGrid) {
+  const double h = 1e-7;
+  const int n = 400;  // 40 us; the start-up covers the first 20
+  const Model rk = test::model("mini", {"ramp.time=2e-5"});  // (a Simulation keeps a reference to its Model)
+  Simulation ref(rk);
+  for (int k = 0; k < n * 10; ++k) ref.step(1e-8);
+  ASSERT_TRUE(ref.state().allFinite());
+  auto pins_off = [&](const Simulation& s) {  // max |dq| of the pins [m]
+    double dq = 0;
+    for (int i = 0; i < kJointSize * s.model().links; ++i) dq = std::max(dq, std::abs(s.state()[i] - ref.state()[i]));
+    return dq;
+  };
+  const std::vector<std::string> base = {"ramp.time=2e-5", "integrator.method=ros2", "integrator.w_every=4",
+                                         "integrator.w_k_every=16"};
+  auto with = [&](const std::string& a, const std::string& b) {
+    std::vector<std::string> o = base;
+    o.push_back(a), o.push_back(b);
+    return test::model("mini", o);
+  };
+  const Model plain = with("integrator.startup_time=0", "integrator.startup_substeps=4");
+  const Model startup = with("integrator.startup_time=2e-5", "integrator.startup_substeps=4");
+  Simulation a(plain), b(startup);
+  for (int k = 0; k < n; ++k) a.step(h), b.step(h);
+  EXPECT_EQ(b.steps(), n);
+  EXPECT_EQ(b.time(), a.time());
+  ASSERT_TRUE(a.state().allFinite() && b.state().allFinite());
+  const double da = pins_off(a), db = pins_off(b);
+  std::printf("[ros2] 40 us from rest, h = 1e-7, vs RK4 at 1e-8: max |dq| of the pins %.3e m whole steps, %.3e m "
+              "with the first 20 us in 4 sub-steps\n", da, db);
+  EXPECT_GT(da, 0.0);
+  EXPECT_LT(db, da);
+  ScheduleOptions o;
+  o.kind = SchedulerKind::flowgraph;
+  o.threads = 2;
+  Simulation c(startup, o);
+  for (int k = 0; k < n; ++k) c.step(h);
+  EXPECT_TRUE(same_bits(c.state(), b.state()));
 }
 
 }  // namespace
