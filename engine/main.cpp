@@ -22,6 +22,12 @@
 
 namespace {
 
+std::string fmt_g(double x) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", x);
+  return b;
+}
+
 struct ScheduleArgs {
   std::string scheduler = "serial";
   int threads = 1;
@@ -150,7 +156,12 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
               cfg.integrator.step,
               cfg.integrator.method == "ros2"
                   ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
-                     std::to_string(cfg.integrator.w_k_every) + ")")
+                     std::to_string(cfg.integrator.w_k_every) +
+                     (cfg.integrator.startup_time > 0 && cfg.integrator.startup_substeps > 1
+                          ? "; " + std::to_string(cfg.integrator.startup_substeps) + " sub-steps per step before t = " +
+                                fmt_g(cfg.integrator.startup_time) + " s"
+                          : std::string()) +
+                     ")")
                         .c_str()
                   : "",
               to_string(cfg.friction.law));
