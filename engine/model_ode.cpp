@@ -293,7 +293,7 @@ void ModelOde::w_stiffness(double t, const double* y) {
     for (int i = 0; i < kLinkDim; ++i) {
       for (int l = 0; l < N; ++l) {
         if (w_color_[l] != color) continue;
-        const int c = link_coord(l, i);
+        const int c = coord(l, i);
         w_delta_[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
         yp[c] = ys_[c] + w_delta_[l];
       }
@@ -304,14 +304,14 @@ void ModelOde::w_stiffness(double t, const double* y) {
         const double inv = 1.0 / w_delta_[l];
         // Column i of link l: rows of links l-1 (sub of l, as M(l-1, l): super(l)), l, l+1.
         for (int r = 0; r < kLinkDim; ++r) {
-          const int rp = link_coord(m_.wrap(l - 1), r), ro = link_coord(l, r), rn = link_coord(m_.wrap(l + 1), r);
+          const int rp = coord(m_.wrap(l - 1), r), ro = coord(l, r), rn = coord(m_.wrap(l + 1), r);
           w_k_super_[l](r, i) = -(F1[rp] - F0[rp]) * inv;
           w_k_diag_[l](r, i) = -(F1[ro] - F0[ro]) * inv;
           w_k_sub_[m_.wrap(l + 1)](r, i) = -(F1[rn] - F0[rn]) * inv;
         }
       });
       for (int l = 0; l < N; ++l)
-        if (w_color_[l] == color) yp[link_coord(l, i)] = ys_[link_coord(l, i)];
+        if (w_color_[l] == color) yp[coord(l, i)] = ys_[coord(l, i)];
     }
   }
   for_joints([this](int l) {
@@ -425,7 +425,6 @@ void ModelOde::w_solve(double* x) const {
   // (Scaled: the chain's entries through w_unit_q_ / w_unit_v_, tables in link order.)
   const int n = m_.ndof;
   const double gh = w_gh_;
-  const int* coord = w_coord_.data();
   const double* uq = w_unit_q_.data();
   const double* uv = w_unit_v_.data();
   LinkVector* v = w_rhs_.data();
@@ -433,18 +432,18 @@ void ModelOde::w_solve(double* x) const {
   if (opt_.w_stiffness)
     for_joints([&](int l) {
       const int o = l * kLinkDim;
-      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = x[coord[o + i]] * uq[o + i];
+      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = x[w_coord_[o + i]] * uq[o + i];
     });
   for_joints([&](int l) {
     const int o = l * kLinkDim;
     LinkVector b;
-    for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + coord[o + i]] * uv[o + i];
+    for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + w_coord_[o + i]] * uv[o + i];
     LinkVector& y = v[l];
     y.setZero();
     for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0 b (73 nonzeros of 441)
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
-      const int lp = l == 0 ? m_.links - 1 : l - 1, ln = l + 1 == m_.links ? 0 : l + 1;
+      const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
       // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
       // columns (exact zeros skipped).
       LinkVector kb = w_k_diag_[l] * bq[l];
@@ -468,7 +467,7 @@ void ModelOde::w_solve(double* x) const {
   w_lu_.solve(v);
   for_joints([&](int l) {
     const int o = l * kLinkDim;
-    for (int i = 0; i < kLinkDim; ++i) x[n + coord[o + i]] = v[l][i] / uv[o + i];
+    for (int i = 0; i < kLinkDim; ++i) x[n + w_coord_[o + i]] = v[l][i] / uv[o + i];
   });
   // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v (scaled: times
   // the ratio of the units, w_unit_ratio_).

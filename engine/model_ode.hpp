@@ -176,6 +176,7 @@ class ModelOde {
   std::vector<std::uint8_t> w_cps_on_;
   CyclicBlockLU<kLinkDim> w_lu_;
   std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
+  int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }
   std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
   std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
   mutable LinkVectors w_rhs_, w_bq_;

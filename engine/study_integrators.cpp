@@ -69,6 +69,19 @@ void state_errors(const Model& m, const Eigen::VectorXd& a, const Eigen::VectorX
   if (!a.allFinite()) ep = ev = kNaN;
 }
 
+// The driver's counts and times into r; ROS2's stiffness differences run inside its
+// w_factor: reported as the Jacobian's, not the factorization's.
+void take_stats(const OdeDriver& drv, CurveRun& r) {
+  const OdeStats& st = drv.stats();
+  r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
+  r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
+  r.newton_iterations = st.newton_iterations;
+  r.jac_s = st.jac_seconds + drv.model_ode().w_stiffness_seconds();
+  r.lu_s = st.lu_seconds - drv.model_ode().w_stiffness_seconds();
+  r.solve_s = st.solve_seconds;
+  r.status_rebuilds = drv.model_ode().w_status_rebuilds();
+}
+
 // FNV-1a over the text: a stable key for the cache files (the same on every build).
 std::uint64_t fnv1a(const std::string& s) {
   std::uint64_t h = 1469598103934665603ull;
@@ -347,20 +360,11 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       else
         for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
       bool found = false;
-      std::vector<double> walls;
-      CurveRun first;
-      for (const auto& cand : cands) {
-       const double p = cand.h;
-       CurveRun r;
-       for (int rep = 0; rep < std::max(1, opt.repeat); ++rep) {
-        r = CurveRun{};
+      // One run of a candidate (step or tolerance p; ROS2: its matrix intervals).
+      auto run_once = [&](double p, int w_every, int w_k_every) {
+        CurveRun r;
         r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
-        if (method == OdeMethod::Ros2) {
-          r.w_every = cand.w_every > 0 ? cand.w_every : opt.w_every;
-          r.w_k_every = cand.w_every > 0 ? cand.w_k_every : opt.w_k_every;
-          if (r.w_every < 1 || r.w_k_every < 1 || r.w_k_every % r.w_every != 0)
-            throw std::invalid_argument("ROS2 candidate: the stiffness interval must be a multiple of the matrix's");
-        }
+        r.w_every = w_every, r.w_k_every = w_k_every;
         Simulation s(m, opt.schedule);
         s.restore(start);
         s.set_clock(t0, 0);
@@ -395,7 +399,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             }
             ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
             ro.jac = jac_opt;
-            if (method == OdeMethod::Ros2) ro.jac.w_every = r.w_every, ro.jac.w_k_every = r.w_k_every;
+            if (method == OdeMethod::Ros2) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
             // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
             // serve error norms, which fixed steps do not use).
             if (w_fixed) ro.jac.scaled = false;
@@ -407,25 +411,12 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
               r.curve.push_back(f[tracked]);
               if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
               if (seconds_since(w0) > opt.max_wall) {
-                const OdeStats& st = drv.stats();
-                r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
-                r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
-                r.newton_iterations = st.newton_iterations;
-                r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
-                // ROS2's stiffness differences run inside its w_factor: report them as the Jacobian's.
-                r.jac_s += drv.model_ode().w_stiffness_seconds(), r.lu_s -= drv.model_ode().w_stiffness_seconds();
-                r.status_rebuilds = drv.model_ode().w_status_rebuilds();
+                take_stats(drv, r);
                 r.reached = times[k] - t0;
                 throw std::runtime_error("timeout");
               }
             }
-            const OdeStats& st = drv.stats();
-            r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
-            r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
-            r.newton_iterations = st.newton_iterations;
-            r.jac_s = st.jac_seconds, r.lu_s = st.lu_seconds, r.solve_s = st.solve_seconds;
-            r.jac_s += drv.model_ode().w_stiffness_seconds(), r.lu_s -= drv.model_ode().w_stiffness_seconds();
-            r.status_rebuilds = drv.model_ode().w_status_rebuilds();
+            take_stats(drv, r);
           }
         } catch (const BlowUpError&) {
           r.status = "blow-up";
@@ -435,17 +426,27 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
           r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
         }
         r.wall_s = seconds_since(w0);
-        walls.push_back(r.wall_s);
-        if (rep > 0 && (r.status != first.status || r.curve != first.curve))
-          throw std::runtime_error("study: a repeated run of " + name + " gave other bits (not reproducible)");
-        if (rep == 0) first = r;
-       }
-        // The median wall time of the repeats (the machine's load varies); the bits are the same.
+        return r;
+      };
+      for (const auto& cand : cands) {
+        const double p = cand.h;
+        const bool own = method == OdeMethod::Ros2 && cand.w_every > 0;  // H:W:K
+        const int we = method != OdeMethod::Ros2 ? 0 : own ? cand.w_every : opt.w_every;
+        const int wk = method != OdeMethod::Ros2 ? 0 : own ? cand.w_k_every : opt.w_k_every;
+        // The repeats: the same bits every time, the median wall time (the machine's load varies).
+        CurveRun r = run_once(p, we, wk);
+        std::vector<double> walls = {r.wall_s};
+        for (int rep = 1; rep < opt.repeat; ++rep) {
+          CurveRun again = run_once(p, we, wk);
+          if (again.status != r.status || again.curve != r.curve)
+            throw std::runtime_error("study: a repeated run of " + name + " gave other bits (not reproducible)");
+          walls.push_back(again.wall_s);
+          r = std::move(again);
+        }
         std::sort(walls.begin(), walls.end());
-        r.walls = walls;
-        r.wall_s = walls[walls.size() / 2];
-        if (walls.size() % 2 == 0) r.wall_s = 0.5 * (walls[walls.size() / 2 - 1] + walls[walls.size() / 2]);
-        walls.clear();
+        const size_t mid = walls.size() / 2;
+        r.wall_s = walls.size() % 2 ? walls[mid] : 0.5 * (walls[mid - 1] + walls[mid]);
+        r.walls = std::move(walls);
         r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
         if (r.status == "timeout")
           std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
@@ -489,7 +490,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
     }
     if (opt.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt.repeat);
     std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,
-                StudyCache::exists(cache.ref) && ref_from_cache ? ", from the cache: an earlier run's time" : "");
+                ref_from_cache ? ", from the cache: an earlier run's time" : "");
     for (const CurveRun& r : runs)
       if (r.chosen)
         std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),

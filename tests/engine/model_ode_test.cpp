@@ -372,6 +372,12 @@ TEST(ModelOde, EnergyBalanceWithImplicitMethod) {
   EXPECT_LE(std::abs(res_b), 0.05 * flow);
 }
 
+// The whole text of a file ("" if it cannot be read).
+std::string slurp(const std::filesystem::path& p) {
+  std::ifstream f(p);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+
 // `cvt-engine study integrators` in its short mode (mini model, 0.1 ms window): both parts,
 // the table, the CSV and the curves.
 TEST(ModelOde, StudyIntegratorsShortMode) {
@@ -385,10 +391,6 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
                           "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --ros2-steps 1e-7 --tols 1 --max-dev 0.2 --out " +
                           test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);
-  auto slurp = [](const fs::path& p) {
-    std::ifstream f(p);
-    return std::string(std::istreambuf_iterator<char>(f), {});
-  };
   const std::string out = slurp(dir / "out.txt"), table = slurp(csv), curves = slurp(dir / "study-curves.csv");
   std::printf("%s", out.c_str());
   EXPECT_NE(out.find("(a) error after one step"), std::string::npos);
@@ -410,10 +412,6 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / ("cvt_study_cache_" + std::to_string(::getpid()));
   fs::create_directories(dir / "cache");
-  auto slurp = [](const fs::path& p) {
-    std::ifstream f(p);
-    return std::string(std::istreambuf_iterator<char>(f), {});
-  };
   auto study = [&](const std::string& name, const std::string& extra) {
     const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
                             test::shell_quote(test::config_path("mini")) +
