@@ -185,7 +185,7 @@ const std::vector<std::string>& law_names() {
   return names;
 }
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"rk4", "ros2"};
+  static const std::vector<std::string> names = {"rk4", "ros2", "ros34pw2"};
   return names;
 }
 

@@ -154,7 +154,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
               1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
   std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
               cfg.integrator.step,
-              cfg.integrator.method == "ros2"
+              cfg.integrator.method != "rk4"
                   ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
                      std::to_string(cfg.integrator.w_k_every) +
                      (cfg.integrator.startup_time > 0 && cfg.integrator.startup_substeps > 1
@@ -336,8 +336,8 @@ int main(int argc, char** argv) {
   study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
-  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3,ros2")->delimiter(',')
-      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2"}))->capture_default_str();
+  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3,ros2,ros34pw2")->delimiter(',')
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2"}))->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();

@@ -477,9 +477,10 @@ void ModelOde::w_solve(double* x) const {
 
 OdeMethod parse_ode_method(const std::string& name) {
   for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
-                      OdeMethod::Esdirk3, OdeMethod::Ros2})
+                      OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
     if (name == to_string(m)) return m;
-  throw std::invalid_argument("unknown method '" + name + "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3, ros2)");
+  throw std::invalid_argument("unknown method '" + name +
+                              "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
 }
 
 OdeDriver::OdeDriver(Simulation& sim, const OdeRunOptions& opt)
@@ -521,7 +522,7 @@ void OdeDriver::advance(double t1) {
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
       if (freeze) ws.friction_branch = Workspace::FrictionBranch::record;
-      if (opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks) {
+      if (is_w_method(opt_.method) && opt_.jac.w_blocks) {
         ode_.set_step_index(sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
         ws.record_damping = ode_.w_due();
       }
@@ -536,7 +537,7 @@ void OdeDriver::advance(double t1) {
       if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
       t = t_end;
       ++k;
-      const bool watch = opt_.method == OdeMethod::Ros2 && opt_.jac.w_blocks && opt_.jac.w_status_rebuild;
+      const bool watch = is_w_method(opt_.method) && opt_.jac.w_blocks && opt_.jac.w_status_rebuild;
       if (watch) rocker0_ = ws.status.rocker, pulley0_ = ws.status.pulley;
       sched.update_status(t, y.data());
       if (watch && (rocker0_ != ws.status.rocker || pulley0_ != ws.status.pulley)) ode_.w_invalidate();

@@ -31,6 +31,7 @@ const char* to_string(OdeMethod method) {
     case OdeMethod::TrBdf2: return "trbdf2";
     case OdeMethod::Esdirk3: return "esdirk3";
     case OdeMethod::Ros2: return "ros2";
+    case OdeMethod::Ros34pw2: return "ros34pw2";
   }
   return "?";
 }
@@ -210,6 +211,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       stats.colors = sys.is_sparse() && !sys.sparse_jacobian ? newton_->colors() : 0;
       break;
     case OdeMethod::Ros2:
+    case OdeMethod::Ros34pw2:
       if (static_cast<bool>(sys.w_factor) != static_cast<bool>(sys.w_solve))
         throw std::invalid_argument("OdeSystem: w_factor and w_solve go together");
       if (!sys.w_factor) {
@@ -218,6 +220,8 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       }
       k2_.setZero(n_);
       z_.setZero(n_);
+      if (method_ == OdeMethod::Ros34pw2)
+        for (auto& u : stages_) u.setZero(n_);
       break;
   }
 }
@@ -227,6 +231,7 @@ int OdeSolverImpl::order() const {
     case OdeMethod::Rk4: return 4;
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
     case OdeMethod::Ros2: return 1;  // the estimate is that of the embedded first-order solution
+    case OdeMethod::Ros34pw2: return 2;  // and here of the embedded second-order one
     default: return 2;  // RKC, trapezoid, TR-BDF2; ESDIRK3's estimate is its 2nd-order embedding
   }
 }
@@ -279,6 +284,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::TrBdf2: return step_trbdf2(t, h, y, err);
     case OdeMethod::Esdirk3: return step_esdirk3(t, h, y, err);
     case OdeMethod::Ros2: step_ros2(t, h, y, err); return Attempt::Ok;
+    case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Rk4: break;
   }
   throw std::logic_error("OdeSolver: RK4 has no step attempt");
@@ -331,7 +337,7 @@ void OdeSolverImpl::integrate_fixed(double t0, double t1, Eigen::VectorXd& y, co
   const std::int64_t steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(span / opt_.h0 - 1e-9)));
   if (steps > opt_.max_steps) throw OdeError(t0, opt_.h0, "more fixed steps than max_steps");
   const double h = span / static_cast<double>(steps);
-  if (method_ != OdeMethod::Rk4 && method_ != OdeMethod::Ros2) eval(t0, y, f0_);  // ROS2 evaluates it per step
+  if (method_ != OdeMethod::Rk4 && !is_w_method(method_)) eval(t0, y, f0_);  // W-methods evaluate it per step
   for (std::int64_t i = 0; i < steps; ++i) {
     const double t = t0 + static_cast<double>(i) * h;
     const double t_next = i + 1 == steps ? t1 : t0 + static_cast<double>(i + 1) * h;
@@ -366,7 +372,7 @@ void OdeSolverImpl::integrate_fixed(double t0, double t1, Eigen::VectorXd& y, co
 
 void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   fixed_ = false;
-  if (method_ != OdeMethod::Ros2 || !(opt_.h0 > 0)) eval(t0, y, f0_);  // ROS2 evaluates it per step
+  if (!is_w_method(method_) || !(opt_.h0 > 0)) eval(t0, y, f0_);  // W-methods evaluate it per step
   if (method_ == OdeMethod::Rkc) need_rho_ = true;
   double h = opt_.h0 > 0 ? std::min({opt_.h0, opt_.h_max, t1 - t0}) : initial_step(t0, y, t1);
   // Controller (Hairer & Wanner I, II.4): h_new = h * safe / err^(1/(q+1)) * err_old^beta,

@@ -42,8 +42,8 @@ struct OdeSystem {
 
   bool is_sparse() const { return sparsity.nonZeros() > 0; }
 
-  // W-methods (OdeMethod::Ros2) with a system-supplied approximate Jacobian J~ (optional;
-  // without them Ros2 takes the Jacobian above and an LU, fresh at every step):
+  // W-methods (is_w_method: Ros2, Ros34pw2) with a system-supplied approximate Jacobian J~ (optional;
+  // without them a W-method takes the Jacobian above and an LU, fresh at every step):
   // w_factor(t, y, gh) prepares W = I - gh J~ at (t, y), and is always called right after
   // rhs(t, y), so a system may take J~ from what that evaluation recorded; w_solve(x)
   // overwrites x with W^-1 x. A W-method keeps its order for any J~; J~ only has to capture
@@ -64,7 +64,12 @@ enum class OdeMethod {
   TrBdf2,     // TR-BDF2, gamma = 2 - sqrt 2, L-stable, order 2 (Hosea & Shampine 1996)
   Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
   Ros2,       // Verwer et al.'s ROS2 W-method, 2 stages, order 2 for any J~, L-stable for J~ = J
+  Ros34pw2,   // Rang & Angermann's ROS34PW2 W-method, 4 stages, order 3 for any J~, stiffly accurate
 };
+
+// The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
+// no Newton iteration; both take a system's w_factor / w_solve.
+inline bool is_w_method(OdeMethod m) { return m == OdeMethod::Ros2 || m == OdeMethod::Ros34pw2; }
 
 const char* to_string(OdeMethod method);
 
@@ -104,7 +109,7 @@ struct OdeOptions {
   // systems (the CVT) whose error concentrates in a few of many components, which an RMS over
   // all of them dilutes by sqrt(n).
   bool max_norm = false;
-  // Ros2 without a system W (finite-difference or analytic Jacobian): keep the Jacobian and
+  // W-methods without a system W (finite-difference or analytic Jacobian): keep the Jacobian and
   // the LU of W for this many steps (a W-method keeps its order with a stale matrix);
   // rebuilt earlier when gamma h changes.
   int w_reuse_steps = 1;

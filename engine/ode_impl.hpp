@@ -83,7 +83,11 @@ class OdeSolverImpl {
   Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
   // ode_rosenbrock.cpp
   void step_ros2(double t, double h, const Eigen::VectorXd& y, double* err);
-  int w_age_ = 0;  // Ros2: steps since its Jacobian was taken (OdeOptions::w_reuse_steps)
+  void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
+  void prepare_w(double t, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
+  void solve_w(Eigen::VectorXd& x);                                 // x <- W^-1 x
+  int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
+  Eigen::VectorXd stages_[4];  // Ros34pw2's u_i
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,

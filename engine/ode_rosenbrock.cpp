@@ -1,4 +1,4 @@
-// The ROS2 W-method of the generic integrators (docs/integrators.md 12).
+// The W-methods of the generic integrators (docs/integrators.md 12, 13): ROS2 and ROS34PW2.
 //
 // Verwer, Spee, Blom & Hundsdorfer, "A second-order Rosenbrock method applied to
 // photochemical dispersion problems", SIAM J. Sci. Comput. 20 (1999) 1456-1480:
@@ -28,13 +28,10 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 }
 }  // namespace
 
-void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, double* err) {
-  const double gh = kRos2Gamma * h;
+// W = I - gh J~ at (t, y), right after f0_ = f(t, y): the system's own (w_factor), or the
+// Jacobian above and its LU, kept for w_reuse_steps steps while gh stays the same.
+void OdeSolverImpl::prepare_w(double t, const Eigen::VectorXd& y, double gh) {
   auto t0 = std::chrono::steady_clock::now();
-  // f(t, y) afresh at every step: callers such as OdeDriver change the system between
-  // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
-  eval(t, y, f0_);
-  t0 = std::chrono::steady_clock::now();  // the matrix's time, not the evaluation's
   if (sys_.w_factor) {
     sys_.w_factor(t, y.data(), gh);
     ++stats.jac_evals;
@@ -49,25 +46,110 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
     t0 = std::chrono::steady_clock::now();
     newton_->factorize(gh, stats);
     stats.lu_seconds += seconds_since(t0);
-    if (!newton_->ok()) throw OdeError(t, h, "ROS2: the matrix I - gamma h J is singular");
+    if (!newton_->ok())
+      throw OdeError(t, gh, std::string(to_string(method_)) + ": the matrix I - gamma h J is singular");
   }
-  auto solve = [&](Eigen::VectorXd& x) {
-    const auto s0 = std::chrono::steady_clock::now();
-    if (sys_.w_solve)
-      sys_.w_solve(x.data());
-    else
-      newton_->solve_in_place(x);
-    stats.solve_seconds += seconds_since(s0);
-  };
+}
+
+void OdeSolverImpl::solve_w(Eigen::VectorXd& x) {
+  const auto s0 = std::chrono::steady_clock::now();
+  if (sys_.w_solve)
+    sys_.w_solve(x.data());
+  else
+    newton_->solve_in_place(x);
+  stats.solve_seconds += seconds_since(s0);
+}
+
+void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, double* err) {
+  // f(t, y) afresh at every step: callers such as OdeDriver change the system between
+  // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
+  eval(t, y, f0_);
+  prepare_w(t, y, kRos2Gamma * h);
   // k1 in z_, k2 in k2_.
   z_ = f0_;
-  solve(z_);
+  solve_w(z_);
   y_new_ = y + h * z_;
   eval(t + h, y_new_, k2_);
   k2_ -= 2.0 * z_;
-  solve(k2_);
+  solve_w(k2_);
   y_new_ = y + (1.5 * h) * z_ + (0.5 * h) * k2_;
   err_vec_ = (0.5 * h) * (z_ + k2_);
+  *err = fixed_ ? 0.0 : error_norm(err_vec_, y, y_new_);
+}
+
+// ROS34PW2 in the form that needs no products with J~ (Hairer & Wanner II, IV.7, (7.25)):
+// with u_i = sum_j gamma_ij k_j,
+//   W u_i = gamma h f(t + alpha_i h, y + sum_{j<i} a_ij u_j) + gamma sum_{j<i} c_ij u_j,
+//   y_1 = y + sum_i m_i u_i,
+// where a = alpha Gamma^-1, C = diag(1/gamma) - Gamma^-1 and m = b Gamma^-1 are computed once
+// from the published tableau (alpha, Gamma, b, b^) below. The t-column of J~ is zero, as a
+// W-method allows (no df/dt terms).
+namespace {
+struct Ros34pw2Tableau {
+  static constexpr int s = 4;
+  double gamma = 4.3586652150845900e-01;
+  double alpha_c[s] = {};  // stage times
+  double a[s][s] = {}, c[s][s] = {};
+  double m[s] = {}, e[s] = {};  // solution weights and those of the error (m - m^)
+  Ros34pw2Tableau() {
+    double alpha[s][s] = {};
+    alpha[1][0] = 8.7173304301691801e-01;
+    alpha[2][0] = 8.4457060015369423e-01, alpha[2][1] = -1.1299064236397981e-01;
+    alpha[3][2] = 1.0;
+    double g[s][s] = {};
+    g[1][0] = -8.7173304301691801e-01;
+    g[2][0] = -9.0338057013044082e-01, g[2][1] = 5.4180672388095326e-02;
+    g[3][0] = 2.4212380706095346e-01, g[3][1] = -1.2232505839045147e+00, g[3][2] = 5.4526025533510214e-01;
+    for (int i = 0; i < s; ++i) g[i][i] = gamma;
+    const double b[s] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
+                         4.3586652150845900e-01};
+    const double bh[s] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
+                          2.1793326075422950e-01};
+    // Gamma^-1 by forward substitution (lower triangular).
+    double gi[s][s] = {};
+    for (int j = 0; j < s; ++j) {
+      gi[j][j] = 1.0 / g[j][j];
+      for (int i = j + 1; i < s; ++i) {
+        double sum = 0;
+        for (int k = j; k < i; ++k) sum += g[i][k] * gi[k][j];
+        gi[i][j] = -sum / g[i][i];
+      }
+    }
+    for (int i = 0; i < s; ++i) {
+      for (int j = 0; j < i; ++j) {
+        alpha_c[i] += alpha[i][j];
+        for (int k = j; k < i; ++k) a[i][j] += alpha[i][k] * gi[k][j];
+        c[i][j] = -gi[i][j];
+      }
+      for (int k = i; k < s; ++k) m[i] += b[k] * gi[k][i], e[i] += (b[k] - bh[k]) * gi[k][i];
+    }
+  }
+};
+const Ros34pw2Tableau kRos34pw2;
+}  // namespace
+
+void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
+  const Ros34pw2Tableau& tb = kRos34pw2;
+  eval(t, y, f0_);
+  prepare_w(t, y, tb.gamma * h);
+  const double gh = tb.gamma * h;
+  for (int i = 0; i < tb.s; ++i) {
+    Eigen::VectorXd& u = stages_[i];
+    if (i == 0) {
+      u = gh * f0_;
+    } else {
+      y_new_ = y;
+      for (int j = 0; j < i; ++j)
+        if (tb.a[i][j] != 0) y_new_ += tb.a[i][j] * stages_[j];
+      eval(t + tb.alpha_c[i] * h, y_new_, u);
+      u *= gh;
+      for (int j = 0; j < i; ++j) u += (tb.gamma * tb.c[i][j]) * stages_[j];
+    }
+    solve_w(u);
+  }
+  y_new_ = y;
+  err_vec_.setZero();
+  for (int i = 0; i < tb.s; ++i) y_new_ += tb.m[i] * stages_[i], err_vec_ += tb.e[i] * stages_[i];
   *err = fixed_ ? 0.0 : error_norm(err_vec_, y, y_new_);
 }
 

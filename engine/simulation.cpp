@@ -47,10 +47,10 @@ void Simulation::step(double h, bool update_status) {
   // same; a caller that changes h (a run warmed at one step and continued at another) gets
   // the clock re-anchored here instead of a time jump. Unchanged h: no effect on the bits.
   if (std::abs(t0_ + static_cast<double>(steps_ - steps0_) * h - t_) > 1e-6 * h) t0_ = t_, steps0_ = steps_;
-  if (update_status && m_.cfg.integrator.method == "ros2") {
+  if (update_status && m_.cfg.integrator.method != "rk4") {  // a W-method: ros2, ros34pw2
     auto make = [this](double hh) {
       OdeRunOptions ro;
-      ro.method = OdeMethod::Ros2;
+      ro.method = parse_ode_method(m_.cfg.integrator.method);
       ro.ode.fixed_step = true;
       ro.ode.h0 = hh;
       ro.jac.scaled = false;
@@ -277,8 +277,8 @@ void Simulation::check_finite() {
                   at, rho, h_stable);
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
-    if (m_.cfg.integrator.method == "ros2")
-      cause += "the run uses ros2 with h = " + std::string(buf) +
+    if (m_.cfg.integrator.method != "rk4")
+      cause += "the run uses " + m_.cfg.integrator.method + " with h = " + std::string(buf) +
                " s, stable past that limit only while its matrix holds the stiff terms: reduce integrator.step, or "
                "rebuild the matrix more often (integrator.w_every, integrator.w_k_every)";
     else

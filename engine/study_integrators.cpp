@@ -252,7 +252,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
         if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
           ws.friction_branch = Workspace::FrictionBranch::record;
-        ws.record_damping = method == OdeMethod::Ros2 && !opt.ros2_full_jacobian;  // the W-method's matrix
+        ws.record_damping = is_w_method(method) && !opt.ros2_full_jacobian;  // the W-method's matrix
         ws.damping_secant = opt.w_secant;
         ode.offset() = start.state;
         Eigen::VectorXd z;
@@ -353,7 +353,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
     for (const std::string& name : opt.methods) {
       const OdeMethod method = parse_ode_method(name);
       const bool fixed = method == OdeMethod::Rk4;
-      const bool w_fixed = method == OdeMethod::Ros2 && !opt.ros2_steps.empty();
+      const bool w_fixed = is_w_method(method) && !opt.ros2_steps.empty();
       std::vector<IntegratorStudyOptions::Ros2Candidate> cands;
       if (w_fixed)
         cands = opt.ros2_steps;
@@ -399,7 +399,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
             }
             ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
             ro.jac = jac_opt;
-            if (method == OdeMethod::Ros2) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
+            if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
             // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
             // serve error norms, which fixed steps do not use).
             if (w_fixed) ro.jac.scaled = false;
@@ -430,9 +430,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       };
       for (const auto& cand : cands) {
         const double p = cand.h;
-        const bool own = method == OdeMethod::Ros2 && cand.w_every > 0;  // H:W:K
-        const int we = method != OdeMethod::Ros2 ? 0 : own ? cand.w_every : opt.w_every;
-        const int wk = method != OdeMethod::Ros2 ? 0 : own ? cand.w_k_every : opt.w_k_every;
+        const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
+        const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt.w_every;
+        const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt.w_k_every;
         // The repeats: the same bits every time, the median wall time (the machine's load varies).
         CurveRun r = run_once(p, we, wk);
         std::vector<double> walls = {r.wall_s};
@@ -463,7 +463,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                     "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
                     r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
-        if (method == OdeMethod::Ros2 && !opt.ros2_full_jacobian)
+        if (is_w_method(method) && !opt.ros2_full_jacobian)
           std::printf("             (ROS2: %lld of its matrix rebuilds forced by contact status changes)\n",
                       static_cast<long long>(r.status_rebuilds));
         std::fflush(stdout);

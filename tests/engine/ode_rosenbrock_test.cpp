@@ -143,3 +143,73 @@ TEST(OdeRos2, AdaptiveSmoothProblem) {
 
 }  // namespace
 }  // namespace cvt
+
+namespace cvt {
+namespace {
+
+using namespace ode_test;
+
+// ROS34PW2 (Rang & Angermann 2005): third order with the exact Jacobian and, being a
+// W-method of order 3, with any other matrix, including zero (then it is an explicit
+// 4-stage Runge-Kutta method of order 3); the non-autonomous term enters through the
+// zero t-column of J~ that a W-method allows.
+TEST(OdeRos34pw2, ThirdOrderForAnyMatrix) {
+  EXPECT_NEAR(smooth_order(smooth_system(), OdeMethod::Ros34pw2, 40, "ros34pw2 (J~ = J by differences)"), 3.0, 0.15);
+  for (int variant = 0; variant < 2; ++variant) {
+    OdeSystem sys = smooth_system();
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(3, 3);
+    if (variant == 1) w.jt << -3.0, 0.5, 0.0, 0.2, -1.0, 0.7, 0.0, -0.4, -2.0;
+    w.install(sys);
+    EXPECT_NEAR(smooth_order(sys, OdeMethod::Ros34pw2, 40, variant == 0 ? "ros34pw2 (J~ = 0)" : "ros34pw2 (J~ wrong)"),
+                3.0, 0.2)
+        << variant;
+  }
+}
+
+// Stiffly accurate and L-stable: on the stiff pair of OdeRos2.StiffComponentNeedsTheMatrixOnlyRoughly
+// the stiff component sits on its slow manifold after each step, to third order in h.
+TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
+  auto run = [](double h) {
+    OdeSystem sys;
+    sys.size = 2;
+    sys.rhs = [](double, const double* y, double* dy) {
+      dy[0] = -1e8 * (y[0] - y[1]);
+      dy[1] = -y[1];
+    };
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(2, 2);
+    w.jt(0, 0) = -1e8, w.jt(0, 1) = 1e8, w.jt(1, 1) = -1;
+    w.install(sys);
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = h;
+    Eigen::VectorXd y(2);
+    y << 0.0, 1.0;
+    integrate(sys, OdeMethod::Ros34pw2, 0, 1, y, opt);
+    return std::max(std::abs(y[0] - std::exp(-1.0)), std::abs(y[1] - std::exp(-1.0)));
+  };
+  const double e1 = run(0.05), e2 = run(0.025), e3 = run(0.0125);
+  std::printf("[ode] ros34pw2 lambda = -1e8, h = 0.05 0.025 0.0125: |error| %.3e %.3e %.3e  orders %.2f %.2f\n", e1, e2,
+              e3, std::log2(e1 / e2), std::log2(e2 / e3));
+  EXPECT_LT(e1, 1e-4);
+  EXPECT_NEAR(std::log2(e2 / e3), 3.0, 0.3);
+}
+
+// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)).
+TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
+  for (double tol : {1e-4, 1e-7}) {
+    Eigen::VectorXd y = smooth_exact(0);
+    OdeOptions opt;
+    opt.rtol = opt.atol = tol;
+    const OdeStats st = integrate(smooth_system(), OdeMethod::Ros34pw2, 0, 10, y, opt);
+    const double err = (y - smooth_exact(10)).lpNorm<Eigen::Infinity>();
+    print_stats(tol > 1e-5 ? "ros34pw2 smooth tol 1e-04" : "ros34pw2 smooth tol 1e-07", st);
+    std::printf("[ode]   ros34pw2 smooth tol %.0e: error %.3e\n", tol, err);
+    EXPECT_LT(err, 30 * tol);
+    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 4 * (st.steps + st.rejected) + 2);
+  }
+}
+
+}  // namespace
+}  // namespace cvt
