@@ -1,9 +1,13 @@
-// ROS2's linear algebra on the reference chain's shape (84 links, 21 x 21 blocks):
+// The W-methods' linear algebra on the reference chain's shape (84 links, 21 x 21 blocks):
 // CyclicBlockLU factorization and one solve, on a random diagonally dominant matrix of that
-// structure (docs/integrators.md 12.6).
+// structure (docs/integrators.md 12.6, 13), with the two sweeps one after the other
+// ("Sequential") and on two threads (tbb::parallel_invoke in a 2-thread arena; same bits).
 #include <benchmark/benchmark.h>
 
 #include <random>
+
+#include <tbb/parallel_invoke.h>
+#include <tbb/task_arena.h>
 
 #include "engine/block_cyclic.hpp"
 
@@ -26,15 +30,32 @@ void fill(LU& lu) {
   }
 }
 
+struct TwoThreads {
+  template <class F, class G>
+  void operator()(const F& f, const G& g) const {
+    tbb::parallel_invoke(f, g);
+  }
+};
+
+// st.range(0): 1 the sweeps one after the other, 2 on two threads.
+template <class F>
+void in_arena(benchmark::State& st, const F& f) {
+  if (st.range(0) == 1) return f(LU::Sequential());
+  tbb::task_arena arena(2);
+  arena.execute([&] { f(TwoThreads()); });
+}
+
 void BM_CyclicBlockLUFactor(benchmark::State& st) {
   LU lu, fresh;
   fill(fresh);
-  for (auto _ : st) {
-    st.PauseTiming();
-    lu = fresh;
-    st.ResumeTiming();
-    benchmark::DoNotOptimize(lu.factor());
-  }
+  in_arena(st, [&](const auto& both) {
+    for (auto _ : st) {
+      st.PauseTiming();
+      lu = fresh;
+      st.ResumeTiming();
+      benchmark::DoNotOptimize(lu.factor(both));
+    }
+  });
   st.counters["fill_blocks"] = lu.fill_blocks();
 }
 void BM_CyclicBlockLUSolve(benchmark::State& st) {
@@ -42,14 +63,16 @@ void BM_CyclicBlockLUSolve(benchmark::State& st) {
   fill(lu);
   lu.factor();
   std::vector<LU::Vec, Eigen::aligned_allocator<LU::Vec>> x(kLinks, LU::Vec::Ones());
-  for (auto _ : st) {
-    lu.solve(x.data());
-    benchmark::DoNotOptimize(x.data());
-  }
+  in_arena(st, [&](const auto& both) {
+    for (auto _ : st) {
+      lu.solve(x.data(), both);
+      benchmark::DoNotOptimize(x.data());
+    }
+  });
 }
 
 }  // namespace
 
-BENCHMARK(BM_CyclicBlockLUFactor)->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_CyclicBlockLUSolve)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CyclicBlockLUFactor)->Arg(1)->Arg(2)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CyclicBlockLUSolve)->Arg(1)->Arg(2)->Unit(benchmark::kMicrosecond);
 BENCHMARK_MAIN();

@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_invoke.h>
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
 
@@ -17,6 +18,21 @@
 #include "modules/pulley_contact.hpp"
 
 namespace cvt {
+
+namespace {
+// The block LU's two sweeps (CyclicBlockLU): concurrent on the schedule's threads (inside its
+// arena), one after the other without; the same arithmetic, so the same bits, either way.
+struct TwoTasks {
+  bool parallel;
+  template <class F, class G>
+  void operator()(const F& f, const G& g) const {
+    if (parallel)
+      tbb::parallel_invoke(f, g);
+    else
+      f(), g();
+  }
+};
+}  // namespace
 
 std::vector<std::pair<int, int>> model_jacobian_pattern(const Model& m, int band, bool pin_to_tail) {
   const int n = m.ndof, N = m.links, tail0 = m.shaft(0), pins = kJointSize * N;
@@ -269,7 +285,7 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   w_invalid_ = false;
   w_gh_ = gh;
   for_joints([this, gh](int l) { w_assemble_link(l, gh); });
-  if (!w_lu_.factor()) throw std::runtime_error("ROS2: the W matrix is singular");
+  if (!w_lu_.factor(TwoTasks{schedule_.threads() > 1})) throw std::runtime_error("W-method: the W matrix is singular");
 }
 
 void ModelOde::w_stiffness(double t, const double* y) {
@@ -464,7 +480,7 @@ void ModelOde::w_solve(double* x) const {
       y.noalias() -= gh * (w_cps_[l] * xs);
     }
   });
-  w_lu_.solve(v);
+  w_lu_.solve(v, TwoTasks{schedule_.threads() > 1});
   for_joints([&](int l) {
     const int o = l * kLinkDim;
     for (int i = 0; i < kLinkDim; ++i) x[n + w_coord_[o + i]] = v[l][i] / uv[o + i];
