@@ -341,10 +341,11 @@ int main(int argc, char** argv) {
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();
-  std::vector<std::string> si_ros2_steps;
-  study_int->add_option("--ros2-steps", si_ros2_steps,
-                        "ROS2 (W-method) fixed steps tried in (b), largest first [s]; H:W:K also sets its matrix "
-                        "intervals (integrator.w_every, w_k_every) for that candidate (default 5e-7,2e-7,1e-7,5e-8)")
+  std::vector<std::string> si_w_steps;
+  study_int->add_option("--w-steps,--ros2-steps", si_w_steps,
+                        "W-methods' (ros2, ros34pw2) fixed steps tried in (b), largest first [s]; H:W:K also sets "
+                        "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
+                        "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
       ->delimiter(',');
   study_int->add_flag("--all", si.all, "(b): run every candidate (default: stop at each method's first accurate one)");
   study_int->add_option("--repeat", si.repeat, "run each candidate of (b) this many times; its wall time is the median")
@@ -433,7 +434,7 @@ int main(int argc, char** argv) {
       si.w_secant = !si_exact_slope;
       si.schedule = si_sched.options();
       const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
-      if (!si_ros2_steps.empty()) si.ros2_steps = cvt::parse_ros2_candidates(si_ros2_steps);
+      if (!si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(si_w_steps);
       if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
       if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
       return cvt::run_integrator_study(model, si);

@@ -148,17 +148,24 @@ Reference read_reference(const std::string& path, size_t samples) {
 
 }  // namespace
 
-std::vector<IntegratorStudyOptions::Ros2Candidate> parse_ros2_candidates(const std::vector<std::string>& items) {
-  std::vector<IntegratorStudyOptions::Ros2Candidate> out;
-  for (const std::string& item : items) {
-    IntegratorStudyOptions::Ros2Candidate c;
+std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::vector<std::string>& items) {
+  std::vector<IntegratorStudyOptions::WCandidate> out;
+  for (const std::string& entry : items) {
+    IntegratorStudyOptions::WCandidate c;
+    const size_t at = entry.find('@');
+    const std::string item = at == std::string::npos ? entry : entry.substr(at + 1);
+    if (at != std::string::npos) {
+      c.method = entry.substr(0, at);
+      if (c.method != "ros2" && c.method != "ros34pw2")
+        throw std::invalid_argument("--w-steps: '" + entry + "' names no W-method (ros2, ros34pw2) before '@'");
+    }
     char tail = 0;
     const int n = std::sscanf(item.c_str(), "%lf:%d:%d%c", &c.h, &c.w_every, &c.w_k_every, &tail);
     const bool plain = n == 1 && item.find(':') == std::string::npos;
     if (!(plain || n == 3) || !(c.h > 0) ||
         (n == 3 && (c.w_every < 1 || c.w_k_every < 1 || c.w_k_every % c.w_every != 0)))
-      throw std::invalid_argument("--ros2-steps: '" + item +
-                                  "' is not H or H:W:K (a step > 0 s; K a positive multiple of W > 0)");
+      throw std::invalid_argument("--w-steps: '" + entry +
+                                  "' is not [METHOD@]H or [METHOD@]H:W:K (a step > 0 s; K a positive multiple of W > 0)");
     if (plain) c.w_every = c.w_k_every = 0;
     out.push_back(c);
   }
@@ -353,12 +360,14 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
     for (const std::string& name : opt.methods) {
       const OdeMethod method = parse_ode_method(name);
       const bool fixed = method == OdeMethod::Rk4;
-      const bool w_fixed = is_w_method(method) && !opt.ros2_steps.empty();
-      std::vector<IntegratorStudyOptions::Ros2Candidate> cands;
-      if (w_fixed)
-        cands = opt.ros2_steps;
-      else
+      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
+      std::vector<IntegratorStudyOptions::WCandidate> cands;
+      if (w_fixed) {
+        for (const auto& c : opt.w_steps)
+          if (c.method.empty() || c.method == name) cands.push_back(c);
+      } else {
         for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
+      }
       bool found = false;
       // One run of a candidate (step or tolerance p; ROS2: its matrix intervals).
       auto run_once = [&](double p, int w_every, int w_k_every) {
@@ -453,7 +462,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         if (r.status == "ok") r.deviation = deviation(r.curve);
         const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
         if (good && !found) r.chosen = found = true;
-        if (r.w_every > 0) std::printf("  (ROS2 matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
+        if (r.w_every > 0) std::printf("  (W matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
         if (r.walls.size() > 1) {
           std::printf("  (wall s of the %zu repeats:", r.walls.size());
           for (double w : r.walls) std::printf(" %.2f", w);
@@ -464,8 +473,8 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
                     r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
         if (is_w_method(method) && !opt.ros2_full_jacobian)
-          std::printf("             (ROS2: %lld of its matrix rebuilds forced by contact status changes)\n",
-                      static_cast<long long>(r.status_rebuilds));
+          std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes)\n",
+                      name.c_str(), static_cast<long long>(r.status_rebuilds));
         std::fflush(stdout);
         runs.push_back(std::move(r));
         if (found && !opt.all) break;

@@ -25,13 +25,15 @@ struct IntegratorStudyOptions {
   std::vector<std::string> methods = {"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2"};
   std::vector<double> one_step_h = {1e-8, 2e-8, 5e-8, 1e-7, 2e-7, 5e-7, 1e-6, 2e-6, 4e-6};
   std::vector<double> rk4_steps = {5e-8, 4e-8, 3e-8, 2e-8};       // tried largest first
-  // ROS2 (the W-method) runs fixed steps, tried largest first (empty: adaptive with the tolerances).
-  // Each entry a step, with its own matrix intervals where w_every > 0 (else the study's).
-  struct Ros2Candidate {
+  // The W-methods (ROS2, ROS34PW2) run fixed steps, tried largest first (empty: adaptive with
+  // the tolerances). Each entry a step, with its own matrix intervals where w_every > 0 (else
+  // the study's), for one method where `method` is set (else for every W-method studied).
+  struct WCandidate {
     double h = 0;
     int w_every = 0, w_k_every = 0;
+    std::string method = "";  // empty: every W-method
   };
-  std::vector<Ros2Candidate> ros2_steps = {{5e-7}, {2e-7}, {1e-7}, {5e-8}};
+  std::vector<WCandidate> w_steps = {{5e-7}, {2e-7}, {1e-7}, {5e-8}};
   bool all = false;             // (b): run every candidate, not only up to each method's first accurate one
   int repeat = 1;               // runs of each candidate in (b); its wall time is their median
   std::vector<double> tolerances = {1.0, 0.3, 0.1, 0.03, 0.01};   // tried loosest first (scaled atol)
@@ -60,7 +62,7 @@ struct IntegratorStudyOptions {
 
 // "H" or "H:W:K" (a step, and its matrix intervals) per entry; throws std::invalid_argument
 // naming a bad entry.
-std::vector<IntegratorStudyOptions::Ros2Candidate> parse_ros2_candidates(const std::vector<std::string>& items);
+std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::vector<std::string>& items);
 
 // Runs the study on model m, prints the tables, writes the CSVs. Returns 0.
 int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt);

@@ -235,6 +235,15 @@ TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
   EXPECT_TRUE(fs::exists(dir_ / "ros2.h5"));
 }
 
+TEST_F(CliTest, Ros34pw2RunNamesTheMethod) {
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "2e-7", "--method", "ros34pw2", "--quiet",
+                           "--out", "ros34.h5"});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  EXPECT_NE(r.out.find("ros34pw2 step = 2e-07 s (matrix every 8 steps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("steps                      10"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(dir_ / "ros34.h5"));
+}
+
 TEST_F(CliTest, MissingConfigFile) {
   const std::string missing = (dir_ / "no_such_config.toml").string();
   expect_config_error({"run", missing}, "<file>", missing, "cannot open file");

@@ -436,7 +436,22 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   const std::string t2 = slurp(dir / "second.csv");
   EXPECT_NE(t2.find(",0,2,4,2\n"), std::string::npos) << t2;  // not chosen (--all), W 2 / 4, 2 repeats
   EXPECT_NE(study("bad", "--ros2-steps 1e-7:2:3"), 0);
-  EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not H or H:W:K"), std::string::npos);
+  EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not [METHOD@]H or [METHOD@]H:W:K"), std::string::npos);
+  EXPECT_NE(study("bad2", "--w-steps rk4@1e-7"), 0);
+  EXPECT_NE(slurp(dir / "bad2.txt").find("'rk4@1e-7' names no W-method"), std::string::npos);
+  // Candidates kept to one method: ROS2 runs only its own, ROS34PW2 (from the cache's start)
+  // only its own two, the second with its intervals.
+  ASSERT_EQ(study("per", "--methods ros34pw2 --w-steps ros2@1e-7,ros34pw2@2e-7,ros34pw2@2e-7:2:4 --all"), 0);
+  const std::string per = slurp(dir / "per.csv");
+  std::printf("%s", per.c_str());
+  size_t n34 = 0;
+  for (size_t at = per.find("curve,ros34pw2,"); at != std::string::npos; at = per.find("curve,ros34pw2,", at + 1)) ++n34;
+  EXPECT_EQ(n34, 2u) << per;
+  EXPECT_NE(per.find(",0,2,4,1\n"), std::string::npos) << per;  // the second with W 2 / 4
+  EXPECT_NE(per.find("curve,ros2,h,1e-07"), std::string::npos);
+  EXPECT_NE(per.find("curve,ros34pw2,h,2e-07"), std::string::npos);
+  EXPECT_EQ(per.find("curve,ros2,h,2e-07"), std::string::npos);
+  EXPECT_EQ(per.find("curve,ros34pw2,h,1e-07"), std::string::npos);
   fs::remove_all(dir);
 }
 
