@@ -145,7 +145,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
       CVT_KEY(integrator, startup_time, real, "s", nonneg),
-      CVT_KEY(integrator, startup_substeps, integer, "", (Range{1, false, 1000, false})),
+      CVT_KEY(integrator, startup_step, real, "s", positive),
 
       CVT_KEY(run, t_end, real, "s", positive),
       CVT_KEY(run, sample_interval, real, "s", positive),

@@ -2,6 +2,8 @@
 // docs/config.md documents each key; load_config() validates each one at the door.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -120,15 +122,16 @@ struct Config {
     double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
   } damping;
   struct Integrator {
-    std::string method = "rk4";  // "rk4" | "ros2" (docs/integrators.md 12)
+    std::string method = "rk4";  // "rk4" | "ros2" | "ros34pw2" (docs/integrators.md 12, 13)
     double step = 1.0e-8;  // [s]
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
-    // ros2: before this model time each step is taken as startup_substeps steps of step /
-    // startup_substeps (the pins settling onto the sheaves from rest; docs/integrators.md 12.8)
-    double startup_time = 1.0e-4;  // [s]; 0: none
-    int startup_substeps = 4;
+    // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
+    // no longer than startup_step (the pins settling onto the sheaves from rest;
+    // docs/integrators.md 12.8, 13.4)
+    double startup_time = 1.0e-4;   // [s]; 0: none
+    double startup_step = 6.25e-8;  // [s]
   } integrator;
   struct Run {
     double t_end = 5.0e-3;            // [s]
@@ -151,5 +154,12 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
 Config load_config(const std::string& path, const std::vector<std::string>& overrides = {});
 
 const char* to_string(FrictionLaw law);
+
+// The W-methods' start-up phase: the sub-steps per step of h before integrator.startup_time,
+// the fewest whose length h / n is at most integrator.startup_step; 1 without a phase.
+inline int startup_substeps(const Config::Integrator& in, double h) {
+  if (!(in.startup_time > 0)) return 1;
+  return std::max(1, static_cast<int>(std::ceil(h / in.startup_step * (1 - 1e-12))));
+}
 
 }  // namespace cvt

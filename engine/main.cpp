@@ -157,9 +157,9 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
               cfg.integrator.method != "rk4"
                   ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
                      std::to_string(cfg.integrator.w_k_every) +
-                     (cfg.integrator.startup_time > 0 && cfg.integrator.startup_substeps > 1
-                          ? "; " + std::to_string(cfg.integrator.startup_substeps) + " sub-steps per step before t = " +
-                                fmt_g(cfg.integrator.startup_time) + " s"
+                     (cvt::startup_substeps(cfg.integrator, cfg.integrator.step) > 1
+                          ? "; " + std::to_string(cvt::startup_substeps(cfg.integrator, cfg.integrator.step)) +
+                                " ros2 sub-steps per step before t = " + fmt_g(cfg.integrator.startup_time) + " s"
                           : std::string()) +
                      ")")
                         .c_str()

@@ -48,9 +48,13 @@ void Simulation::step(double h, bool update_status) {
   // the clock re-anchored here instead of a time jump. Unchanged h: no effect on the bits.
   if (std::abs(t0_ + static_cast<double>(steps_ - steps0_) * h - t_) > 1e-6 * h) t0_ = t_, steps0_ = steps_;
   if (update_status && m_.cfg.integrator.method != "rk4") {  // a W-method: ros2, ros34pw2
-    auto make = [this](double hh) {
+    // The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and
+    // the rocker faces load up, with contact stiffnesses that the matrix (taken at the start)
+    // does not yet hold; ROS2 (gamma = 1.71) damps that mismatch, ROS34PW2 (gamma = 0.44)
+    // blows up on it within microseconds (docs/integrators.md 13.4).
+    auto make = [this](double hh, bool startup) {
       OdeRunOptions ro;
-      ro.method = parse_ode_method(m_.cfg.integrator.method);
+      ro.method = startup ? OdeMethod::Ros2 : parse_ode_method(m_.cfg.integrator.method);
       ro.ode.fixed_step = true;
       ro.ode.h0 = hh;
       ro.jac.scaled = false;
@@ -59,16 +63,17 @@ void Simulation::step(double h, bool update_status) {
       ro.jac.w_secant = m_.cfg.integrator.w_secant;
       return std::make_unique<OdeDriver>(*this, ro);
     };
-    // Before integrator.startup_time a step is taken as startup_substeps steps of h / that
-    // (its own driver and matrix); the grid of the steps, and so the clock, is the same.
-    const int sub = m_.cfg.integrator.startup_substeps;
+    // Before integrator.startup_time a step is taken as the fewest equal sub-steps no longer
+    // than integrator.startup_step (ROS2, its own driver and matrix); the grid of the steps,
+    // and so the clock, is the same.
+    const int sub = startup_substeps(m_.cfg.integrator, h);
     const bool startup = t_ < m_.cfg.integrator.startup_time && sub > 1;
     OdeDriver* drv;
     if (startup) {
-      if (!ros2_startup_ || ros2_startup_h_ != h / sub) ros2_startup_ = make(h / sub), ros2_startup_h_ = h / sub;
+      if (!ros2_startup_ || ros2_startup_h_ != h / sub) ros2_startup_ = make(h / sub, true), ros2_startup_h_ = h / sub;
       drv = ros2_startup_.get();
     } else {
-      if (!ros2_ || ros2_h_ != h) ros2_ = make(h), ros2_h_ = h;
+      if (!ros2_ || ros2_h_ != h) ros2_ = make(h, false), ros2_h_ = h;
       ros2_startup_.reset();
       drv = ros2_.get();
     }
@@ -76,7 +81,18 @@ void Simulation::step(double h, bool update_status) {
     // the clock keeps its origin, so that t has no accumulated rounding, as with RK4.
     const double t0 = t0_, t1 = t0_ + static_cast<double>(steps_ + 1 - steps0_) * h;
     const long s0 = steps0_, n1 = steps_ + 1;
-    drv->advance(t1);
+    // A state gone non-finite is reported as RK4's is, by check_finite() at the next sample
+    // (with the replay and the diagnosis): the driver's own error ("solution is not
+    // finite", or a singular matrix built from such a state) only ends this step, and the
+    // steps up to that sample are not taken.
+    if (y_.allFinite()) {
+      try {
+        drv->advance(t1);
+      } catch (const std::exception&) {
+        if (y_.allFinite()) throw;
+        ros2_.reset(), ros2_startup_.reset();
+      }
+    }
     t0_ = t0, steps0_ = s0, steps_ = n1, t_ = t1;
     if (prof_) prof_->add_step(Profiler::ticks() - tick0);
     return;

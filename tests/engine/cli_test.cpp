@@ -227,8 +227,8 @@ TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
   const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "1e-7", "--method", "ros2", "--set",
                            "integrator.w_every=4", "--quiet", "--out", "ros2.h5"});
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
-  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps, its stiffness every 64; 4 sub-steps per step "
-                       "before t = 0.0001 s)"),
+  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps, its stiffness every 64; 2 ros2 sub-steps per "
+                       "step before t = 0.0001 s)"),
             std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("steps                      20"), std::string::npos) << r.out;
