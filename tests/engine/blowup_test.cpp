@@ -71,5 +71,29 @@ TEST(BlowUpTest, Ros2BlowUpPointsAtItsStepAndMatrixIntervals) {
   EXPECT_EQ(msg.find("is above it"), std::string::npos) << msg;
 }
 
+// A W-method step whose state goes non-finite (ROS34PW2 from rest without its start-up
+// phase, Ros2Run.Ros34pw2FromRestNeedsTheRos2StartUp) ends quietly; the next check_finite(),
+// at the run's next sample, reports it with the replay and the advice, as for RK4.
+TEST(BlowUpTest, NonFiniteInsideAWMethodStepReachesTheDiagnosis) {
+  const Model m = test::model("reference", {"integrator.method=ros34pw2", "integrator.step=1.5625e-7",
+                                            "integrator.startup_time=0"});
+  Simulation sim(m);
+  sim.check_finite();
+  int k = 0;
+  for (; k < 40 && sim.state().allFinite(); ++k) EXPECT_NO_THROW(sim.step(1.5625e-7));
+  ASSERT_FALSE(sim.state().allFinite());
+  EXPECT_NO_THROW(sim.step(1.5625e-7)) << "a step from a non-finite state only moves the clock";
+  EXPECT_EQ(sim.steps(), k + 1);
+  try {
+    sim.check_finite();
+    FAIL() << "no blow-up reported";
+  } catch (const BlowUpError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("is not finite"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("replayed from t = 0 s"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("uses ros34pw2"), std::string::npos) << msg;
+  }
+}
+
 }  // namespace
 }  // namespace cvt
