@@ -357,6 +357,77 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       for (size_t k = 0; k < c.size(); ++k) d = std::max(d, std::abs(c[k] - ref_curve[k]));
       return c.size() == ref_curve.size() ? d / range : kNaN;
     };
+    // One run of a candidate of a method (step or tolerance p; W-methods: their matrix intervals).
+    auto run_once = [&](const std::string& name, double p, int w_every, int w_k_every) {
+      const OdeMethod method = parse_ode_method(name);
+      const bool fixed = method == OdeMethod::Rk4;
+      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
+      CurveRun r;
+      r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
+      r.w_every = w_every, r.w_k_every = w_k_every;
+      Simulation s(m, opt.schedule);
+      s.restore(start);
+      s.set_clock(t0, 0);
+      std::vector<double> f;
+      std::vector<int> touch;
+      pin_forces(m, s.state(), s.workspace().status, f, touch);
+      r.curve.push_back(f[tracked]);
+      const auto w0 = Clock::now();
+      try {
+        if (fixed) {
+          // The production path (Simulation::step, fused stage update).
+          const long per = std::lround(opt.sample_dt / p);
+          if (std::abs(per * p - opt.sample_dt) > 1e-6 * opt.sample_dt)
+            throw std::invalid_argument("the RK4 step must divide sample_dt");
+          for (size_t k = 1; k < times.size(); ++k) {
+            for (long i = 0; i < per; ++i) s.step(p);
+            r.steps += per, r.rhs += 4 * per;
+            pin_forces(m, s.state(), s.workspace().status, f, touch);
+            r.curve.push_back(f[tracked]);
+            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+            if (seconds_since(w0) > opt.max_wall) throw std::runtime_error("timeout");
+          }
+        } else {
+          OdeRunOptions ro;
+          ro.method = method;
+          ro.ode = base;
+          ro.ode.atol = ro.ode.rtol = p;
+          ro.ode.h0 = 1e-8;
+          if (w_fixed) {
+            ro.ode.fixed_step = true;
+            ro.ode.h0 = p;
+          }
+          ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
+          ro.jac = jac_opt;
+          if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
+          // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
+          // serve error norms, which fixed steps do not use).
+          if (w_fixed) ro.jac.scaled = false;
+          ro.status_interval = opt.status_interval;
+          OdeDriver drv(s, ro);
+          for (size_t k = 1; k < times.size(); ++k) {
+            drv.advance(times[k]);
+            pin_forces(m, s.state(), s.workspace().status, f, touch);
+            r.curve.push_back(f[tracked]);
+            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+            if (seconds_since(w0) > opt.max_wall) {
+              take_stats(drv, r);
+              r.reached = times[k] - t0;
+              throw std::runtime_error("timeout");
+            }
+          }
+          take_stats(drv, r);
+        }
+      } catch (const BlowUpError&) {
+        r.status = "blow-up";
+      } catch (const OdeError& e) {
+        r.status = "error";
+      } catch (const std::exception& e) {
+        r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
+      }
+      r.wall_s = seconds_since(w0);
+      return r;
+    };
     for (const std::string& name : opt.methods) {
       const OdeMethod method = parse_ode_method(name);
       const bool fixed = method == OdeMethod::Rk4;
@@ -369,93 +440,14 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
       }
       bool found = false;
-      // One run of a candidate (step or tolerance p; ROS2: its matrix intervals).
-      auto run_once = [&](double p, int w_every, int w_k_every) {
-        CurveRun r;
-        r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
-        r.w_every = w_every, r.w_k_every = w_k_every;
-        Simulation s(m, opt.schedule);
-        s.restore(start);
-        s.set_clock(t0, 0);
-        std::vector<double> f;
-        std::vector<int> touch;
-        pin_forces(m, s.state(), s.workspace().status, f, touch);
-        r.curve.push_back(f[tracked]);
-        const auto w0 = Clock::now();
-        try {
-          if (fixed) {
-            // The production path (Simulation::step, fused stage update).
-            const long per = std::lround(opt.sample_dt / p);
-            if (std::abs(per * p - opt.sample_dt) > 1e-6 * opt.sample_dt)
-              throw std::invalid_argument("the RK4 step must divide sample_dt");
-            for (size_t k = 1; k < times.size(); ++k) {
-              for (long i = 0; i < per; ++i) s.step(p);
-              r.steps += per, r.rhs += 4 * per;
-              pin_forces(m, s.state(), s.workspace().status, f, touch);
-              r.curve.push_back(f[tracked]);
-              if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
-              if (seconds_since(w0) > opt.max_wall) throw std::runtime_error("timeout");
-            }
-          } else {
-            OdeRunOptions ro;
-            ro.method = method;
-            ro.ode = base;
-            ro.ode.atol = ro.ode.rtol = p;
-            ro.ode.h0 = 1e-8;
-            if (w_fixed) {
-              ro.ode.fixed_step = true;
-              ro.ode.h0 = p;
-            }
-            ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
-            ro.jac = jac_opt;
-            if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
-            // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
-            // serve error norms, which fixed steps do not use).
-            if (w_fixed) ro.jac.scaled = false;
-            ro.status_interval = opt.status_interval;
-            OdeDriver drv(s, ro);
-            for (size_t k = 1; k < times.size(); ++k) {
-              drv.advance(times[k]);
-              pin_forces(m, s.state(), s.workspace().status, f, touch);
-              r.curve.push_back(f[tracked]);
-              if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
-              if (seconds_since(w0) > opt.max_wall) {
-                take_stats(drv, r);
-                r.reached = times[k] - t0;
-                throw std::runtime_error("timeout");
-              }
-            }
-            take_stats(drv, r);
-          }
-        } catch (const BlowUpError&) {
-          r.status = "blow-up";
-        } catch (const OdeError& e) {
-          r.status = "error";
-        } catch (const std::exception& e) {
-          r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
-        }
-        r.wall_s = seconds_since(w0);
-        return r;
-      };
       for (const auto& cand : cands) {
         const double p = cand.h;
         const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
         const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt.w_every;
         const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt.w_k_every;
-        // The repeats: the same bits every time, the median wall time (the machine's load varies).
-        CurveRun r = run_once(p, we, wk);
-        std::vector<double> walls = {r.wall_s};
-        for (int rep = 1; rep < opt.repeat; ++rep) {
-          CurveRun again = run_once(p, we, wk);
-          if (again.status != r.status || again.curve != r.curve)
-            throw std::runtime_error("study: a repeated run of " + name + " gave other bits (not reproducible)");
-          walls.push_back(again.wall_s);
-          r = std::move(again);
-        }
-        std::sort(walls.begin(), walls.end());
-        const size_t mid = walls.size() / 2;
-        r.wall_s = walls.size() % 2 ? walls[mid] : 0.5 * (walls[mid - 1] + walls[mid]);
-        r.walls = std::move(walls);
+        // The first round; --repeat adds rounds over all runs below.
+        CurveRun r = run_once(name, p, we, wk);
+        r.walls = {r.wall_s};
         r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
         if (r.status == "timeout")
           std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
@@ -463,11 +455,6 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
         if (good && !found) r.chosen = found = true;
         if (r.w_every > 0) std::printf("  (W matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
-        if (r.walls.size() > 1) {
-          std::printf("  (wall s of the %zu repeats:", r.walls.size());
-          for (double w : r.walls) std::printf(" %.2f", w);
-          std::printf("; the median below)\n");
-        }
         std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
                     "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
@@ -478,6 +465,32 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
         std::fflush(stdout);
         runs.push_back(std::move(r));
         if (found && !opt.all) break;
+      }
+    }
+    // The repeats (--repeat N): N - 1 more rounds over every finished run, in the study's order,
+    // so that RK4 and the others meet the machine's drifting load alike (the ratios are what
+    // counts); the same bits every time; each run's wall time is its median.
+    for (int rep = 1; rep < opt.repeat; ++rep)
+      for (CurveRun& r : runs) {
+        if (r.status != "ok") continue;
+        CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every);
+        if (again.status != r.status || again.curve != r.curve)
+          throw std::runtime_error("study: a repeated run of " + r.method + " gave other bits (not reproducible)");
+        r.walls.push_back(again.wall_s);
+      }
+    if (opt.repeat > 1) {
+      std::printf("\nrepeats, in %d rounds over the runs (wall s, round by round; the median counts):\n", opt.repeat);
+      for (CurveRun& r : runs) {
+        if (r.walls.size() < 2) continue;
+        std::printf("  %-10s %s %-8.3g", r.method.c_str(), r.param_kind.c_str(), r.param);
+        if (r.w_every > 0) std::printf(" W%d/%d", r.w_every, r.w_k_every);
+        std::printf(":");
+        for (double w : r.walls) std::printf(" %.2f", w);
+        std::vector<double> sorted = r.walls;
+        std::sort(sorted.begin(), sorted.end());
+        const size_t mid = sorted.size() / 2;
+        r.wall_s = sorted.size() % 2 ? sorted[mid] : 0.5 * (sorted[mid - 1] + sorted[mid]);
+        std::printf("  -> %.2f\n", r.wall_s);
       }
     }
     // Summary table: every run that finished, against the chosen RK4 run of this study (*: each
