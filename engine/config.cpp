@@ -602,6 +602,21 @@ std::string resolved_toml(Config& cfg) {
   return os.str();
 }
 
+// Files (and checkpoints) written before integrator.startup_step replaced
+// integrator.startup_substeps = n (sub-steps of step / n) still load: the key becomes
+// startup_step = step / n, unless startup_step is given too.
+void migrate_startup_substeps(toml::table& root) {
+  toml::table* in = root.get_as<toml::table>("integrator");
+  if (!in || !in->contains("startup_substeps")) return;
+  const auto n = in->get("startup_substeps")->value<std::int64_t>();
+  if (!n || *n < 1) return;  // left for the validator to name
+  double step = Config{}.integrator.step;
+  if (const toml::node* s = in->get("step"))
+    if (auto v = s->value<double>()) step = *v;
+  in->erase("startup_substeps");
+  if (!in->contains("startup_step")) in->insert("startup_step", step / static_cast<double>(*n));
+}
+
 }  // namespace
 
 Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides,
@@ -619,6 +634,7 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
   std::map<std::string, std::string> override_text;
   for (const auto& o : overrides) apply_override(root, o, override_text);
 
+  migrate_startup_substeps(root);
   Validator val(origin, override_text);
   val.check_unknown(root);
 

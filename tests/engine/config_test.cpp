@@ -141,6 +141,21 @@ TEST(ConfigTest, OmittedSectionsAndKeysKeepDefaults) {
   EXPECT_DOUBLE_EQ(c.pin.length, 0.036);
 }
 
+// Files and checkpoints written before integrator.startup_step still load: the old
+// startup_substeps = n (sub-steps of step / n) becomes startup_step = step / n, also after
+// a --step override; a startup_step given beside it wins; a bad n is still refused.
+TEST(ConfigTest, OldStartupSubstepsBecomesStartupStep) {
+  const Config a = parse_config("[integrator]\nstep = 2e-7\nstartup_substeps = 4\n");
+  EXPECT_DOUBLE_EQ(a.integrator.startup_step, 5e-8);
+  EXPECT_EQ(a.resolved_toml.find("startup_substeps"), std::string::npos);
+  EXPECT_NE(a.resolved_toml.find("startup_step"), std::string::npos);
+  const Config b = parse_config("[integrator]\nstartup_substeps = 4\n", {"integrator.step=1e-6"});
+  EXPECT_DOUBLE_EQ(b.integrator.startup_step, 2.5e-7);
+  const Config c = parse_config("[integrator]\nstartup_substeps = 4\nstartup_step = 1e-8\n");
+  EXPECT_DOUBLE_EQ(c.integrator.startup_step, 1e-8);
+  EXPECT_THROW(parse_config("[integrator]\nstartup_substeps = 0\n"), ConfigError);
+}
+
 TEST(ConfigTest, IntegerAcceptedForDouble) {
   const Config c = parse_config("[load]\ntorque = 84\n");
   EXPECT_DOUBLE_EQ(c.load.torque, 84.0);
