@@ -121,34 +121,6 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
       for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() *= unit_[c] / unit_[it.row()];
   };
 
-  // Colours: the pin columns by the reduced pattern (no pin -> tail entries); every tail
-  // column (shafts, load, work integrals) a colour of its own, since the tail rows see
-  // every pin column and so could not tell a tail column from the pins beside it.
-  std::vector<std::pair<int, int>> pin_nz;
-  for (const auto& rc : model_jacobian_pattern(m, opt.band, false))
-    if (is_pin(rc.second)) pin_nz.push_back(rc);
-  OdeSystem reduced;
-  reduced.size = ns;
-  reduced.set_sparsity(pin_nz);
-  std::vector<int> color = color_columns(reduced.sparsity, &n_colors_);
-  for (int c = 0; c < ns; ++c)
-    if (!is_pin(c)) color[c] = n_colors_++;
-  columns_of_color_.assign(n_colors_, {});
-  for (int c = 0; c < ns; ++c) columns_of_color_[color[c]].push_back(c);
-  owner_.assign(static_cast<size_t>(n_colors_) * N, -1);
-  size_t widest = 0;
-  for (int k = 0; k < n_colors_; ++k) {
-    const auto& cols = columns_of_color_[k];
-    widest = std::max(widest, cols.size());
-    for (int idx = 0; idx < static_cast<int>(cols.size()); ++idx) {
-      if (!is_pin(cols[idx])) continue;
-      for (int d = -opt.band; d <= opt.band; ++d) {
-        int& o = owner_[static_cast<size_t>(k) * N + m.wrap(joint_of(cols[idx]) + d)];
-        if (o >= 0 && o != idx) throw std::logic_error("ModelOde: two pin columns of one colour near one joint");
-        o = idx;
-      }
-    }
-  }
   // A0^-1 restricted to the shafts and the load (a constant 15 x 14 block).
   a0_shaft_inv_.resize(2 * kShaftSize + 1, 2 * kShaftSize);
   Eigen::VectorXd F = Eigen::VectorXd::Zero(m.ndof), Y = Eigen::VectorXd::Zero(m.ndof);
@@ -205,8 +177,6 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
   pdiss0_.resize(N), pdiss1_ = pdiss0_;
-  acc_shaft_.resize(2 * kShaftSize, static_cast<Eigen::Index>(widest));
-  acc_p_.resize(static_cast<Eigen::Index>(widest));
 }
 
 void ModelOde::read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const {
@@ -217,7 +187,48 @@ void ModelOde::read_slots(std::vector<double>& shaft, std::vector<double>& pdiss
   }
 }
 
+// The colouring of the finite-difference Jacobian, made at its first use: a W-method with
+// the chain's matrix never needs it (it cost each driver about 0.1 s).
+void ModelOde::ensure_colors() const {
+  if (colored_) return;
+  colored_ = true;
+  const Model& m = m_;
+  const ModelOdeOptions& opt = opt_;
+  const int ns = m.nstate, N = m.links;
+  // Colours: the pin columns by the reduced pattern (no pin -> tail entries); every tail
+  // column (shafts, load, work integrals) a colour of its own, since the tail rows see
+  // every pin column and so could not tell a tail column from the pins beside it.
+  std::vector<std::pair<int, int>> pin_nz;
+  for (const auto& rc : model_jacobian_pattern(m, opt.band, false))
+    if (is_pin(rc.second)) pin_nz.push_back(rc);
+  OdeSystem reduced;
+  reduced.size = ns;
+  reduced.set_sparsity(pin_nz);
+  std::vector<int> color = color_columns(reduced.sparsity, &n_colors_);
+  for (int c = 0; c < ns; ++c)
+    if (!is_pin(c)) color[c] = n_colors_++;
+  columns_of_color_.assign(n_colors_, {});
+  for (int c = 0; c < ns; ++c) columns_of_color_[color[c]].push_back(c);
+  owner_.assign(static_cast<size_t>(n_colors_) * N, -1);
+  size_t widest = 0;
+  for (int k = 0; k < n_colors_; ++k) {
+    const auto& cols = columns_of_color_[k];
+    widest = std::max(widest, cols.size());
+    for (int idx = 0; idx < static_cast<int>(cols.size()); ++idx) {
+      if (!is_pin(cols[idx])) continue;
+      for (int d = -opt.band; d <= opt.band; ++d) {
+        int& o = owner_[static_cast<size_t>(k) * N + m.wrap(joint_of(cols[idx]) + d)];
+        if (o >= 0 && o != idx) throw std::logic_error("ModelOde: two pin columns of one colour near one joint");
+        o = idx;
+      }
+    }
+  }
+  acc_shaft_.resize(2 * kShaftSize, static_cast<Eigen::Index>(widest));
+  acc_p_.resize(static_cast<Eigen::Index>(widest));
+}
+
 void ModelOde::jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac) {
+  ensure_colors();
   ++jac_evals_;
   const int n = m_.ndof, N = m_.links, ns = m_.nstate;
   const int shaft_row0 = n + m_.shaft(0), diss_row = 2 * n + kWorkDiss;

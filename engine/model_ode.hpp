@@ -89,7 +89,10 @@ class ModelOde {
   // to the solver the Jacobian is "analytic").
   std::int64_t rhs_evals() const { return rhs_evals_; }
   std::int64_t jacobian_evals() const { return jac_evals_; }
-  int colors() const { return n_colors_; }
+  int colors() const {
+    ensure_colors();
+    return n_colors_;
+  }
   // Wall seconds spent in the W-method's stiffness differences (part of its w_factor time).
   double w_stiffness_seconds() const { return w_k_seconds_; }
   // The coloured finite-difference Jacobian at (t, y) into jac (which has sys.sparsity).
@@ -139,14 +142,16 @@ class ModelOde {
   OdeSystem sys_;
   std::int64_t rhs_evals_ = 0, jac_evals_ = 0;
   // Column colours (the pins by the pattern without pin -> tail entries).
-  std::vector<std::vector<int>> columns_of_color_;
-  std::vector<int> owner_;  // [colour * N + joint]: index in columns_of_color_ of the column near the joint, or -1
-  int n_colors_ = 0;
+  void ensure_colors() const;  // the colouring below, made at the first Jacobian
+  mutable bool colored_ = false;
+  mutable std::vector<std::vector<int>> columns_of_color_;
+  mutable std::vector<int> owner_;  // [colour * N + joint]: index in columns_of_color_ of the column near the joint, or -1
+  mutable int n_colors_ = 0;
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> a0_shaft_inv_;  // (2 shafts + load) x 14
   Eigen::VectorXd f0_, f1_, yp_, delta_, unit_, ys_, offset_;
   std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
-  Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour]
-  Eigen::VectorXd acc_p_;
+  mutable Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour] (sized by ensure_colors)
+  mutable Eigen::VectorXd acc_p_;
   // W-method: the matrix over the chain's velocities in link order (link l: b_l, a_{l+1},
   // then the pack s_l), block-tridiagonal with cyclic corners.
   static constexpr int kLinkDim = 2 * half::kSize + 1;
