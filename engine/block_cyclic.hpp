@@ -67,77 +67,21 @@ class CyclicBlockLU {
   template <class Both>
   bool factor(const Both& both) {
     const int n = n_, last = n - 1, m = (n - 1) / 2;
-    bool ok_top = true, ok_bot = true;
-    int fills_top = 0, fills_bot = 0;
-    auto top = [&] {
-      Mat col = s_[0], row = p_[0];  // M(l, last), M(last, l) of the block l being eliminated
-      dl_top_.setZero(), dm_top_.setZero();
-      bool fill = true;
-      for (int l = 0; l < m; ++l) {
-        if (!invert(d_[l], inv_[l])) {
-          ok_top = false;
-          return;
-        }
-        const Mat& Pi = inv_[l];
-        fill_[l] = fill;
-        if (fill) {
-          ++fills_top;
-          ucol_[l] = col;
-          lrow_[l].noalias() = row * Pi;
-          dl_top_.noalias() -= lrow_[l] * col;
-        }
-        lsub_[l + 1].noalias() = s_[l + 1] * Pi;
-        (l + 1 < m ? d_[l + 1] : dm_top_).noalias() -= lsub_[l + 1] * p_[l + 1];
-        if (fill) {
-          col = -lsub_[l + 1] * col;
-          row = -lrow_[l] * p_[l + 1];
-          if (l + 1 < m) fill = above(col, row, d_[l + 1]);
-        }
-      }
-      col_top_ = fill ? col : Mat::Zero();
-      row_top_ = fill ? row : Mat::Zero();
-    };
-    auto bottom = [&] {
-      Mat col = p_[last], row = s_[last];  // M(n-2, last), M(last, n-2): the band
-      dl_bot_.setZero(), dm_bot_.setZero();
-      bool fill = true;
-      for (int l = n - 2; l > m; --l) {
-        if (!invert(d_[l], inv_[l])) {
-          ok_bot = false;
-          return;
-        }
-        const Mat& Pi = inv_[l];
-        fill_[l] = fill;
-        if (fill) {
-          ++fills_bot;
-          ucol_[l] = col;
-          lrow_[l].noalias() = row * Pi;
-          dl_bot_.noalias() -= lrow_[l] * col;
-        }
-        lsup_[l - 1].noalias() = p_[l] * Pi;
-        (l - 1 > m ? d_[l - 1] : dm_bot_).noalias() -= lsup_[l - 1] * s_[l];
-        if (fill) {
-          col = -lsup_[l - 1] * col;
-          row = -lrow_[l] * s_[l];
-          if (l - 1 > m) fill = above(col, row, d_[l - 1]);
-        }
-      }
-      col_bot_ = fill ? col : Mat::Zero();
-      row_bot_ = fill ? row : Mat::Zero();
-    };
-    both(top, bottom);
-    if (!ok_top || !ok_bot) return false;
+    Sweep top{0, +1, lsub_}, bottom{n - 2, -1, lsup_};
+    // The top sweep starts from the corners, the bottom one from the band's coupling.
+    both([&] { eliminate(top, s_[0], p_[0]); }, [&] { eliminate(bottom, p_[last], s_[last]); });
+    if (!top.ok || !bottom.ok) return false;
     // The middle block, then the last, in a fixed order.
-    d_[m] += dm_top_;
-    d_[m] += dm_bot_;
+    d_[m] += top.dm;
+    d_[m] += bottom.dm;
     if (!invert(d_[m], inv_[m])) return false;
     fill_[m] = 1;
-    ucol_[m] = col_top_ + col_bot_;
-    lrow_[m].noalias() = (row_top_ + row_bot_) * inv_[m];
-    d_[last] += dl_top_;
-    d_[last] += dl_bot_;
+    ucol_[m] = top.col + bottom.col;
+    lrow_[m].noalias() = (top.row + bottom.row) * inv_[m];
+    d_[last] += top.dl;
+    d_[last] += bottom.dl;
     d_[last].noalias() -= lrow_[m] * ucol_[m];
-    fills_ = fills_top + fills_bot + 1;
+    fills_ = top.fills + bottom.fills + 1;
     return invert(d_[last], inv_[last]);
   }
 
@@ -146,21 +90,9 @@ class CyclicBlockLU {
   template <class Both>
   void solve(Vec* x, const Both& both) const {
     const int n = n_, last = n - 1, m = (n - 1) / 2;
-    Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
     // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
-    both(
-        [&] {
-          for (int l = 1; l < m; ++l) x[l].noalias() -= lsub_[l] * x[l - 1];
-          if (m >= 1) xm_top.noalias() = lsub_[m] * x[m - 1];
-          for (int l = 0; l < m; ++l)
-            if (fill_[l]) xl_top.noalias() += lrow_[l] * x[l];
-        },
-        [&] {
-          for (int l = n - 3; l > m; --l) x[l].noalias() -= lsup_[l] * x[l + 1];
-          if (m + 1 <= n - 2) xm_bot.noalias() = lsup_[m] * x[m + 1];
-          for (int l = n - 2; l > m; --l)
-            if (fill_[l]) xl_bot.noalias() += lrow_[l] * x[l];
-        });
+    Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
+    both([&] { forward(x, 0, +1, lsub_, xm_top, xl_top); }, [&] { forward(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
     x[m] -= xm_top;
     x[m] -= xm_bot;
     x[last] -= xl_top;
@@ -171,25 +103,7 @@ class CyclicBlockLU {
     Vec t = x[m];
     t.noalias() -= ucol_[m] * x[last];
     x[m].noalias() = inv_[m] * t;
-    both(
-        [&] {
-          Vec u;
-          for (int l = m - 1; l >= 0; --l) {
-            u = x[l];
-            if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
-            u.noalias() -= p_[l + 1] * x[l + 1];
-            x[l].noalias() = inv_[l] * u;
-          }
-        },
-        [&] {
-          Vec u;
-          for (int l = m + 1; l <= n - 2; ++l) {
-            u = x[l];
-            if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
-            u.noalias() -= s_[l] * x[l - 1];
-            x[l].noalias() = inv_[l] * u;
-          }
-        });
+    both([&] { backward(x, 0, +1); }, [&] { backward(x, n - 2, -1); });
   }
 
  private:
@@ -197,6 +111,71 @@ class CyclicBlockLU {
     const Eigen::PartialPivLU<Mat> lu(D);
     Di = lu.inverse();
     return Di.allFinite();
+  }
+  // M(r, c) of two neighbours on the chain (|r - c| = 1, no wrap).
+  const Mat& band(int r, int c) const { return r == c + 1 ? s_[r] : p_[c]; }
+
+  // One sweep of factor(): from block `first` towards the middle m in steps of `dir`; its
+  // multipliers M(l + dir, l) D_l^-1 go to mult[l + dir]. It leaves its contributions to the
+  // middle (dm) and last (dl) pivot blocks and the middle's coupling to the last block.
+  struct Sweep {
+    int first, dir;
+    std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult;
+    bool ok = true;
+    int fills = 0;
+    Mat dm = Mat::Zero(), dl = Mat::Zero(), col = Mat::Zero(), row = Mat::Zero();
+  };
+  // col, row: M(first, last), M(last, first).
+  void eliminate(Sweep& sw, Mat col, Mat row) {
+    const int m = (n_ - 1) / 2;
+    bool fill = true;
+    for (int l = sw.first; l != m; l += sw.dir) {
+      const int nb = l + sw.dir;
+      if (!invert(d_[l], inv_[l])) {
+        sw.ok = false;
+        return;
+      }
+      const Mat& Pi = inv_[l];
+      fill_[l] = fill;
+      if (fill) {
+        ++sw.fills;
+        ucol_[l] = col;
+        lrow_[l].noalias() = row * Pi;
+        sw.dl.noalias() -= lrow_[l] * col;
+      }
+      sw.mult[nb].noalias() = band(nb, l) * Pi;
+      (nb != m ? d_[nb] : sw.dm).noalias() -= sw.mult[nb] * band(l, nb);
+      if (fill) {
+        col = -sw.mult[nb] * col;
+        row = -lrow_[l] * band(l, nb);
+        if (nb != m) fill = above(col, row, d_[nb]);
+      }
+    }
+    if (fill) sw.col = col, sw.row = row;
+  }
+  // A sweep's part of L y = b: its blocks in elimination order, the multiplier into the middle
+  // (xm) and the couplings into the last block (xl), summed by the caller.
+  void forward(Vec* x, int first, int dir, const std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult, Vec& xm,
+               Vec& xl) const {
+    const int m = (n_ - 1) / 2;
+    if (first == m) return;
+    for (int l = first + dir; l != m; l += dir) x[l].noalias() -= mult[l] * x[l - dir];
+    xm.noalias() = mult[m] * x[m - dir];
+    for (int l = first; l != m; l += dir)
+      if (fill_[l]) xl.noalias() += lrow_[l] * x[l];
+  }
+  // A sweep's part of U x = y, outwards from the middle.
+  void backward(Vec* x, int first, int dir) const {
+    const int m = (n_ - 1) / 2, last = n_ - 1;
+    if (first == m) return;
+    Vec u;
+    for (int l = m - dir;; l -= dir) {
+      u = x[l];
+      if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
+      u.noalias() -= band(l, l + dir) * x[l + dir];
+      x[l].noalias() = inv_[l] * u;
+      if (l == first) break;
+    }
   }
   // Whether a fill (col, row) still matters next to the pivot block D.
   static bool above(const Mat& col, const Mat& row, const Mat& D) {
@@ -210,9 +189,6 @@ class CyclicBlockLU {
   // lsub_[l] = M(l, l-1) D_{l-1}^-1 (top sweep, l = 1 .. m); lsup_[l] = M(l, l+1) D_{l+1}^-1
   // (bottom sweep, l = m .. n-3); lrow_ / ucol_: the couplings to the last block.
   std::vector<Mat, Eigen::aligned_allocator<Mat>> d_, s_, p_, inv_, lsub_, lsup_, lrow_, ucol_;
-  // The sweeps' contributions to the middle and last pivot blocks and the middle's coupling
-  // to the last block, summed in a fixed order after both.
-  Mat dm_top_, dm_bot_, dl_top_, dl_bot_, col_top_, row_top_, col_bot_, row_bot_;
 };
 
 }  // namespace cvt
