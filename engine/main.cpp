@@ -152,13 +152,14 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
   std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
               1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
+  const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
   std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
               cfg.integrator.step,
               cfg.integrator.method != "rk4"
                   ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
                      std::to_string(cfg.integrator.w_k_every) +
-                     (cvt::startup_substeps(cfg.integrator, cfg.integrator.step) > 1
-                          ? "; " + std::to_string(cvt::startup_substeps(cfg.integrator, cfg.integrator.step)) +
+                     (startup_sub > 1
+                          ? "; " + std::to_string(startup_sub) +
                                 " ros2 sub-steps per step before t = " + fmt_g(cfg.integrator.startup_time) + " s"
                           : std::string()) +
                      ")")
@@ -348,7 +349,7 @@ int main(int argc, char** argv) {
                         "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
       ->delimiter(',');
   study_int->add_flag("--all", si.all, "(b): run every candidate (default: stop at each method's first accurate one)");
-  study_int->add_option("--repeat", si.repeat, "run each candidate of (b) this many times; its wall time is the median")
+  study_int->add_option("--repeat", si.repeat, "run (b) in this many rounds over all its runs; each run's wall time is the median")
       ->check(CLI::Range(1, 100))->capture_default_str();
   study_int->add_option("--tols", si.tolerances, "tolerances tried in (b), loosest first (atol in units of 1 um, 1 mm/s)")
       ->delimiter(',')->capture_default_str();

@@ -84,7 +84,7 @@ class OdeSolverImpl {
   // ode_rosenbrock.cpp
   void step_ros2(double t, double h, const Eigen::VectorXd& y, double* err);
   void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
-  void prepare_w(double t, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
+  void prepare_w(double t, double h, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
   void solve_w(Eigen::VectorXd& x);                                 // x <- W^-1 x
   int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
   Eigen::VectorXd stages_[4];  // Ros34pw2's u_i

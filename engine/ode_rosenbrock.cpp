@@ -30,7 +30,7 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 
 // W = I - gh J~ at (t, y), right after f0_ = f(t, y): the system's own (w_factor), or the
 // Jacobian above and its LU, kept for w_reuse_steps steps while gh stays the same.
-void OdeSolverImpl::prepare_w(double t, const Eigen::VectorXd& y, double gh) {
+void OdeSolverImpl::prepare_w(double t, double h, const Eigen::VectorXd& y, double gh) {
   auto t0 = std::chrono::steady_clock::now();
   if (sys_.w_factor) {
     sys_.w_factor(t, y.data(), gh);
@@ -47,7 +47,7 @@ void OdeSolverImpl::prepare_w(double t, const Eigen::VectorXd& y, double gh) {
     newton_->factorize(gh, stats);
     stats.lu_seconds += seconds_since(t0);
     if (!newton_->ok())
-      throw OdeError(t, gh, std::string(to_string(method_)) + ": the matrix I - gamma h J is singular");
+      throw OdeError(t, h, std::string(to_string(method_)) + ": the matrix I - gamma h J is singular");
   }
 }
 
@@ -64,7 +64,7 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
   // f(t, y) afresh at every step: callers such as OdeDriver change the system between
   // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
   eval(t, y, f0_);
-  prepare_w(t, y, kRos2Gamma * h);
+  prepare_w(t, h, y, kRos2Gamma * h);
   // k1 in z_, k2 in k2_.
   z_ = f0_;
   solve_w(z_);
@@ -130,9 +130,9 @@ const Ros34pw2Tableau kRos34pw2;
 
 void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
   const Ros34pw2Tableau& tb = kRos34pw2;
-  eval(t, y, f0_);
-  prepare_w(t, y, tb.gamma * h);
   const double gh = tb.gamma * h;
+  eval(t, y, f0_);
+  prepare_w(t, h, y, gh);
   for (int i = 0; i < tb.s; ++i) {
     Eigen::VectorXd& u = stages_[i];
     if (i == 0) {

@@ -70,12 +70,12 @@ void Simulation::step(double h, bool update_status) {
     const bool startup = t_ < m_.cfg.integrator.startup_time && sub > 1;
     OdeDriver* drv;
     if (startup) {
-      if (!ros2_startup_ || ros2_startup_h_ != h / sub) ros2_startup_ = make(h / sub, true), ros2_startup_h_ = h / sub;
-      drv = ros2_startup_.get();
+      if (!w_startup_ || w_startup_h_ != h / sub) w_startup_ = make(h / sub, true), w_startup_h_ = h / sub;
+      drv = w_startup_.get();
     } else {
-      if (!ros2_ || ros2_h_ != h) ros2_ = make(h, false), ros2_h_ = h;
-      ros2_startup_.reset();
-      drv = ros2_.get();
+      if (!w_driver_ || w_h_ != h) w_driver_ = make(h, false), w_h_ = h;
+      w_startup_.reset();
+      drv = w_driver_.get();
     }
     // The driver takes one step (or the sub-steps) to exactly t0 + (n + 1) h and counts it;
     // the clock keeps its origin, so that t has no accumulated rounding, as with RK4.
@@ -90,7 +90,7 @@ void Simulation::step(double h, bool update_status) {
         drv->advance(t1);
       } catch (const std::exception&) {
         if (y_.allFinite()) throw;
-        ros2_.reset(), ros2_startup_.reset();
+        w_driver_.reset(), w_startup_.reset();
       }
     }
     t0_ = t0, steps0_ = s0, steps_ = n1, t_ = t1;
@@ -122,7 +122,7 @@ Checkpoint Simulation::checkpoint() const {
 }
 
 void Simulation::restore(const Checkpoint& c) {
-  ros2_.reset(), ros2_startup_.reset();  // their matrices belong to the old state
+  w_driver_.reset(), w_startup_.reset();  // their matrices belong to the old state
   if (c.state.size() != m_.nstate || c.rocker.size() != ws_.status.rocker.size() ||
       c.pulley.size() != ws_.status.pulley.size())
     throw std::runtime_error("checkpoint does not fit the model (state of " + std::to_string(c.state.size()) +

@@ -109,10 +109,10 @@ class Simulation {
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   std::unique_ptr<Profiler> prof_;
   Rk4 rk_;
-  std::unique_ptr<OdeDriver> ros2_;  // integrator.method = "ros2", made at the first step
-  double ros2_h_ = 0;
-  std::unique_ptr<OdeDriver> ros2_startup_;  // its sub-steps before integrator.startup_time
-  double ros2_startup_h_ = 0;
+  std::unique_ptr<OdeDriver> w_driver_;  // a W-method (integrator.method ros2, ros34pw2), made at the first step
+  double w_h_ = 0;
+  std::unique_ptr<OdeDriver> w_startup_;  // its ROS2 sub-steps before integrator.startup_time
+  double w_startup_h_ = 0;
   Eigen::VectorXd y_, dy_;
   double t_ = 0, t0_ = 0;
   long steps_ = 0, steps0_ = 0;

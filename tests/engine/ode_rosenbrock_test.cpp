@@ -31,6 +31,18 @@ struct ConstantW {
   }
 };
 
+// A stiff component tracking a slow one: y1' = -1e8 (y1 - y2), y2' = -y2; from y(0) = (0, 1),
+// y2 = exp(-t) and y1 = y2 after a layer of 1e-8. (The caller installs its W.)
+OdeSystem stiff_pair() {
+  OdeSystem sys;
+  sys.size = 2;
+  sys.rhs = [](double, const double* y, double* dy) {
+    dy[0] = -1e8 * (y[0] - y[1]);
+    dy[1] = -y[1];
+  };
+  return sys;
+}
+
 double observed_order(const OdeSystem& sys, const char* label) { return smooth_order(sys, OdeMethod::Ros2, 40, label); }
 
 TEST(OdeRos2, SecondOrderWithTheFiniteDifferenceJacobian) {
@@ -84,12 +96,7 @@ TEST(OdeRos2, StaleJacobianKeepsSecondOrder) {
 // partial J~, and what limits ROS2's accuracy on the CVT (docs/integrators.md 12).
 TEST(OdeRos2, StiffComponentNeedsTheMatrixOnlyRoughly) {
   auto run = [](bool full, double factor) -> double {
-    OdeSystem sys;
-    sys.size = 2;
-    sys.rhs = [](double, const double* y, double* dy) {
-      dy[0] = -1e8 * (y[0] - y[1]);
-      dy[1] = -y[1];
-    };
+    OdeSystem sys = stiff_pair();
     ConstantW w;
     w.jt = Eigen::MatrixXd::Zero(2, 2);
     w.jt(0, 0) = -1e8 * factor;
@@ -171,12 +178,7 @@ TEST(OdeRos34pw2, ThirdOrderForAnyMatrix) {
 // the stiff component sits on its slow manifold after each step, to third order in h.
 TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
   auto run = [](double h) {
-    OdeSystem sys;
-    sys.size = 2;
-    sys.rhs = [](double, const double* y, double* dy) {
-      dy[0] = -1e8 * (y[0] - y[1]);
-      dy[1] = -y[1];
-    };
+    OdeSystem sys = stiff_pair();
     ConstantW w;
     w.jt = Eigen::MatrixXd::Zero(2, 2);
     w.jt(0, 0) = -1e8, w.jt(0, 1) = 1e8, w.jt(1, 1) = -1;

@@ -73,34 +73,46 @@ TEST(Ros2Run, ResumedAtAMultipleOfWKEveryRepeatsTheBits) {
   }
 }
 
+// 20 us of the mini model in its load ramp: the state after 5000 RK4 steps of 1e-8 (the
+// start), and RK4 at 1e-8 over the next 20 us (the reference).
+struct RampWindow {
+  const Model rk = test::model("mini", {"ramp.time=1e-4"});  // (a Simulation keeps a reference to its Model)
+  Checkpoint start;
+  Eigen::VectorXd ref;
+  RampWindow() {
+    Simulation warm(rk);
+    for (int k = 0; k < 5000; ++k) warm.step(rk.cfg.integrator.step);
+    start = warm.checkpoint();
+    Simulation r(rk);
+    r.restore(start);
+    for (int k = 0; k < 2000; ++k) r.step(1e-8);
+    ref = r.state();
+  }
+  // Max |dq| of the pins [m] after the 20 us taken by model m at step h from the start.
+  double pins_off(const Model& m, double h) const {
+    Simulation s(m);
+    s.restore(start);
+    const int n = static_cast<int>(std::lround(2e-5 / h));
+    for (int k = 0; k < n; ++k) s.step(h);
+    double dq = 0;
+    for (int i = 0; i < kJointSize * m.links; ++i) dq = std::max(dq, std::abs(s.state()[i] - ref[i]));
+    return dq;
+  }
+};
+
 // Against RK4 at the production step over 20 us of the mini model in its load ramp (restored
 // from an RK4 run at 1e-8, continued at 1e-7: the clock is re-anchored): ROS2 at 1e-7 s keeps
 // the pins within a micrometre, with a fresh matrix every step as close as RK4 at 1e-7 (the
 // mini model's friction is 3x less stiff than the reference's, where ROS2 gains). In this
 // transient a stale matrix costs accuracy (printed), unlike at the reference's full load.
 TEST(Ros2Run, CloseToRk4AtTheProductionStep) {
-  const Model rk = test::model("mini", {"ramp.time=1e-4"});
-  Simulation warm(rk);
-  for (int k = 0; k < 5000; ++k) warm.step(rk.cfg.integrator.step);
-  const Checkpoint c = warm.checkpoint();
-  Simulation ref(rk);
-  ref.restore(c);
-  for (int k = 0; k < 2000; ++k) ref.step(1e-8);
-  auto pins_off = [&](const Model& m, double h) {
-    Simulation s(m);
-    s.restore(c);
-    const int n = static_cast<int>(std::lround(2e-5 / h));
-    for (int k = 0; k < n; ++k) s.step(h);
-    double dq = 0;
-    for (int i = 0; i < kJointSize * m.links; ++i) dq = std::max(dq, std::abs(s.state()[i] - ref.state()[i]));
-    return dq;
-  };
-  const double dq_rk = pins_off(rk, 1e-7);
+  const RampWindow win;
+  const double dq_rk = win.pins_off(win.rk, 1e-7);
   double dq_w[2][3];
   const int every[3] = {1, 4, 16};
   for (int secant = 0; secant < 2; ++secant)
     for (int i = 0; i < 3; ++i)
-      dq_w[secant][i] = pins_off(test::model("mini", {"ramp.time=1e-4", "integrator.method=ros2",
+      dq_w[secant][i] = win.pins_off(test::model("mini", {"ramp.time=1e-4", "integrator.method=ros2",
                                                       "integrator.startup_time=0",
                                                       "integrator.w_every=" + std::to_string(every[i]),
                                                       std::string("integrator.w_secant=") + (secant ? "true" : "false")}),
@@ -121,24 +133,12 @@ TEST(Ros2Run, CloseToRk4AtTheProductionStep) {
 // over the 20 us of CloseToRk4AtTheProductionStep: closer to RK4 at 1e-8 at every step
 // (measured: 0.5x, 0.13x, 0.6x ROS2's error at 4e-7, 2e-7, 1e-7).
 TEST(Ros2Run, Ros34pw2CloserToRk4ThanRos2) {
-  const Model rk = test::model("mini", {"ramp.time=1e-4"});
-  Simulation warm(rk);
-  for (int k = 0; k < 5000; ++k) warm.step(rk.cfg.integrator.step);
-  const Checkpoint c = warm.checkpoint();
-  Simulation ref(rk);
-  ref.restore(c);
-  for (int k = 0; k < 2000; ++k) ref.step(1e-8);
+  const RampWindow win;
   auto pins_off = [&](const char* method, double h) {
     const Model m = test::model("mini", {"ramp.time=1e-4", std::string("integrator.method=") + method,
                                          "integrator.startup_time=0", "integrator.w_every=4",
                                          "integrator.w_k_every=16"});
-    Simulation s(m);
-    s.restore(c);
-    const int n = static_cast<int>(std::lround(2e-5 / h));
-    for (int k = 0; k < n; ++k) s.step(h);
-    double dq = 0;
-    for (int i = 0; i < kJointSize * m.links; ++i) dq = std::max(dq, std::abs(s.state()[i] - ref.state()[i]));
-    return dq;
+    return win.pins_off(m, h);
   };
   double e2[3], e34[3];
   const double hs[3] = {4e-7, 2e-7, 1e-7};
