@@ -156,7 +156,12 @@ std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::ve
     const std::string item = at == std::string::npos ? entry : entry.substr(at + 1);
     if (at != std::string::npos) {
       c.method = entry.substr(0, at);
-      if (c.method != "ros2" && c.method != "ros34pw2")
+      bool w = false;
+      try {
+        w = is_w_method(parse_ode_method(c.method));
+      } catch (const std::invalid_argument&) {
+      }
+      if (!w)
         throw std::invalid_argument("--w-steps: '" + entry + "' names no W-method (ros2, ros34pw2) before '@'");
     }
     char tail = 0;
