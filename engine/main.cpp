@@ -281,7 +281,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
-  run->add_option("--method", run_args.method, "rk4 | ros2 (integrator.method; docs/integrators.md 12)");
+  run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 13)");
   run->add_option("--out", out, "output HDF5 file")->capture_default_str();
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
   run->add_flag("--quiet", quiet, "no progress line");

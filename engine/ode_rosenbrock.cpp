@@ -133,24 +133,32 @@ void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, 
   const double gh = tb.gamma * h;
   eval(t, y, f0_);
   prepare_w(t, h, y, gh);
-  for (int i = 0; i < tb.s; ++i) {
-    Eigen::VectorXd& u = stages_[i];
-    if (i == 0) {
-      u = gh * f0_;
-    } else {
-      y_new_ = y;
-      for (int j = 0; j < i; ++j)
-        if (tb.a[i][j] != 0) y_new_ += tb.a[i][j] * stages_[j];
-      eval(t + tb.alpha_c[i] * h, y_new_, u);
-      u *= gh;
-      for (int j = 0; j < i; ++j) u += (tb.gamma * tb.c[i][j]) * stages_[j];
-    }
-    solve_w(u);
+  // Each stage's sums in one pass over the vectors (the same operations in the same order as
+  // one pass per term, so the same bits).
+  static_assert(Ros34pw2Tableau::s == 4);
+  const Eigen::VectorXd &u0 = stages_[0], &u1 = stages_[1], &u2 = stages_[2], &u3 = stages_[3];
+  const double g = tb.gamma;
+  stages_[0] = gh * f0_;
+  solve_w(stages_[0]);
+  y_new_ = y + tb.a[1][0] * u0;
+  eval(t + tb.alpha_c[1] * h, y_new_, stages_[1]);
+  stages_[1] = gh * stages_[1] + (g * tb.c[1][0]) * u0;
+  solve_w(stages_[1]);
+  y_new_ = y + tb.a[2][0] * u0 + tb.a[2][1] * u1;
+  eval(t + tb.alpha_c[2] * h, y_new_, stages_[2]);
+  stages_[2] = gh * stages_[2] + (g * tb.c[2][0]) * u0 + (g * tb.c[2][1]) * u1;
+  solve_w(stages_[2]);
+  y_new_ = y + tb.a[3][0] * u0 + tb.a[3][1] * u1 + tb.a[3][2] * u2;
+  eval(t + tb.alpha_c[3] * h, y_new_, stages_[3]);
+  stages_[3] = gh * stages_[3] + (g * tb.c[3][0]) * u0 + (g * tb.c[3][1]) * u1 + (g * tb.c[3][2]) * u2;
+  solve_w(stages_[3]);
+  y_new_ = y + tb.m[0] * u0 + tb.m[1] * u1 + tb.m[2] * u2 + tb.m[3] * u3;
+  if (fixed_) {  // no error estimate needed
+    *err = 0.0;
+    return;
   }
-  y_new_ = y;
-  err_vec_.setZero();
-  for (int i = 0; i < tb.s; ++i) y_new_ += tb.m[i] * stages_[i], err_vec_ += tb.e[i] * stages_[i];
-  *err = fixed_ ? 0.0 : error_norm(err_vec_, y, y_new_);
+  err_vec_ = tb.e[0] * u0 + tb.e[1] * u1 + tb.e[2] * u2 + tb.e[3] * u3;
+  *err = error_norm(err_vec_, y, y_new_);
 }
 
 }  // namespace cvt
