@@ -45,7 +45,13 @@ class CyclicBlockLU {
   // corners' fill, the band's own coupling and what it fills; all n - 1 without the decay,
   // see factor()).
   int fill_blocks() const { return fills_; }
+  // The fill below this fraction of the next pivot block is dropped (see factor()). The
+  // default changes M by far less than its own rounding; a caller whose matrix is an
+  // approximation anyway (a W-method's) may drop more: the factors are then the exact LU of
+  // M + E with |E| below tolerance * |pivot block|, the same matrix for every solve.
   static constexpr double kNegligible = 1e-30;
+  void set_drop_tolerance(double tol) { drop_ = tol; }
+  double drop_tolerance() const { return drop_; }
   int blocks() const { return n_; }
   // The matrix, filled by the caller before factor().
   Mat& diag(int l) { return d_[l]; }
@@ -61,8 +67,8 @@ class CyclicBlockLU {
   // takes 0 .. m-1 downwards, the bottom sweep n-2 .. m+1 upwards, two independent tasks
   // (`both`); then m, then n-1. Each sweep fills the coupling of its next block to n-1, and
   // that fill decays along the chain (by about 1e-4 per link for ROS2's matrix): once it is
-  // below kNegligible of the next pivot block it is dropped. That changes M by less than its
-  // own rounding, and keeps most links at three blocks.
+  // below drop_tolerance() of the next pivot block it is dropped. By default (kNegligible)
+  // that changes M by less than its own rounding, and keeps most links at three blocks.
   bool factor() { return factor(Sequential()); }
   template <class Both>
   bool factor(const Both& both) {
@@ -178,13 +184,14 @@ class CyclicBlockLU {
     }
   }
   // Whether a fill (col, row) still matters next to the pivot block D.
-  static bool above(const Mat& col, const Mat& row, const Mat& D) {
-    const double scale = kNegligible * D.cwiseAbs().maxCoeff();
+  bool above(const Mat& col, const Mat& row, const Mat& D) const {
+    const double scale = drop_ * D.cwiseAbs().maxCoeff();
     return col.cwiseAbs().maxCoeff() > scale || row.cwiseAbs().maxCoeff() > scale;
   }
 
   int n_ = 0;
   int fills_ = 0;
+  double drop_ = kNegligible;
   std::vector<char> fill_;
   // lsub_[l] = M(l, l-1) D_{l-1}^-1 (top sweep, l = 1 .. m); lsup_[l] = M(l, l+1) D_{l+1}^-1
   // (bottom sweep, l = m .. n-3); lrow_ / ucol_: the couplings to the last block.

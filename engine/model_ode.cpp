@@ -136,6 +136,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int h = 0; h < 2; ++h) set_half_mass(m, a0_link_, h * half::kSize);
   a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
   w_lu_.resize(N);
+  w_lu_.set_drop_tolerance(opt_.w_fill_drop);
   // The chain's coordinates in link order, and their units (1 unless scaled).
   w_coord_.resize(static_cast<size_t>(N) * kLinkDim);
   w_unit_q_.assign(w_coord_.size(), 1.0), w_unit_v_.assign(w_coord_.size(), 1.0);
