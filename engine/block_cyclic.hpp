@@ -95,10 +95,27 @@ class CyclicBlockLU {
   void solve(Vec* x) const { solve(x, Sequential()); }
   template <class Both>
   void solve(Vec* x, const Both& both) const {
+    const auto none = [](int) {};
+    solve(x, both, none, none);
+  }
+  // The same, with the caller's work per block fused into the two tasks (no extra fork and
+  // join): prepare(l) writes b_l into x[l] just before the task's sweep (blocks 0 .. m on
+  // the top task, m+1 .. n-1 on the bottom one, m = (n-1)/2); finish(l) reads the solution
+  // x[l] after it (the same split). Each block's prepare and finish run once, on one task.
+  template <class Both, class Prepare, class Finish>
+  void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish) const {
     const int n = n_, last = n - 1, m = (n - 1) / 2;
     // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
     Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
-    both([&] { forward(x, 0, +1, lsub_, xm_top, xl_top); }, [&] { forward(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
+    both(
+        [&] {
+          for (int l = 0; l <= m; ++l) prepare(l);
+          forward(x, 0, +1, lsub_, xm_top, xl_top);
+        },
+        [&] {
+          for (int l = m + 1; l < n; ++l) prepare(l);
+          forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
+        });
     x[m] -= xm_top;
     x[m] -= xm_bot;
     x[last] -= xl_top;
@@ -109,7 +126,15 @@ class CyclicBlockLU {
     Vec t = x[m];
     t.noalias() -= ucol_[m] * x[last];
     x[m].noalias() = inv_[m] * t;
-    both([&] { backward(x, 0, +1); }, [&] { backward(x, n - 2, -1); });
+    both(
+        [&] {
+          backward(x, 0, +1);
+          for (int l = 0; l <= m; ++l) finish(l);
+        },
+        [&] {
+          backward(x, n - 2, -1);
+          for (int l = m + 1; l < n; ++l) finish(l);
+        });
   }
 
  private:

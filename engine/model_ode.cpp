@@ -149,7 +149,11 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   w_unit_ratio_.assign(m.ndof, 1.0);
   if (opt.scaled)
     for (int i = 0; i < m.ndof; ++i) w_unit_ratio_[i] = unit_[m.ndof + i] / unit_[i];
-  w_rhs_.resize(N), w_bq_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
+  std::vector<char> in_chain(m.ndof, 0);
+  for (int c : w_coord_) in_chain[c] = 1;
+  for (int c = 0; c < m.ndof; ++c)
+    if (!in_chain[c]) w_other_coord_.push_back(c);
+  w_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
   for (int r = 0; r < kLinkDim; ++r)
     for (int c = 0; c < kLinkDim; ++c)
       if (a0_link_(r, c) != 0) a0_entries_.push_back({r, c, a0_link_(r, c)});
@@ -451,18 +455,20 @@ void ModelOde::w_solve(double* x) const {
   // W = [I, -gh I; gh A^-1 K, I + gh A^-1 C] on the chain (identity on the other
   // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
   // (Scaled: the chain's entries through w_unit_q_ / w_unit_v_, tables in link order.)
+  // The right side of each link and the write-back of its solution run inside the block
+  // LU's two tasks (CyclicBlockLU::solve's prepare / finish): one fork and join per phase.
   const int n = m_.ndof;
   const double gh = w_gh_;
   const double* uq = w_unit_q_.data();
   const double* uv = w_unit_v_.data();
+  const double* ratio = w_unit_ratio_.data();
   LinkVector* v = w_rhs_.data();
-  LinkVector* bq = w_bq_.data();
-  if (opt_.w_stiffness)
-    for_joints([&](int l) {
-      const int o = l * kLinkDim;
-      for (int i = 0; i < kLinkDim; ++i) bq[l][i] = x[w_coord_[o + i]] * uq[o + i];
-    });
-  for_joints([&](int l) {
+  // b_q in link l's coordinates.
+  const auto positions = [&](int l, LinkVector& bq) {
+    const int o = l * kLinkDim;
+    for (int i = 0; i < kLinkDim; ++i) bq[i] = x[w_coord_[o + i]] * uq[o + i];
+  };
+  const auto prepare = [&](int l) {
     const int o = l * kLinkDim;
     LinkVector b;
     for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + w_coord_[o + i]] * uv[o + i];
@@ -472,13 +478,15 @@ void ModelOde::w_solve(double* x) const {
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
+      LinkVector bq, bqp, bqn;
+      positions(l, bq), positions(lp, bqp), positions(ln, bqn);
       // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
       // columns (exact zeros skipped).
-      LinkVector kb = w_k_diag_[l] * bq[l];
+      LinkVector kb = w_k_diag_[l] * bq;
       const PackedColumns& sub = w_k_packed_[l][0];
       const PackedColumns& sup = w_k_packed_[ln][1];
-      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * bq[lp][sub.index[c]];
-      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * bq[ln][sup.index[c]];
+      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * bqp[sub.index[c]];
+      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * bqn[sup.index[c]];
       y.noalias() -= gh * kb;
     }
     if (w_cps_on_[l]) {
@@ -491,16 +499,19 @@ void ModelOde::w_solve(double* x) const {
         }
       y.noalias() -= gh * (w_cps_[l] * xs);
     }
-  });
-  w_lu_.solve(v, TwoTasks{schedule_.threads() > 1});
-  for_joints([&](int l) {
+  };
+  // x_v, then x_q = b_q + gh x_v (dq/dt = v exactly: W's position rows [I, -gh I]; scaled:
+  // times the ratio of the units, w_unit_ratio_).
+  const auto finish = [&](int l) {
     const int o = l * kLinkDim;
-    for (int i = 0; i < kLinkDim; ++i) x[n + w_coord_[o + i]] = v[l][i] / uv[o + i];
-  });
-  // dq/dt = v exactly: W's position rows [I, -gh I], so x_q = b_q + gh x_v (scaled: times
-  // the ratio of the units, w_unit_ratio_).
-  const double* ratio = w_unit_ratio_.data();
-  for (int i = 0; i < n; ++i) x[i] += gh * x[n + i] * ratio[i];
+    for (int i = 0; i < kLinkDim; ++i) {
+      const int c = w_coord_[o + i];
+      x[n + c] = v[l][i] / uv[o + i];
+      x[c] += gh * x[n + c] * ratio[c];
+    }
+  };
+  w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+  for (int c : w_other_coord_) x[c] += gh * x[n + c] * ratio[c];  // the shafts' and load's
 }
 
 OdeMethod parse_ode_method(const std::string& name) {

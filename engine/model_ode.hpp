@@ -190,7 +190,8 @@ class ModelOde {
   int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }
   std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
   std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
-  mutable LinkVectors w_rhs_, w_bq_;
+  mutable LinkVectors w_rhs_;
+  std::vector<int> w_other_coord_;            // the coordinates outside the chain's links (shafts, load)
   LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
   // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).
   LinkBlocks w_k_diag_, w_k_sub_, w_k_super_;
