@@ -175,6 +175,11 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     w_color_[l] = c;
     w_colors_ = std::max(w_colors_, c + 1);
   }
+  // Per colour, the joints next to one of its links (j-1 or j).
+  w_touched_.assign(static_cast<std::size_t>(w_colors_) * N, 0);
+  for (int c = 0; c < w_colors_; ++c)
+    for (int j = 0; j < N; ++j)
+      w_touched_[static_cast<std::size_t>(c) * N + j] = w_color_[m.wrap(j - 1)] == c || w_color_[j] == c;
   if (opt.w_blocks) {
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
@@ -321,6 +326,7 @@ void ModelOde::w_stiffness(double t, const double* y) {
   chain_forces_at(t, ys_.data());
   std::vector<double>& F0 = w_force0_;
   F0.assign(ws_.force.begin(), ws_.force.begin() + n);
+  w_chain0_ = ws_.chain_slots, w_pulley0_ = ws_.pulley_slots;  // the joints a colour leaves alone
   for (int color = 0; color < w_colors_; ++color) {
     for (int i = 0; i < kLinkDim; ++i) {
       for (int l = 0; l < N; ++l) {
@@ -329,7 +335,7 @@ void ModelOde::w_stiffness(double t, const double* y) {
         w_delta_[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
         yp[c] = ys_[c] + w_delta_[l];
       }
-      chain_forces_at(t, yp.data());
+      chain_forces_at(t, yp.data(), color);
       const double* F1 = ws_.force.data();
       for_joints([&](int l) {
         if (w_color_[l] != color) return;
@@ -354,16 +360,38 @@ void ModelOde::w_stiffness(double t, const double* y) {
   w_k_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-void ModelOde::chain_forces_at(double t, const double* y) {
+void ModelOde::chain_forces_at(double t, const double* y, int color) {
   // The passes of an evaluation that the chain's generalized forces need: the link angles,
   // the chain and pulley kernels, the gather. The inertia's velocity terms keep the values of
-  // the last full evaluation (a constant, which the differences cancel).
+  // the last full evaluation (a constant, which the differences cancel). With a colour: a
+  // joint touches only links j-1 and j (docs/model.md 4: its halves a_j, b_j, the plates of
+  // link j, the directions of links j-1 and j), so a joint next to no perturbed link keeps
+  // the slots of the unperturbed state (w_chain0_, w_pulley0_), which its kernels would
+  // reproduce bit for bit; only the others are computed (2 of 3 joints with 3 colours).
   set_stage_input(m_, ws_, t, y);
   for_ranges([this](int b, int e) { link_kinematics(m_, ws_, b, e); });
-  for_ranges([this](int b, int e) {
-    chain_forces(m_, ws_, b, e);
-    pulley_contact(m_, ws_, b, e);
-  });
+  if (color < 0) {
+    for_ranges([this](int b, int e) {
+      chain_forces(m_, ws_, b, e);
+      pulley_contact(m_, ws_, b, e);
+    });
+  } else {
+    const std::uint8_t* touched = w_touched_.data() + static_cast<std::size_t>(color) * m_.links;
+    for_ranges([this, touched](int b, int e) {
+      for (int j = b; j < e;) {
+        if (!touched[j]) {
+          ws_.chain_slots[j] = w_chain0_[j], ws_.pulley_slots[j] = w_pulley0_[j];
+          ++j;
+          continue;
+        }
+        int k = j + 1;
+        while (k < e && touched[k]) ++k;
+        chain_forces(m_, ws_, j, k);
+        pulley_contact(m_, ws_, j, k);
+        j = k;
+      }
+    });
+  }
   for_ranges([this](int b, int e) { gather_joints(m_, ws_, b, e); });
   ++rhs_evals_;  // counted as an evaluation (about 3/4 of one)
 }

@@ -169,7 +169,11 @@ class ModelOde {
     return i < half::kSize ? m_.half_b(l) + i : i < 2 * half::kSize ? m_.half_a(l + 1) + i - half::kSize : m_.pack(l);
   }
   void w_stiffness(double t, const double* y);
-  void chain_forces_at(double t, const double* y);  // ws.force of the chain at (t, y)
+  // ws.force of the chain at (t, y); with a colour, the differences' evaluation that
+  // perturbs that colour's links (only the joints next to them are computed).
+  void chain_forces_at(double t, const double* y, int color = -1);
+  std::vector<JointSlot> w_chain0_, w_pulley0_;  // the slots at the unperturbed state
+  std::vector<std::uint8_t> w_touched_;          // [colour * N + joint]: next to a link of the colour
   template <class F>
   void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads
   void link_gradient(int l, LinkVector& g) const;
