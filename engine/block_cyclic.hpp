@@ -51,7 +51,6 @@ class CyclicBlockLU {
   // M + E with |E| below tolerance * |pivot block|, the same matrix for every solve.
   static constexpr double kNegligible = 1e-30;
   void set_drop_tolerance(double tol) { drop_ = tol; }
-  double drop_tolerance() const { return drop_; }
   int blocks() const { return n_; }
   // The matrix, filled by the caller before factor().
   Mat& diag(int l) { return d_[l]; }
@@ -67,7 +66,7 @@ class CyclicBlockLU {
   // takes 0 .. m-1 downwards, the bottom sweep n-2 .. m+1 upwards, two independent tasks
   // (`both`); then m, then n-1. Each sweep fills the coupling of its next block to n-1, and
   // that fill decays along the chain (by about 1e-4 per link for ROS2's matrix): once it is
-  // below drop_tolerance() of the next pivot block it is dropped. By default (kNegligible)
+  // below the drop tolerance of the next pivot block it is dropped. By default (kNegligible)
   // that changes M by less than its own rounding, and keeps most links at three blocks.
   bool factor() { return factor(Sequential()); }
   template <class Both>

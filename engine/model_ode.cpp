@@ -175,11 +175,6 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     w_color_[l] = c;
     w_colors_ = std::max(w_colors_, c + 1);
   }
-  // Per colour, the joints next to one of its links (j-1 or j).
-  w_touched_.assign(static_cast<std::size_t>(w_colors_) * N, 0);
-  for (int c = 0; c < w_colors_; ++c)
-    for (int j = 0; j < N; ++j)
-      w_touched_[static_cast<std::size_t>(c) * N + j] = w_color_[m.wrap(j - 1)] == c || w_color_[j] == c;
   if (opt.w_blocks) {
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
@@ -376,16 +371,17 @@ void ModelOde::chain_forces_at(double t, const double* y, int color) {
       pulley_contact(m_, ws_, b, e);
     });
   } else {
-    const std::uint8_t* touched = w_touched_.data() + static_cast<std::size_t>(color) * m_.links;
-    for_ranges([this, touched](int b, int e) {
+    // Joint j is next to a perturbed link when link j-1 or link j has the colour.
+    const auto touched = [this, color](int j) { return w_color_[m_.wrap(j - 1)] == color || w_color_[j] == color; };
+    for_ranges([this, &touched](int b, int e) {
       for (int j = b; j < e;) {
-        if (!touched[j]) {
+        if (!touched(j)) {
           ws_.chain_slots[j] = w_chain0_[j], ws_.pulley_slots[j] = w_pulley0_[j];
           ++j;
           continue;
         }
         int k = j + 1;
-        while (k < e && touched[k]) ++k;
+        while (k < e && touched(k)) ++k;
         chain_forces(m_, ws_, j, k);
         pulley_contact(m_, ws_, j, k);
         j = k;
@@ -491,11 +487,8 @@ void ModelOde::w_solve(double* x) const {
   const double* uv = w_unit_v_.data();
   const double* ratio = w_unit_ratio_.data();
   LinkVector* v = w_rhs_.data();
-  // b_q in link l's coordinates.
-  const auto positions = [&](int l, LinkVector& bq) {
-    const int o = l * kLinkDim;
-    for (int i = 0; i < kLinkDim; ++i) bq[i] = x[w_coord_[o + i]] * uq[o + i];
-  };
+  // Entry i of b_q in link l's coordinates.
+  const auto position = [&](int l, int i) { return x[w_coord_[l * kLinkDim + i]] * uq[l * kLinkDim + i]; };
   const auto prepare = [&](int l) {
     const int o = l * kLinkDim;
     LinkVector b;
@@ -506,15 +499,15 @@ void ModelOde::w_solve(double* x) const {
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
-      LinkVector bq, bqp, bqn;
-      positions(l, bq), positions(lp, bqp), positions(ln, bqn);
+      LinkVector bq;
+      for (int i = 0; i < kLinkDim; ++i) bq[i] = position(l, i);
       // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
-      // columns (exact zeros skipped).
+      // columns (exact zeros skipped; the neighbours' b_q read at those columns only).
       LinkVector kb = w_k_diag_[l] * bq;
       const PackedColumns& sub = w_k_packed_[l][0];
       const PackedColumns& sup = w_k_packed_[ln][1];
-      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * bqp[sub.index[c]];
-      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * bqn[sup.index[c]];
+      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * position(lp, sub.index[c]);
+      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * position(ln, sup.index[c]);
       y.noalias() -= gh * kb;
     }
     if (w_cps_on_[l]) {

@@ -173,7 +173,6 @@ class ModelOde {
   // perturbs that colour's links (only the joints next to them are computed).
   void chain_forces_at(double t, const double* y, int color = -1);
   std::vector<JointSlot> w_chain0_, w_pulley0_;  // the slots at the unperturbed state
-  std::vector<std::uint8_t> w_touched_;          // [colour * N + joint]: next to a link of the colour
   template <class F>
   void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads
   void link_gradient(int l, LinkVector& g) const;
