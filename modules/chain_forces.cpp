@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Dense>
+
 #include "modules/beam.hpp"
 #include "modules/contact_laws.hpp"
 
@@ -119,6 +121,12 @@ inline Cubic cubic_of(const double* hq, int plane, double L) {
 }
 inline double at(const Cubic& c, double x) { return c.c0 + x * (c.c1 + x * (c.c2 + x * c.c3)); }
 inline double slope(const Cubic& c, double x) { return c.c1 + x * (2 * c.c2 + x * 3 * c.c3); }
+// The same at four parameters at once, and the sum of four lanes in a fixed order.
+inline Eigen::Array4d at4(const Cubic& c, const Eigen::Array4d& x) { return c.c0 + x * (c.c1 + x * (c.c2 + x * c.c3)); }
+inline Eigen::Array4d slope4(const Cubic& c, const Eigen::Array4d& x) {
+  return c.c1 + x * (2 * c.c2 + x * (3 * c.c3));
+}
+inline double lanes(const Eigen::Array4d& a) { return (a[0] + a[1]) + (a[2] + a[3]); }
 // Generalized forces on (x1, sx1, x2, sx2) of one plane from the moments M_p = sum f xi^p
 // of lateral forces f applied at parameters xi: sum_p (coefficient of xi^p in w_i) M_p.
 inline void add_moments(double* hf, int plane, double L, const double M[4]) {
@@ -329,30 +337,47 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       const double zmn = 0.5 * (qn[half::kZ] + qn[half::kEnd + half::kZ]);
       const double xidb = (sv - 0.5 * (vb[half::kZ] + vb[half::kEnd + half::kZ])) * invL;
       const double xidn = (sv - 0.5 * (vn[half::kZ] + vn[half::kEnd + half::kZ])) * invL;
-      double Mbx[4] = {0, 0, 0, 0}, Mby[4] = {0, 0, 0, 0}, Mnx[4] = {0, 0, 0, 0}, Mny[4] = {0, 0, 0, 0};
-      double Sb = 0, Sn = 0;  // sum of f . dP/dxi at the b and the n points
-      for (double zeta : m.plate_zeta) {
-        const double xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
-        const double dx = at(nx, xn) - at(bx, xb), dy = at(ny, xn) - at(by, xb);
-        const double d = std::sqrt(dx * dx + dy * dy);
-        const double stretch = d - m.plate_rest;
-        if (stretch <= 0) continue;
-        const double inv = 1.0 / d, ux = dx * inv, uy = dy * inv;
-        const double sbx = slope(bx, xb), sby = slope(by, xb), snx = slope(nx, xn), sny = slope(ny, xn);
-        const double rate = ux * ((at(nvx, xn) + snx * xidn) - (at(bvx, xb) + sbx * xidb)) +
-                            uy * ((at(nvy, xn) + sny * xidn) - (at(bvy, xb) + sby * xidb));
-        const double T = kpl * stretch + cpl * rate;
-        s.p_diss += cpl * rate * rate;
+      // Four plates at a time (one AVX2 register per quantity, lanes summed at the end in
+      // a fixed order); a plate beyond the pack's count, or not stretched (d <= rest),
+      // contributes zeros (selected, so that its values, finite or not, never enter).
+      using A4 = Eigen::Array4d;
+      A4 mbx[4], mby[4], mnx[4], mny[4];
+      for (int p = 0; p < 4; ++p) mbx[p] = mby[p] = mnx[p] = mny[p] = A4::Zero();
+      A4 sb = A4::Zero(), sn = A4::Zero(), pd = A4::Zero();
+      const int npl = static_cast<int>(m.plate_zeta.size());
+      for (int k0 = 0; k0 < npl; k0 += 4) {
+        A4 zeta, valid;
+        for (int l = 0; l < 4; ++l) {
+          const bool in = k0 + l < npl;
+          zeta[l] = m.plate_zeta[in ? k0 + l : 0];
+          valid[l] = in ? 1.0 : 0.0;
+        }
+        const A4 xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
+        const A4 dx = at4(nx, xn) - at4(bx, xb), dy = at4(ny, xn) - at4(by, xb);
+        const A4 d = (dx * dx + dy * dy).sqrt();
+        const A4 stretch = d - m.plate_rest;
+        const A4 inv = 1.0 / d, ux = dx * inv, uy = dy * inv;
+        const A4 sbx = slope4(bx, xb), sby = slope4(by, xb), snx = slope4(nx, xn), sny = slope4(ny, xn);
+        const A4 rate = ux * ((at4(nvx, xn) + snx * xidn) - (at4(bvx, xb) + sbx * xidb)) +
+                        uy * ((at4(nvy, xn) + sny * xidn) - (at4(bvy, xb) + sby * xidb));
+        const auto on = stretch > 0.0;
+        const A4 T = kpl * stretch + cpl * rate;
+        pd += valid * on.select(cpl * rate * rate, 0.0);
         // (T ux, T uy) on the b point, the opposite on the n point.
-        const double fx = T * ux, fy = T * uy;
-        const double xb2 = xb * xb, xn2 = xn * xn;
-        Mbx[0] += fx, Mbx[1] += fx * xb, Mbx[2] += fx * xb2, Mbx[3] += fx * xb2 * xb;
-        Mby[0] += fy, Mby[1] += fy * xb, Mby[2] += fy * xb2, Mby[3] += fy * xb2 * xb;
-        Mnx[0] -= fx, Mnx[1] -= fx * xn, Mnx[2] -= fx * xn2, Mnx[3] -= fx * xn2 * xn;
-        Mny[0] -= fy, Mny[1] -= fy * xn, Mny[2] -= fy * xn2, Mny[3] -= fy * xn2 * xn;
-        Sb += fx * sbx + fy * sby;
-        Sn -= fx * snx + fy * sny;
+        const A4 fx = valid * on.select(T * ux, 0.0), fy = valid * on.select(T * uy, 0.0);
+        const A4 xb2 = xb * xb, xn2 = xn * xn, xb3 = xb2 * xb, xn3 = xn2 * xn;
+        mbx[0] += fx, mbx[1] += fx * xb, mbx[2] += fx * xb2, mbx[3] += fx * xb3;
+        mby[0] += fy, mby[1] += fy * xb, mby[2] += fy * xb2, mby[3] += fy * xb3;
+        mnx[0] += fx, mnx[1] += fx * xn, mnx[2] += fx * xn2, mnx[3] += fx * xn3;
+        mny[0] += fy, mny[1] += fy * xn, mny[2] += fy * xn2, mny[3] += fy * xn3;
+        sb += fx * sbx + fy * sby;
+        sn += fx * snx + fy * sny;
       }
+      double Mbx[4], Mby[4], Mnx[4], Mny[4];
+      for (int p = 0; p < 4; ++p)
+        Mbx[p] = lanes(mbx[p]), Mby[p] = lanes(mby[p]), Mnx[p] = -lanes(mnx[p]), Mny[p] = -lanes(mny[p]);
+      const double Sb = lanes(sb), Sn = -lanes(sn);  // sum of f . dP/dxi at the b and the n points
+      s.p_diss += lanes(pd);
       add_moments(fb, 0, L, Mbx);
       add_moments(fb, 1, L, Mby);
       add_moments(fn, 0, L, Mnx);
