@@ -154,9 +154,12 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int c = 0; c < m.ndof; ++c)
     if (!in_chain[c]) w_other_coord_.push_back(c);
   w_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
-  for (int r = 0; r < kLinkDim; ++r)
+  a0_row_.assign(1, 0);
+  for (int r = 0; r < kLinkDim; ++r) {
     for (int c = 0; c < kLinkDim; ++c)
-      if (a0_link_(r, c) != 0) a0_entries_.push_back({r, c, a0_link_(r, c)});
+      if (a0_link_(r, c) != 0) a0_entries_.push_back({c, a0_link_(r, c)});
+    a0_row_.push_back(static_cast<int>(a0_entries_.size()));
+  }
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
   w_k_packed_.resize(N);
   w_delta_.assign(N, 0.0);
@@ -494,8 +497,12 @@ void ModelOde::w_solve(double* x) const {
     LinkVector b;
     for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + w_coord_[o + i]] * uv[o + i];
     LinkVector& y = v[l];
-    y.setZero();
-    for (const A0Entry& e : a0_entries_) y[e.r] += e.v * b[e.c];  // A0 b (73 nonzeros of 441)
+    // A0 b (73 nonzeros of 441), row by row (each row's sum in a register).
+    for (int r = 0; r < kLinkDim; ++r) {
+      double acc = 0;
+      for (int k = a0_row_[r]; k < a0_row_[r + 1]; ++k) acc += a0_entries_[k].v * b[a0_entries_[k].c];
+      y[r] = acc;
+    }
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);

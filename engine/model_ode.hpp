@@ -178,10 +178,11 @@ class ModelOde {
   void link_gradient(int l, LinkVector& g) const;
   LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
   struct A0Entry {
-    int r, c;
+    int c;
     double v;
   };
-  std::vector<A0Entry> a0_entries_;  // its nonzeros
+  std::vector<A0Entry> a0_entries_;  // its nonzeros by rows (row r: a0_row_[r] .. a0_row_[r + 1])
+  std::vector<int> a0_row_;
   // Per link: the pulley friction's K_ps on its rows (21 x 14, both shafts) at the last
   // rebuild, and whether it is nonzero (the link touches a sheave).
   std::vector<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>,
