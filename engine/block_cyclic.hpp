@@ -17,7 +17,38 @@
 #include <cmath>
 #include <vector>
 
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#endif
+
 namespace cvt {
+
+// t = A x for a small fixed-size block (B x B, column-major): the solves' kernel. With AVX2
+// the columns are summed in B/4 (rounded up) registers of four rows, the last one a masked
+// load, inline; Eigen's general matrix-vector product (an out-of-line call that splits 21
+// rows into packets of 4, 2 and 1) took 1.3-1.6x as long on the chain's 21 x 21 blocks.
+template <int B>
+inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, 1>& x,
+                        Eigen::Matrix<double, B, 1>& t) {
+#if defined(__AVX2__) && defined(__FMA__)
+  constexpr int kFull = B / 4, kRest = B % 4, kRegs = kFull + (kRest > 0);
+  alignas(32) double out[4 * kRegs];
+  __m256d acc[kRegs];
+  for (auto& v : acc) v = _mm256_setzero_pd();
+  const __m256i mask = _mm256_set_epi64x(0, kRest > 2 ? -1 : 0, kRest > 1 ? -1 : 0, -1);
+  const double* a = A.data();
+  for (int c = 0; c < B; ++c) {
+    const __m256d xc = _mm256_set1_pd(x[c]);
+    const double* col = a + B * c;
+    for (int i = 0; i < kFull; ++i) acc[i] = _mm256_fmadd_pd(_mm256_loadu_pd(col + 4 * i), xc, acc[i]);
+    if constexpr (kRest > 0) acc[kFull] = _mm256_fmadd_pd(_mm256_maskload_pd(col + 4 * kFull, mask), xc, acc[kFull]);
+  }
+  for (int i = 0; i < kRegs; ++i) _mm256_store_pd(out + 4 * i, acc[i]);
+  for (int r = 0; r < B; ++r) t[r] = out[r];
+#else
+  t.noalias() = A * x;
+#endif
+}
 
 template <int B>
 class CyclicBlockLU {
@@ -119,12 +150,15 @@ class CyclicBlockLU {
     x[m] -= xm_bot;
     x[last] -= xl_top;
     x[last] -= xl_bot;
-    x[last].noalias() -= lrow_[m] * x[m];
+    Vec t;
+    block_times(lrow_[m], x[m], t);
+    x[last] -= t;
     // U x = y: the last block, the middle, then both halves outwards.
-    x[last] = inv_[last] * x[last];
-    Vec t = x[m];
-    t.noalias() -= ucol_[m] * x[last];
-    x[m].noalias() = inv_[m] * t;
+    block_times(inv_[last], x[last], t);
+    x[last] = t;
+    block_times(ucol_[m], x[last], t);
+    t = x[m] - t;
+    block_times(inv_[m], t, x[m]);
     both(
         [&] {
           backward(x, 0, +1);
@@ -189,21 +223,32 @@ class CyclicBlockLU {
                Vec& xl) const {
     const int m = (n_ - 1) / 2;
     if (first == m) return;
-    for (int l = first + dir; l != m; l += dir) x[l].noalias() -= mult[l] * x[l - dir];
-    xm.noalias() = mult[m] * x[m - dir];
+    Vec t;
+    for (int l = first + dir; l != m; l += dir) {
+      block_times(mult[l], x[l - dir], t);
+      x[l] -= t;
+    }
+    block_times(mult[m], x[m - dir], xm);
     for (int l = first; l != m; l += dir)
-      if (fill_[l]) xl.noalias() += lrow_[l] * x[l];
+      if (fill_[l]) {
+        block_times(lrow_[l], x[l], t);
+        xl += t;
+      }
   }
   // A sweep's part of U x = y, outwards from the middle.
   void backward(Vec* x, int first, int dir) const {
     const int m = (n_ - 1) / 2, last = n_ - 1;
     if (first == m) return;
-    Vec u;
+    Vec u, t;
     for (int l = m - dir;; l -= dir) {
       u = x[l];
-      if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
-      u.noalias() -= band(l, l + dir) * x[l + dir];
-      x[l].noalias() = inv_[l] * u;
+      if (fill_[l]) {
+        block_times(ucol_[l], x[last], t);
+        u -= t;
+      }
+      block_times(band(l, l + dir), x[l + dir], t);
+      u -= t;
+      block_times(inv_[l], u, x[l]);
       if (l == first) break;
     }
   }

@@ -510,7 +510,8 @@ void ModelOde::w_solve(double* x) const {
       for (int i = 0; i < kLinkDim; ++i) bq[i] = position(l, i);
       // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
       // columns (exact zeros skipped; the neighbours' b_q read at those columns only).
-      LinkVector kb = w_k_diag_[l] * bq;
+      LinkVector kb;
+      block_times(w_k_diag_[l], bq, kb);
       const PackedColumns& sub = w_k_packed_[l][0];
       const PackedColumns& sup = w_k_packed_[ln][1];
       for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * position(lp, sub.index[c]);
