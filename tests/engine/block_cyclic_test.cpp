@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <random>
 
@@ -104,6 +105,41 @@ TEST(CyclicBlockLU, RejectsASingularPivot) {
   }
   lu.diag(1)(1, 1) = 0;  // a zero row
   EXPECT_FALSE(lu.factor());
+}
+
+}  // namespace
+}  // namespace cvt
+
+namespace cvt {
+namespace {
+
+// block_times (the solves' inline kernel) against Eigen's product, for every remainder of
+// the rows modulo the 4-row registers, including the chain's 21.
+template <int B>
+void check_block_times(unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Eigen::Matrix<double, B, B> A;
+  Eigen::Matrix<double, B, 1> x, t;
+  for (int c = 0; c < B; ++c) {
+    x[c] = u(rng);
+    for (int r = 0; r < B; ++r) A(r, c) = u(rng) * std::pow(10.0, 3 * u(rng));
+  }
+  t.setConstant(1e300);  // every entry must be overwritten
+  block_times(A, x, t);
+  const Eigen::Matrix<double, B, 1> e = A * x;
+  const double scale = (A.cwiseAbs() * x.cwiseAbs()).maxCoeff();
+  EXPECT_LT((t - e).cwiseAbs().maxCoeff(), 1e-14 * scale) << "B = " << B;
+}
+
+TEST(CyclicBlockLU, BlockTimesIsTheMatrixProduct) {
+  check_block_times<1>(1u);
+  check_block_times<2>(2u);
+  check_block_times<3>(3u);
+  check_block_times<4>(4u);
+  check_block_times<5>(5u);
+  check_block_times<8>(8u);
+  check_block_times<21>(21u);
 }
 
 }  // namespace
