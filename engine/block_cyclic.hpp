@@ -49,6 +49,14 @@ inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matri
   t.noalias() = A * x;
 #endif
 }
+// y -= A x.
+template <int B>
+inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, 1>& x,
+                           Eigen::Matrix<double, B, 1>& y) {
+  Eigen::Matrix<double, B, 1> t;
+  block_times(A, x, t);
+  y -= t;
+}
 
 template <int B>
 class CyclicBlockLU {
@@ -150,14 +158,12 @@ class CyclicBlockLU {
     x[m] -= xm_bot;
     x[last] -= xl_top;
     x[last] -= xl_bot;
-    Vec t;
-    block_times(lrow_[m], x[m], t);
-    x[last] -= t;
+    block_subtract(lrow_[m], x[m], x[last]);
     // U x = y: the last block, the middle, then both halves outwards.
-    block_times(inv_[last], x[last], t);
-    x[last] = t;
-    block_times(ucol_[m], x[last], t);
-    t = x[m] - t;
+    Vec t = x[last];
+    block_times(inv_[last], t, x[last]);
+    t = x[m];
+    block_subtract(ucol_[m], x[last], t);
     block_times(inv_[m], t, x[m]);
     both(
         [&] {
@@ -223,12 +229,9 @@ class CyclicBlockLU {
                Vec& xl) const {
     const int m = (n_ - 1) / 2;
     if (first == m) return;
-    Vec t;
-    for (int l = first + dir; l != m; l += dir) {
-      block_times(mult[l], x[l - dir], t);
-      x[l] -= t;
-    }
+    for (int l = first + dir; l != m; l += dir) block_subtract(mult[l], x[l - dir], x[l]);
     block_times(mult[m], x[m - dir], xm);
+    Vec t;
     for (int l = first; l != m; l += dir)
       if (fill_[l]) {
         block_times(lrow_[l], x[l], t);
@@ -239,15 +242,11 @@ class CyclicBlockLU {
   void backward(Vec* x, int first, int dir) const {
     const int m = (n_ - 1) / 2, last = n_ - 1;
     if (first == m) return;
-    Vec u, t;
+    Vec u;
     for (int l = m - dir;; l -= dir) {
       u = x[l];
-      if (fill_[l]) {
-        block_times(ucol_[l], x[last], t);
-        u -= t;
-      }
-      block_times(band(l, l + dir), x[l + dir], t);
-      u -= t;
+      if (fill_[l]) block_subtract(ucol_[l], x[last], u);
+      block_subtract(band(l, l + dir), x[l + dir], u);
       block_times(inv_[l], u, x[l]);
       if (l == first) break;
     }

@@ -119,9 +119,7 @@ inline Cubic cubic_of(const double* hq, int plane, double L) {
   const double q0 = hq[d[0]], q1 = hq[d[1]], q2 = hq[d[2]], q3 = hq[d[3]];
   return {q0, L * q1, -3 * q0 - 2 * L * q1 + 3 * q2 - L * q3, 2 * q0 + L * q1 - 2 * q2 + L * q3};
 }
-inline double at(const Cubic& c, double x) { return c.c0 + x * (c.c1 + x * (c.c2 + x * c.c3)); }
-inline double slope(const Cubic& c, double x) { return c.c1 + x * (2 * c.c2 + x * 3 * c.c3); }
-// The same at four parameters at once, and the sum of four lanes in a fixed order.
+// Its value and slope at four parameters at once, and the sum of four lanes in a fixed order.
 inline Eigen::Array4d at4(const Cubic& c, const Eigen::Array4d& x) { return c.c0 + x * (c.c1 + x * (c.c2 + x * c.c3)); }
 inline Eigen::Array4d slope4(const Cubic& c, const Eigen::Array4d& x) {
   return c.c1 + x * (2 * c.c2 + x * (3 * c.c3));
@@ -137,8 +135,9 @@ inline void add_moments(double* hf, int plane, double L, const double M[4]) {
   hf[d[3]] += L * (M[3] - M[2]);
 }
 
-// config.cpp limits rocker.stations to 16.
+// config.cpp limits rocker.stations to 16, chain.plates_per_link to 64 (16 groups of four).
 constexpr int kMaxStations = 16;
+constexpr int kMaxPlateGroups = 16;
 
 // 4.3: rocker geometry at one station.
 struct RockerEval {
@@ -227,6 +226,17 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
   const int nst = c.rocker.stations;
   HermiteWeights sh[kMaxStations];  // the stations sit at fixed xi: weights once per call
   for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
+  // The plates' offsets in groups of four, once per call; the last group padded with the
+  // first plate's offset and valid = 0.
+  using A4 = Eigen::Array4d;
+  const int npl = static_cast<int>(m.plate_zeta.size()), groups = (npl + 3) / 4;
+  A4 zeta4[kMaxPlateGroups], valid4[kMaxPlateGroups];
+  for (int g = 0; g < groups; ++g)
+    for (int l = 0; l < 4; ++l) {
+      const bool in = 4 * g + l < npl;
+      zeta4[g][l] = m.plate_zeta[in ? 4 * g + l : 0];
+      valid4[g][l] = in ? 1.0 : 0.0;
+    }
   for (int j = begin; j < end; ++j) {
     JointSlot& s = ws.chain_slots[j];
     s.clear();
@@ -340,18 +350,12 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
       // Four plates at a time (one AVX2 register per quantity, lanes summed at the end in
       // a fixed order); a plate beyond the pack's count, or not stretched (d <= rest),
       // contributes zeros (selected, so that its values, finite or not, never enter).
-      using A4 = Eigen::Array4d;
       A4 mbx[4], mby[4], mnx[4], mny[4];
       for (int p = 0; p < 4; ++p) mbx[p] = mby[p] = mnx[p] = mny[p] = A4::Zero();
       A4 sb = A4::Zero(), sn = A4::Zero(), pd = A4::Zero();
-      const int npl = static_cast<int>(m.plate_zeta.size());
-      for (int k0 = 0; k0 < npl; k0 += 4) {
-        A4 zeta, valid;
-        for (int l = 0; l < 4; ++l) {
-          const bool in = k0 + l < npl;
-          zeta[l] = m.plate_zeta[in ? k0 + l : 0];
-          valid[l] = in ? 1.0 : 0.0;
-        }
+      for (int g = 0; g < groups; ++g) {
+        const A4& zeta = zeta4[g];
+        const A4& valid = valid4[g];
         const A4 xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
         const A4 dx = at4(nx, xn) - at4(bx, xb), dy = at4(ny, xn) - at4(by, xb);
         const A4 d = (dx * dx + dy * dy).sqrt();
