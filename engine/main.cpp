@@ -357,6 +357,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   study_int->add_option("--max-wall", si.max_wall, "stop a candidate run after this many wall seconds")
       ->capture_default_str();
+  study_int->add_option("--perturb", si.perturb,
+                        "(b): start every run from the running state with each position q moved by EPS |q| u, u uniform "
+                        "in [-1, 1) (a rounding-level change, to see how far it alone moves a curve)")
+      ->check(CLI::Range(0.0, 1e-3))->capture_default_str();
+  study_int->add_option("--seed", si.seed, "the seed of --perturb's u")->capture_default_str();
   study_int->add_option("--status-interval", si.status_interval,
                         "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();

@@ -61,6 +61,20 @@ struct OneStep {
   double h = 0, err_pos = kNaN, err_vel = kNaN;
 };
 
+// StudyOptions::perturb: q_i += eps |q_i| u_i, u_i uniform in [-1, 1) from splitmix64 (the
+// same numbers on every platform, unlike the standard distributions).
+void perturb_positions(const Model& m, Eigen::VectorXd& y, double eps, std::uint64_t seed) {
+  std::uint64_t x = seed;
+  for (int i = 0; i < m.ndof; ++i) {
+    std::uint64_t z = (x += 0x9e3779b97f4a7c15ULL);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    z ^= z >> 31;
+    const double u = static_cast<double>(z >> 11) * 0x1.0p-53 * 2.0 - 1.0;
+    y[i] += eps * std::abs(y[i]) * u;
+  }
+}
+
 // Largest |difference| over pin positions [m] and pin velocities [m/s].
 void state_errors(const Model& m, const Eigen::VectorXd& a, const Eigen::VectorXd& b, double& ep, double& ev) {
   const int pins = kJointSize * m.links, n = m.ndof;
@@ -355,6 +369,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                 "reference RK4 h = %.3g s: range %.1f .. %.1f N, %.2f s wall\n",
                 tracked / 2, tracked % 2 ? 'b' : 'a', t0, times.back(), enters >= 0 ? times[enters] : kNaN,
                 opt.ref_step, lo, hi, ref_wall);
+    if (opt.perturb > 0)
+      std::printf("  every run starts from the running state with its positions moved by %.3g |q| u (seed %llu)\n",
+                  opt.perturb, static_cast<unsigned long long>(opt.seed));
     std::fflush(stdout);
 
     auto deviation = [&](const std::vector<double>& c) {
@@ -373,6 +390,7 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
       Simulation s(m, opt.schedule);
       s.restore(start);
       s.set_clock(t0, 0);
+      if (opt.perturb > 0) perturb_positions(m, s.mutable_state(), opt.perturb, opt.seed);
       std::vector<double> f;
       std::vector<int> touch;
       pin_forces(m, s.state(), s.workspace().status, f, touch);

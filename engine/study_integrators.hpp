@@ -8,6 +8,7 @@
 //       range, wall time, RHS evaluations, Jacobians and LU factorizations.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -39,6 +40,11 @@ struct IntegratorStudyOptions {
   std::vector<double> tolerances = {1.0, 0.3, 0.1, 0.03, 0.01};   // tried loosest first (scaled atol)
   double max_deviation = 0.01;  // accurate: max |F - F_ref| <= this x range of F_ref
   double max_wall = 600;        // per candidate run [s]; longer runs are stopped ("timeout")
+  // (b): every candidate run starts from the running state with each position q_i moved by
+  // perturb |q_i| u_i, u_i uniform in [-1, 1) from `seed` (0: unperturbed). At rounding level
+  // (1e-14 .. 1e-12) it shows how far such changes alone move a candidate's curve.
+  double perturb = 0;
+  std::uint64_t seed = 1;
   bool one_step = true, curve = true;
   bool exact_dense_rows = true;
   bool freeze_friction = true;  // ModelOdeOptions::freeze_friction

@@ -452,6 +452,15 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   EXPECT_NE(per.find("curve,ros34pw2,h,2e-07"), std::string::npos);
   EXPECT_EQ(per.find("curve,ros2,h,2e-07"), std::string::npos);
   EXPECT_EQ(per.find("curve,ros34pw2,h,1e-07"), std::string::npos);
+  // --perturb: the same seed gives the same curve, which is not the unperturbed one; the
+  // table says that the runs were perturbed; a negative size is refused.
+  ASSERT_EQ(study("pert", "--ros2-steps 1e-7 --perturb 1e-9 --seed 3"), 0);
+  ASSERT_EQ(study("pert2", "--ros2-steps 1e-7 --perturb 1e-9 --seed 3"), 0);
+  const std::string p1 = slurp(dir / "pert-curves.csv"), p2 = slurp(dir / "pert2-curves.csv");
+  EXPECT_EQ(p1, p2);
+  EXPECT_NE(p1, c1);
+  EXPECT_NE(slurp(dir / "pert.txt").find("moved by 1e-09 |q| u (seed 3)"), std::string::npos);
+  EXPECT_NE(study("pert3", "--ros2-steps 1e-7 --perturb -1e-9"), 0);
   fs::remove_all(dir);
 }
 
