@@ -61,7 +61,7 @@ struct OneStep {
   double h = 0, err_pos = kNaN, err_vel = kNaN;
 };
 
-// StudyOptions::perturb: q_i += eps |q_i| u_i, u_i uniform in [-1, 1) from splitmix64 (the
+// IntegratorStudyOptions::perturb: q_i += eps |q_i| u_i, u_i uniform in [-1, 1) from splitmix64 (the
 // same numbers on every platform, unlike the standard distributions).
 void perturb_positions(const Model& m, Eigen::VectorXd& y, double eps, std::uint64_t seed) {
   std::uint64_t x = seed;

@@ -41,7 +41,7 @@ struct IntegratorStudyOptions {
   double max_deviation = 0.01;  // accurate: max |F - F_ref| <= this x range of F_ref
   double max_wall = 600;        // per candidate run [s]; longer runs are stopped ("timeout")
   // (b): every candidate run starts from the running state with each position q_i moved by
-  // perturb |q_i| u_i, u_i uniform in [-1, 1) from `seed` (0: unperturbed). At rounding level
+  // perturb |q_i| u_i, u_i uniform in [-1, 1) from `seed` (perturb = 0: unperturbed). At rounding level
   // (1e-14 .. 1e-12) it shows how far such changes alone move a candidate's curve.
   double perturb = 0;
   std::uint64_t seed = 1;
