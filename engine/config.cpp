@@ -144,6 +144,8 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
+      CVT_KEY(integrator, w_fresh, real, "-", nonneg),
+      CVT_KEY(integrator, w_fresh_max, integer, "", (Range{1, false, 1000, false})),
       CVT_KEY(integrator, startup_time, real, "s", nonneg),
       CVT_KEY(integrator, startup_step, real, "s", positive),
 

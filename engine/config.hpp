@@ -127,6 +127,12 @@ struct Config {
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
+    // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
+    // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
+    // (ModelOdeOptions::w_fresh, docs/integrators.md 17); 0: off. w_fresh_max such contacts
+    // at most; more make the next step rebuild the friction blocks.
+    double w_fresh = 0.0;
+    int w_fresh_max = 12;
     // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
     // no longer than startup_step (the pins settling onto the sheaves from rest;
     // docs/integrators.md 12.8, 13.4)

@@ -376,6 +376,13 @@ int main(int argc, char** argv) {
                         "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
       ->check(CLI::PositiveNumber);
   study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
+  study_int->add_option("--w-fresh", si.w_fresh,
+                        "W-methods: keep the matrix's friction current between rebuilds for the contacts whose "
+                        "stiffness gamma h mu / m_pin moved by more than this; 0: off (default: integrator.w_fresh)")
+      ->check(CLI::NonNegativeNumber);
+  study_int->add_option("--w-fresh-max", si.w_fresh_max,
+                        "W-methods: at most this many contacts in that correction (default: integrator.w_fresh_max)")
+      ->check(CLI::PositiveNumber);
   study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
                       "ROS2: rebuild its whole matrix when the contact statuses change");
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();

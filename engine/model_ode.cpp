@@ -178,6 +178,14 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     w_color_[l] = c;
     w_colors_ = std::max(w_colors_, c + 1);
   }
+  wf_in_rocker_.assign(ws.rocker_mu.size(), 0), wf_in_pulley_.assign(ws.pulley_mu.size(), 0);
+  if (opt.w_fresh > 0) {
+    if (!opt.w_secant) throw std::invalid_argument("ModelOdeOptions: w_fresh needs w_secant (one mu per contact)");
+    if (opt.w_fresh_max < 1) throw std::invalid_argument("ModelOdeOptions: w_fresh_max must be >= 1");
+    const int k = 2 * opt.w_fresh_max;
+    wf_z_.setZero(static_cast<Eigen::Index>(N) * kLinkDim, k);
+    wf_g_.setZero(k, k);
+  }
   if (opt.w_blocks) {
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
@@ -298,13 +306,163 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   const bool first = w_gh_ == 0 || w_invalid_;
   const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
   ++w_index_;
-  if (!rebuild) return;
+  if (!rebuild) {
+    if (w_fresh_on() && wf_recorded_) wf_update(w_gh_);
+    return;
+  }
+  if (wf_force_ && !(opt_.w_every <= 1 || index % opt_.w_every == 0)) ++wf_rebuilds_;
+  wf_force_ = false;
   if (opt_.w_stiffness && (first || opt_.w_k_every <= 1 || index % opt_.w_k_every == 0)) w_stiffness(t, y);
   if (w_invalid_) ++w_status_rebuilds_;
   w_invalid_ = false;
   w_gh_ = gh;
   for_joints([this, gh](int l) { w_assemble_link(l, gh); });
   if (!w_lu_.factor(TwoTasks{schedule_.threads() > 1})) throw std::runtime_error("W-method: the W matrix is singular");
+  if (w_fresh_on()) {
+    wf_clear();
+    ws_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
+  }
+}
+
+// ---- w_fresh: the friction blocks kept current by a low-rank correction ------------------
+//
+// The factorized W holds each contact's block as mu_w U U^T (the secant slope: D = mu P on
+// the tangent plane, P = t t^T + s s^T for any tangent basis). At a later step the contact
+// has mu, so W' = W + gh (mu - mu_w) U U^T, U taken when the contact was recorded (its
+// geometry changes little over a few steps; a W-method needs no exact matrix). With the
+// contacts whose mu moved most in the correction, W' x = r - gh dC_ps x_s (the sheaves'
+// part of the same contacts, as the right side's C_ps term) by Woodbury:
+//   x = y0 - Z (p + (I + D G)^-1 D (U^T y0 - G p)),  y0 = W^-1 r, p = D V^T x_s.
+
+void ModelOde::wf_clear() {
+  for (const FreshContact& c : wf_set_) (c.shaft < 0 ? wf_in_rocker_ : wf_in_pulley_)[c.idx] = 0;
+  wf_set_.clear();
+}
+
+double ModelOde::wf_dot(const FreshContact& c, int col, const double* z) const {
+  constexpr int kH = 2 * half::kSize, kD = Workspace::kDampDim;
+  const double* u = c.u + col * kD;
+  const double* zp = z + static_cast<std::size_t>(m_.wrap(c.joint - 1)) * kLinkDim;
+  const double* zc = z + static_cast<std::size_t>(c.joint) * kLinkDim;
+  double a = 0;
+  for (int r = 0; r < kH; ++r) a += u[r] * zp[r] + u[kH + r] * zc[r];
+  return a;
+}
+
+void ModelOde::wf_join(const FreshContact& c) {
+  constexpr int kH = 2 * half::kSize, kD = Workspace::kDampDim;
+  const int col = 2 * static_cast<int>(wf_set_.size());
+  const int lp = m_.wrap(c.joint - 1), lc = c.joint;
+  LinkVector* v = w_rhs_.data();
+  for (int a = 0; a < 2; ++a) {
+    const double* u = c.u + a * kD;
+    double* z = wf_z_.col(col + a).data();
+    const auto prepare = [&](int l) {
+      v[l].setZero();
+      if (l == lp)
+        for (int r = 0; r < kH; ++r) v[l][r] += u[r];
+      if (l == lc)
+        for (int r = 0; r < kH; ++r) v[l][r] += u[kH + r];
+    };
+    const auto finish = [&](int l) { Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = v[l]; };
+    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+  }
+  wf_set_.push_back(c);
+  (c.shaft < 0 ? wf_in_rocker_ : wf_in_pulley_)[c.idx] = 1;
+  ++wf_joined_;
+  const int k = col + 2;
+  for (int i = 0; i < k; ++i)
+    for (int a = 0; a < 2; ++a) {
+      wf_g_(col + a, i) = wf_dot(c, a, wf_z_.col(i).data());
+      if (i < col) wf_g_(i, col + a) = wf_dot(wf_set_[i / 2], i % 2, wf_z_.col(col + a).data());
+    }
+}
+
+void ModelOde::wf_update(double gh) {
+  const double tol = ws_.mu_tol;
+  // The contacts not yet in whose mu moved by more than tol, the largest change first (ties
+  // by index): a deterministic order, the same on any number of threads.
+  struct Candidate {
+    double dmu;
+    int key;  // rocker idx, or rocker count + pulley idx
+  };
+  std::vector<Candidate> cand;
+  const int nr = static_cast<int>(ws_.rocker_mu.size()), np = static_cast<int>(ws_.pulley_mu.size());
+  for (int i = 0; i < nr; ++i) {
+    const double d = std::abs(ws_.rocker_mu[i] - ws_.rocker_mu_w[i]);
+    if (d > tol && !wf_in_rocker_[i] && ws_.rocker_cols_set[i]) cand.push_back({d, i});
+  }
+  for (int i = 0; i < np; ++i) {
+    const double d = std::abs(ws_.pulley_mu[i] - ws_.pulley_mu_w[i]);
+    if (d > tol && !wf_in_pulley_[i] && ws_.pulley_cols_set[i]) cand.push_back({d, nr + i});
+  }
+  std::sort(cand.begin(), cand.end(),
+            [](const Candidate& a, const Candidate& b) { return a.dmu > b.dmu || (a.dmu == b.dmu && a.key < b.key); });
+  constexpr int kD = Workspace::kDampDim;
+  for (const Candidate& x : cand) {
+    if (static_cast<int>(wf_set_.size()) >= opt_.w_fresh_max) {
+      wf_force_ = true;  // the next step rebuilds the friction blocks
+      break;
+    }
+    FreshContact c{};
+    if (x.key < nr) {
+      c.idx = x.key, c.joint = x.key / m_.cfg.rocker.stations, c.shaft = -1;
+      c.u = ws_.rocker_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kD;
+      c.v = nullptr;
+    } else {
+      c.idx = x.key - nr, c.joint = c.idx / 8, c.shaft = c.idx % 2;  // ContactStatus::pulley_index
+      c.u = ws_.pulley_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kD;
+      c.v = ws_.pulley_shaft_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kShaftSize;
+    }
+    wf_join(c);
+  }
+  const int k = 2 * static_cast<int>(wf_set_.size());
+  if (k == 0) return;
+  wf_d_.resize(k);
+  for (int i = 0; i < k; i += 2) {
+    const FreshContact& c = wf_set_[i / 2];
+    const double dmu = c.shaft < 0 ? ws_.rocker_mu[c.idx] - ws_.rocker_mu_w[c.idx]
+                                   : ws_.pulley_mu[c.idx] - ws_.pulley_mu_w[c.idx];
+    wf_d_[i] = wf_d_[i + 1] = gh * dmu;
+  }
+  Eigen::MatrixXd cap = wf_d_.asDiagonal() * wf_g_.topLeftCorner(k, k);
+  cap.diagonal().array() += 1.0;
+  wf_cap_.compute(cap);
+}
+
+void ModelOde::wf_correct(double* x) const {
+  const int k = 2 * static_cast<int>(wf_set_.size());
+  if (k == 0) return;
+  static_assert(sizeof(LinkVector) == kLinkDim * sizeof(double), "link vectors must be contiguous");
+  const int n = m_.ndof;
+  const double gh = w_gh_;
+  const double* y0 = w_rhs_[0].data();  // W^-1 r, physical, link order
+  Eigen::VectorXd p(k);
+  wf_t_.resize(k);
+  for (int i = 0; i < k; ++i) {
+    const FreshContact& c = wf_set_[i / 2];
+    double w = 0;
+    if (c.shaft >= 0) {
+      const double* v = c.v + (i % 2) * kShaftSize;
+      for (int s = 0; s < kShaftSize; ++s) {
+        const int r = n + m_.shaft(c.shaft) + s;
+        w += v[s] * (opt_.scaled ? x[r] * unit_[r] : x[r]);
+      }
+    }
+    p[i] = wf_d_[i] * w;
+    wf_t_[i] = wf_dot(c, i % 2, y0);
+  }
+  wf_t_.noalias() -= wf_g_.topLeftCorner(k, k) * p;
+  wf_s_ = p + wf_cap_.solve(wf_d_.cwiseProduct(wf_t_));
+  const Eigen::VectorXd corr = wf_z_.leftCols(k) * wf_s_;
+  const double* uv = w_unit_v_.data();
+  const double* ratio = w_unit_ratio_.data();
+  for (int j = 0; j < m_.links * kLinkDim; ++j) {
+    const int c = w_coord_[j];
+    const double dv = corr[j] / uv[j];
+    x[n + c] -= dv;
+    x[c] -= gh * dv * ratio[c];
+  }
 }
 
 void ModelOde::w_stiffness(double t, const double* y) {
@@ -540,6 +698,7 @@ void ModelOde::w_solve(double* x) const {
     }
   };
   w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+  wf_correct(x);
   for (int c : w_other_coord_) x[c] += gh * x[n + c] * ratio[c];  // the shafts' and load's
 }
 
@@ -579,6 +738,7 @@ void OdeDriver::advance(double t1) {
     ~Plain() {
       ws.friction_branch = Workspace::FrictionBranch::off;
       ws.record_damping = false;
+      ws.record_mu = false;
     }
   } plain{ws};
   ws.damping_secant = opt_.jac.w_secant;
@@ -593,6 +753,7 @@ void OdeDriver::advance(double t1) {
       if (is_w_method(opt_.method) && opt_.jac.w_blocks) {
         ode_.set_step_index(sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
         ws.record_damping = ode_.w_due();
+        ws.record_mu = ode_.w_fresh_on();
       }
       if (opt_.jac.scaled) {
         ode_.offset() = y;

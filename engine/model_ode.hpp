@@ -66,6 +66,15 @@ struct ModelOdeOptions {
   // works with anyway (a matrix up to w_every steps old). On the reference model at 1e-6
   // the fill rows fall from 58 to 21 of 83 per factorization (docs/integrators.md 14).
   double w_fill_drop = 1e-12;
+  // Fresh friction between rebuilds (docs/integrators.md 17): > 0 keeps W's friction part
+  // current at every step, as a low-rank (Woodbury) correction of the factorized W for the
+  // contacts whose friction coefficient mu (the secant N f(v)/v) moved since the rebuild by
+  // more than w_fresh * m_pin / (gamma h), i.e. whose stiffness gamma h mu / m_pin changed by
+  // more than w_fresh. Each such contact costs two solves with the factorized W when it
+  // joins, and a rank-2 term in every solve after. More than w_fresh_max of them make the
+  // next step rebuild the friction blocks. 0: off (the stale blocks of 12.6). Needs w_secant.
+  double w_fresh = 0;
+  int w_fresh_max = 12;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -117,11 +126,18 @@ class ModelOde {
   // The index of the next step (OdeDriver sets it from the simulation's step count), and
   // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
   void set_step_index(long i) { w_index_ = i; }
-  bool w_due() const { return w_gh_ == 0 || w_invalid_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0; }
+  bool w_due() const {
+    return w_gh_ == 0 || w_invalid_ || wf_force_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0;
+  }
   // The contact statuses changed (OdeDriver): the next step rebuilds the whole matrix, its
   // stiffness included (a contact that turned on is stiff in J but absent from a stale W).
   void w_invalidate() { w_invalid_ = true; }
   std::int64_t w_status_rebuilds() const { return w_status_rebuilds_; }
+  // w_fresh: the contacts that joined a correction, and the rebuilds that w_fresh_max forced.
+  std::int64_t w_fresh_contacts() const { return wf_joined_; }
+  std::int64_t w_fresh_rebuilds() const { return wf_rebuilds_; }
+  // Whether the next step's first evaluation must record each contact's mu (w_fresh).
+  bool w_fresh_on() const { return opt_.w_fresh > 0 && opt_.w_blocks; }
 
  private:
   void eval(double t, const double* y, double* dy) {
@@ -129,6 +145,8 @@ class ModelOde {
     ++rhs_evals_;
     // The W-method's blocks come from the first evaluation of a rebuilding step only.
     ws_.record_damping = false;
+    wf_recorded_ = ws_.record_mu;
+    ws_.record_mu = false;
     if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
   }
   void eval_scaled(double t, const double* z, double* dz);
@@ -217,6 +235,27 @@ class ModelOde {
   std::int64_t w_status_rebuilds_ = 0;
   double w_gh_ = 0;                       // gh of the factorization (0: none yet)
   long w_index_ = 0;                      // index of the next step
+  // w_fresh: the correction W' = W + U D U^T, U the columns of the contacts in it (two
+  // each), D = gh (mu - mu_w) on both; Z = W^-1 U (chain velocities in link order, physical
+  // units), G = U^T Z, the capacitance I + D G factorized once per step.
+  struct FreshContact {
+    int idx, joint, shaft;  // shaft: the sheave of a pulley contact, -1 for a rocker station
+    const double* u;        // its columns (Workspace::rocker_cols / pulley_cols), 2 x 40
+    const double* v;        // the sheave's (pulley_shaft_cols), 2 x 7, or null
+  };
+  void wf_clear();
+  void wf_update(double gh);
+  void wf_join(const FreshContact& c);
+  double wf_dot(const FreshContact& c, int col, const double* z) const;  // U(:, col)^T z
+  void wf_correct(double* x) const;
+  std::vector<FreshContact> wf_set_;
+  std::vector<std::uint8_t> wf_in_rocker_, wf_in_pulley_;
+  Eigen::MatrixXd wf_z_, wf_g_;
+  Eigen::VectorXd wf_d_;
+  Eigen::PartialPivLU<Eigen::MatrixXd> wf_cap_;
+  mutable Eigen::VectorXd wf_s_, wf_t_;
+  bool wf_recorded_ = false, wf_force_ = false;
+  std::int64_t wf_joined_ = 0, wf_rebuilds_ = 0;
 };
 
 // How OdeDriver runs a method on the model.

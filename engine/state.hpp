@@ -114,6 +114,21 @@ struct Workspace {
   // coordinates of each shaft (the slip velocity's sheave part), per joint [j][shaft][40][7]
   // row-major: K_ps with the pins' friction force -K_ps v_shaft.
   std::vector<double> pulley_shaft_damping;
+
+  // Fresh friction for the W-method (ModelOdeOptions::w_fresh, docs/integrators.md 17). With
+  // the secant slope a contact's block is mu U U^T, U = G^T [t s] (its slip velocity's
+  // columns projected on the tangent plane), so between two rebuilds a contact whose mu
+  // moved adds a rank-2 term to W. With record_mu set (the first evaluation of every
+  // step), the kernels write each contact's mu (0 when inactive or without friction), and
+  // its columns U when it is not yet recorded and |mu - mu_w| > mu_tol; with record_damping
+  // also, mu_w = mu and the columns of every active contact (the state the factorized W
+  // holds). Indexed like the statuses; columns [idx][2][40] (G^T t, G^T s over the four
+  // halves), for the pulley contacts also the sheave's [idx][2][7] (u's shaft part).
+  bool record_mu = false;
+  double mu_tol = 0;
+  std::vector<double> rocker_mu, pulley_mu, rocker_mu_w, pulley_mu_w;
+  std::vector<std::uint8_t> rocker_cols_set, pulley_cols_set;
+  std::vector<double> rocker_cols, pulley_cols, pulley_shaft_cols;
 };
 
 }  // namespace cvt

@@ -48,6 +48,7 @@ struct CurveRun {
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
   double jac_s = 0, lu_s = 0, solve_s = 0;
   long long status_rebuilds = 0;  // ROS2: matrix rebuilds forced by contact status changes
+  long long fresh_contacts = 0, fresh_rebuilds = 0;  // W-methods: ModelOde::w_fresh_contacts / _rebuilds
   int w_every = 0, w_k_every = 0;  // ROS2: its matrix intervals
   std::vector<double> walls;       // each repeat's wall time
   double reached = kNaN;  // model time covered when stopped by the timeout [s]
@@ -94,6 +95,8 @@ void take_stats(const OdeDriver& drv, CurveRun& r) {
   r.lu_s = st.lu_seconds - drv.model_ode().w_stiffness_seconds();
   r.solve_s = st.solve_seconds;
   r.status_rebuilds = drv.model_ode().w_status_rebuilds();
+  r.fresh_contacts = drv.model_ode().w_fresh_contacts();
+  r.fresh_rebuilds = drv.model_ode().w_fresh_rebuilds();
 }
 
 // FNV-1a over the text: a stable key for the cache files (the same on every build).
@@ -239,6 +242,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.w_k_every = opt.w_k_every;
   jac_opt.w_stiffness = !opt.w_no_stiffness;
   jac_opt.w_secant = opt.w_secant;
+  jac_opt.w_fresh = opt.w_fresh < 0 ? m.cfg.integrator.w_fresh : opt.w_fresh;
+  jac_opt.w_fresh_max = opt.w_fresh_max > 0 ? opt.w_fresh_max : m.cfg.integrator.w_fresh_max;
+  if (!jac_opt.w_secant) jac_opt.w_fresh = 0;  // one mu per contact needs the secant slope
   jac_opt.w_status_rebuild = opt.w_status_rebuild;
   jac_opt.w_blocks = !opt.ros2_full_jacobian;
 
@@ -483,8 +489,9 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
                     name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
                     r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
         if (is_w_method(method) && !opt.ros2_full_jacobian)
-          std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes)\n",
-                      name.c_str(), static_cast<long long>(r.status_rebuilds));
+          std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes; fresh friction: "
+                      "%lld contacts corrected, %lld rebuilds forced)\n",
+                      name.c_str(), r.status_rebuilds, r.fresh_contacts, r.fresh_rebuilds);
         std::fflush(stdout);
         runs.push_back(std::move(r));
         if (found && !opt.all) break;

@@ -57,6 +57,8 @@ struct IntegratorStudyOptions {
   bool w_no_stiffness = false;  // ModelOdeOptions::w_stiffness = false (ROS2)
   bool w_status_rebuild = false;  // ModelOdeOptions::w_status_rebuild (ROS2)
   bool w_secant = true;         // ModelOdeOptions::w_secant (ROS2)
+  double w_fresh = -1;          // ModelOdeOptions::w_fresh (W-methods; < 0: integrator.w_fresh)
+  int w_fresh_max = 0;          // ModelOdeOptions::w_fresh_max (0: integrator.w_fresh_max)
   bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
   ScheduleOptions schedule;
   // Keep the running state and the reference curve here and reuse them when the inputs that

@@ -181,15 +181,14 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
   return r;
 }
 
-// Workspace::record_damping: the slip velocity u = v_a - v_b at a rocker station as a
-// function of the four halves it moves (b_{j-1}: 0..9, a_j: 10..19, b_j: 20..29, a_{j+1}:
+// Workspace::record_damping / record_mu: G (u = G v, zeroed by the caller) of the slip
+// velocity u = v_a - v_b at a rocker station as a function of the four halves it moves (b_{j-1}: 0..9, a_j: 10..19, b_j: 20..29, a_{j+1}:
 // 30..39): the centre lines' velocities at the station, their axial rates, and the link
 // spins psi_dot_{j-1} (a_j turns with link j-1: +n/(2|Delta|) through a_j's mid-point,
 // -n/(2|Delta|) through b_{j-1}'s) and psi_dot_j (b_j with link j: -n/(2|Delta|) through
 // b_j's mid-point, +n/(2|Delta|) through a_{j+1}'s), each times the sign of its side in u.
-void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int lp, int lc, double rax, double ray,
-                           double rbx, double rby, const double u[3], double speed, double mu, double mu_t, double* K) {
-  double G[Workspace::kDampDim][3] = {};
+void rocker_slip_columns(const LinkKinematics& kin, const RockerEval& r, int lp, int lc, double rax, double ray,
+                         double rbx, double rby, double (*G)[3]) {
   for (int side = 0; side < 2; ++side) {
     const int o = side == 0 ? 10 : 20;     // the joint's own half
     const int other = side == 0 ? 0 : 30;  // the other half of the link that holds it
@@ -208,8 +207,6 @@ void record_rocker_damping(const LinkKinematics& kin, const RockerEval& r, int l
     add_spin_columns(G + o, sg * c, nx, ny, lx, ly);
     add_spin_columns(G + other, -sg * c, nx, ny, lx, ly);
   }
-  const double n[3] = {r.mx, r.my, 0.0};
-  add_friction_damping(K, Workspace::kDampDim, G, n, u, speed, mu, mu_t);
 }
 
 }  // namespace
@@ -257,6 +254,11 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
     constexpr int kD = Workspace::kDampDim;
     double* Kd = ws.record_damping ? ws.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
     if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
+    const bool rec_mu = ws.record_mu;
+    if (rec_mu) {
+      std::fill_n(ws.rocker_mu.begin() + j * nst, nst, 0.0);
+      if (Kd) std::fill_n(ws.rocker_mu_w.begin() + j * nst, nst, 0.0), std::fill_n(ws.rocker_cols_set.begin() + j * nst, nst, 0);
+    }
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
       const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
@@ -292,10 +294,26 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
             contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
         Rx = Rv[0], Ry = Rv[1];
         const double Rz = Rv[2];
-        if (Kd) {
+        if (Kd || rec_mu) {
           const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-          record_rocker_damping(kin, r, lp, lc, rax, ray, rbx, rby, u, speed, mu,
-                                ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed), Kd);
+          const bool cols =
+              rec_mu && (Kd || (!ws.rocker_cols_set[idx] && std::abs(mu - ws.rocker_mu_w[idx]) > ws.mu_tol));
+          if (Kd || cols) {
+            double G[kD][3] = {};
+            rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
+            if (Kd)
+              add_friction_damping(Kd, kD, G, nrm, u, speed, mu,
+                                   ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed));
+            if (cols) {
+              double* U = ws.rocker_cols.data() + static_cast<std::size_t>(idx) * 2 * kD;
+              friction_columns(kD, G, nrm, u, speed, U, U + kD);
+              ws.rocker_cols_set[idx] = 1;
+            }
+          }
+          if (rec_mu) {
+            ws.rocker_mu[idx] = mu;
+            if (Kd) ws.rocker_mu_w[idx] = mu;
+          }
         }
         fa[half::kZ] += (1 - xi) * Rz;
         fa[half::kEnd + half::kZ] += xi * Rz;

@@ -129,6 +129,13 @@ inline void add_friction_damping(double* K, int dim, const double (*Gc)[3], cons
   }
 }
 
+// Workspace::record_mu: a contact's columns G^T t and G^T s (the tangent plane's basis), so
+// that with the secant slope (mu_t = mu) its damping block is mu (gt gt^T + gs gs^T).
+inline void friction_columns(int dim, const double (*Gc)[3], const double n[3], const double u[3], double speed,
+                             double* gt, double* gs) {
+  FrictionAxes(n, u, speed).project(dim, Gc, gt, gs);
+}
+
 // Adds G_r^T D G_c to the row-major rows x cols block X: the cross damping between two sets
 // of coordinates when u = G_r v_r + G_c v_c (a pin and the shaft it touches).
 inline void add_friction_cross(double* X, int rows, const double (*Gr)[3], int cols, const double (*Gc)[3],

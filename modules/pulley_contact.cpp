@@ -80,6 +80,12 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   constexpr int kX = 2 * kD * kShaftSize;
   double* Xd = ws.record_damping ? ws.pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
   if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
+  const bool rec_mu = ws.record_mu;
+  if (rec_mu) {
+    const int i0 = ContactStatus::pulley_index(j, 0, 0, 0);
+    std::fill_n(ws.pulley_mu.begin() + i0, 8, 0.0);
+    if (Kd) std::fill_n(ws.pulley_mu_w.begin() + i0, 8, 0.0), std::fill_n(ws.pulley_cols_set.begin() + i0, 8, 0);
+  }
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;
@@ -138,8 +144,15 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
                                        &ws.pulley_dir[3 * idx], Rv, &Rmag);
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
-          if (Kd) {
-            // Workspace::record_damping: u as a function of the two halves of the link that
+          const double mu = (Kd || rec_mu) ? Nel * friction_over_speed(law, f0, v0, speed) : 0.0;
+          const bool cols =
+              rec_mu && (Kd || (!ws.pulley_cols_set[idx] && std::abs(mu - ws.pulley_mu_w[idx]) > ws.mu_tol));
+          if (rec_mu) {
+            ws.pulley_mu[idx] = mu;
+            if (Kd) ws.pulley_mu_w[idx] = mu;
+          }
+          if (Kd || cols) {
+            // Workspace::record_damping / record_mu: u as a function of the two halves of the link that
             // this half turns with (the sheave's velocity left out): c_dot, the cap's tilt, and
             // the link spin through this half's mid-point (a_j: +n/(2|Delta|), b_j:
             // -n/(2|Delta|)) and through the link's other half (the opposite sign). Columns:
@@ -156,9 +169,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
             add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
             add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
-            const double mu = Nel * friction_over_speed(law, f0, v0, speed);
             const double mu_t = ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed);
-            add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
+            if (Kd) add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
             // The sheave point's velocity enters u with the sign -.
             double Gs[kShaftSize][3] = {};
             Gs[kUx][0] = -1, Gs[kUy][1] = -1, Gs[kUz][2] = -1;
@@ -166,7 +178,14 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             Gs[kTy][0] = -rsz, Gs[kTy][2] = rsx;
             Gs[kPhi][0] = rsy, Gs[kPhi][1] = -rsx;
             if (g.gw != 0) Gs[kW][2] = -1;
-            add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+            if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+            if (cols) {
+              double* U = ws.pulley_cols.data() + static_cast<std::size_t>(idx) * 2 * kD;
+              double* V = ws.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
+              friction_columns(kD, G, nrm, u, speed, U, U + kD);
+              friction_columns(kShaftSize, Gs, nrm, u, speed, V, V + kShaftSize);
+              ws.pulley_cols_set[idx] = 1;
+            }
           }
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).

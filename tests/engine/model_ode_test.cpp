@@ -272,6 +272,59 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   }
 }
 
+// ModelOdeOptions::w_fresh: after a rebuild at y0, a step at y1 (the same positions, so the
+// same contact geometry; other velocities, so other slip speeds and mu) corrects the
+// factorized W for every contact whose mu moved (threshold ~0): its solve must be the solve
+// of the matrix rebuilt at y1, sheaves' coupling included, and the stale one must not be.
+TEST(ModelOde, WFreshCorrectionSolvesTheCurrentFrictionMatrix) {
+  const Running& r = running();
+  const Model& m = r.m;
+  const int n = m.ndof, tail = m.shaft(0);
+  const double gh = 3e-7;
+  Eigen::VectorXd y1 = r.y;
+  for (int i = 0; i < tail; ++i) y1[n + i] += 0.02 * std::sin(0.7 * i + 0.3);
+  Eigen::VectorXd dy(m.nstate);
+  const Eigen::VectorXd b = Eigen::VectorXd::Random(m.nstate);
+  ModelOdeOptions opt;
+  opt.w_every = opt.w_k_every = 8;
+  opt.w_stiffness = false;  // K = -dF/dq depends on the velocities through the damping forces
+  // kind 0: rebuilt at y1; 1: rebuilt at y0, corrected at y1; 2: rebuilt at y0, stale.
+  Eigen::VectorXd x[3];
+  long long joined = 0, forced = -1;
+  for (int kind = 0; kind < 3; ++kind) {
+    Workspace ws(m);
+    ws.status = r.status;
+    ws.damping_secant = true;  // as OdeDriver sets it (ModelOdeOptions::w_secant)
+    auto sched = make_schedule(m, ws, {});
+    ModelOdeOptions o = opt;
+    o.w_fresh = kind == 1 ? 1e-12 : 0.0;
+    o.w_fresh_max = m.links * (m.cfg.rocker.stations + 8);
+    ModelOde ode(m, ws, *sched, o);
+    ode.set_step_index(0);
+    ws.record_damping = true;
+    ws.record_mu = ode.w_fresh_on();
+    const Eigen::VectorXd& y0 = kind == 0 ? y1 : r.y;
+    ode.system().rhs(r.t, y0.data(), dy.data());
+    ode.system().w_factor(r.t, y0.data(), gh);
+    if (kind > 0) {
+      ode.set_step_index(1);
+      ASSERT_FALSE(ode.w_due());
+      ws.record_mu = ode.w_fresh_on();
+      ode.system().rhs(r.t, y1.data(), dy.data());
+      ode.system().w_factor(r.t, y1.data(), gh);
+    }
+    if (kind == 1) joined = ode.w_fresh_contacts(), forced = ode.w_fresh_rebuilds();
+    x[kind] = b;
+    ode.system().w_solve(x[kind].data());
+  }
+  std::printf("[model_ode] w_fresh: %lld contacts corrected; |x_fresh - x_rebuilt| / |x_rebuilt| = %.3g, stale %.3g\n",
+              joined, (x[1] - x[0]).norm() / x[0].norm(), (x[2] - x[0]).norm() / x[0].norm());
+  EXPECT_GT(joined, 4);
+  EXPECT_EQ(forced, 0);
+  EXPECT_LT((x[1] - x[0]).norm(), 1e-9 * x[0].norm());
+  EXPECT_GT((x[2] - x[0]).norm(), 1e-4 * x[0].norm());
+}
+
 TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {
   const Running& r = running();
   const Model& m = r.m;
