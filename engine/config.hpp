@@ -131,7 +131,7 @@ struct Config {
     // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
     // (ModelOdeOptions::w_fresh, docs/integrators.md 17); 0: off. w_fresh_max such contacts
     // at most; more make the next step rebuild the friction blocks.
-    double w_fresh = 0.0;
+    double w_fresh = 5.0;
     int w_fresh_max = 12;
     // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
     // no longer than startup_step (the pins settling onto the sheaves from rest;
