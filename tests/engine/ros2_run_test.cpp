@@ -24,13 +24,25 @@ bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
 }
 
 // Both W-methods; with threads the block LU's two sweeps run concurrently (CyclicBlockLU).
+// The third case keeps the friction current between rebuilds for nearly every contact
+// (integrator.w_fresh 1e-6, at most 4 contacts: the forced rebuilds too), so its run must
+// differ from the same run without.
 TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
-  for (const char* method : {"ros2", "ros34pw2"}) {
-    const Model m = test::model("mini", {"ramp.time=2e-5", std::string("integrator.method=") + method,
-                                         "integrator.w_every=3", "integrator.w_k_every=6", "integrator.startup_time=0"});
+  for (const char* fresh : {"ros2:5", "ros34pw2:5", "ros34pw2:1e-6"}) {
+    const std::string method(fresh, std::strchr(fresh, ':'));
+    const std::string w_fresh(std::strchr(fresh, ':') + 1);
+    const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
+                                         "integrator.w_k_every=6", "integrator.startup_time=0",
+                                         "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4"});
     const Eigen::VectorXd ref = run(m, {}, 300, 1e-7);
     Simulation start(m);
     EXPECT_GT((ref - start.state()).norm(), 1e-6) << "the run must move";
+    if (w_fresh != "5") {
+      const Model plain = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
+                                               "integrator.w_k_every=6", "integrator.startup_time=0",
+                                               "integrator.w_fresh=0"});
+      EXPECT_FALSE(same_bits(run(plain, {}, 300, 1e-7), ref)) << "w_fresh must change the run";
+    }
     for (int threads : {1, 2, 3}) {
       ScheduleOptions o;
       o.kind = SchedulerKind::flowgraph;
