@@ -12,8 +12,6 @@
 #include <set>
 #include <unistd.h>
 
-#include <tbb/parallel_invoke.h>
-
 #include "engine/h5_writer.hpp"
 #include "engine/rhs.hpp"
 #include "modules/beam.hpp"
@@ -316,15 +314,7 @@ Sample Simulation::sample() {
   Sample s;
   s.t = t_;
   diag_.status = ws_.status;
-  // The diagnostic evaluation and the energies are independent (each serial, so the same
-  // bits on any number of threads): on two threads they run side by side.
-  Energies e;
-  const auto diagnose = [&] { rhs_serial(m_, diag_, t_, y_.data(), dy_.data()); };
-  const auto energy = [&] { e = energies(m_, t_, y_.data(), &ws_.status); };
-  if (schedule_->threads() > 1)
-    schedule_->within([&] { tbb::parallel_invoke(diagnose, energy); });
-  else
-    diagnose(), energy();
+  rhs_serial(m_, diag_, t_, y_.data(), dy_.data());
   const double* q = y_.data();
   const double* v = q + m_.ndof;
   const double* aux = q + 2 * m_.ndof;
@@ -367,6 +357,7 @@ Sample Simulation::sample() {
   s.power_input = s.input_torque * s.input_speed;
   s.power_output = s.output_torque * s.output_speed;
   s.power_dissipated = dy_[2 * m_.ndof + kWorkDiss];
+  const Energies e = energies(m_, t_, q, &ws_.status);
   s.energy_kinetic = e.kinetic;
   s.energy_elastic = e.elastic;
   s.work_input = aux[kWorkIn];
