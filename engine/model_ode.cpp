@@ -595,18 +595,25 @@ void ModelOde::w_assemble_link(int l, double gh) {
   LinkBlock& D = w_lu_.diag(l);
   LinkBlock& S = w_lu_.sub(l);
   LinkBlock& P = w_lu_.super(l);
+  // Row r of the joint blocks (row-major, lower triangle) into column r of F and P, so that
+  // reads and writes run along memory; then mirrored. Each entry is the same sum as before.
+  Eigen::Matrix<double, kH, kH> F;
+  P.setZero();
+  for (int r = 0; r < kH; ++r) {
+    const double* a = kr + (r + kH) * kD;  // joint l's lower rows (link l)
+    const double* b = kp + (r + kH) * kD;
+    const double* c2 = nr + r * kD;  // joint l+1's upper-left (link l)
+    const double* d = np + r * kD;
+    double* f = F.col(r).data();
+    for (int c = 0; c <= r; ++c) f[c] = gh * (a[c + kH] + b[c + kH] + c2[c] + d[c]);
+    double* p = P.col(r).data();
+    for (int c = 0; c < kH; ++c) p[c] = gh * (a[c] + b[c]);  // M(l-1, l) = M(l, l-1)^T
+  }
+  for (int c = 0; c < kH; ++c)
+    for (int r = c + 1; r < kH; ++r) F(r, c) = F(c, r);
   D = a0_link_;
-  S.setZero();
-  for (int c = 0; c < kH; ++c)
-    for (int r = c; r < kH; ++r) {
-      const int o = (r + kH) * kD + c + kH;
-      const double k = gh * (kr[o] + kp[o] + nr[r * kD + c] + np[r * kD + c]);
-      D(r, c) += k;
-      if (r != c) D(c, r) += k;
-    }
-  for (int c = 0; c < kH; ++c)
-    for (int r = 0; r < kH; ++r) S(r, c) = gh * (kr[(r + kH) * kD + c] + kp[(r + kH) * kD + c]);
-  P = S.transpose();
+  D.topLeftCorner<kH, kH>() += F;
+  S = P.transpose();
   // + J g g^T of A(q) (docs/model.md 3): psi_l turns with the mid-points of b_l (-) and a_{l+1} (+).
   LinkVector& g = w_g_[l];
   link_gradient(l, g);
