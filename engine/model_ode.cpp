@@ -437,7 +437,8 @@ void ModelOde::wf_correct(double* x) const {
   const int n = m_.ndof;
   const double gh = w_gh_;
   const double* y0 = w_rhs_[0].data();  // W^-1 r, physical, link order
-  Eigen::VectorXd p(k);
+  Eigen::VectorXd& p = wf_p_;
+  p.resize(k);
   wf_t_.resize(k);
   for (int i = 0; i < k; ++i) {
     const FreshContact& c = wf_set_[i / 2];
@@ -454,7 +455,8 @@ void ModelOde::wf_correct(double* x) const {
   }
   wf_t_.noalias() -= wf_g_.topLeftCorner(k, k) * p;
   wf_s_ = p + wf_cap_.solve(wf_d_.cwiseProduct(wf_t_));
-  const Eigen::VectorXd corr = wf_z_.leftCols(k) * wf_s_;
+  Eigen::VectorXd& corr = wf_corr_;
+  corr.noalias() = wf_z_.leftCols(k) * wf_s_;
   const double* uv = w_unit_v_.data();
   const double* ratio = w_unit_ratio_.data();
   for (int j = 0; j < m_.links * kLinkDim; ++j) {

@@ -253,7 +253,7 @@ class ModelOde {
   Eigen::MatrixXd wf_z_, wf_g_;
   Eigen::VectorXd wf_d_;
   Eigen::PartialPivLU<Eigen::MatrixXd> wf_cap_;
-  mutable Eigen::VectorXd wf_s_, wf_t_;
+  mutable Eigen::VectorXd wf_s_, wf_t_, wf_p_, wf_corr_;  // wf_correct's scratch
   bool wf_recorded_ = false, wf_force_ = false;
   std::int64_t wf_joined_ = 0, wf_rebuilds_ = 0;
 };
