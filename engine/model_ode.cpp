@@ -178,9 +178,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     w_color_[l] = c;
     w_colors_ = std::max(w_colors_, c + 1);
   }
-  wf_in_rocker_.assign(ws.rocker_mu.size(), 0), wf_in_pulley_.assign(ws.pulley_mu.size(), 0);
-  if (opt.w_fresh > 0) {
-    if (!opt.w_secant) throw std::invalid_argument("ModelOdeOptions: w_fresh needs w_secant (one mu per contact)");
+  if (w_fresh_on()) {
     if (opt.w_fresh_max < 1) throw std::invalid_argument("ModelOdeOptions: w_fresh_max must be >= 1");
     const int k = 2 * opt.w_fresh_max;
     wf_z_.setZero(static_cast<Eigen::Index>(N) * kLinkDim, k);
@@ -335,13 +333,17 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
 //   x = y0 - Z (p + (I + D G)^-1 D (U^T y0 - G p)),  y0 = W^-1 r, p = D V^T x_s.
 
 void ModelOde::wf_clear() {
-  for (const FreshContact& c : wf_set_) (c.shaft < 0 ? wf_in_rocker_ : wf_in_pulley_)[c.idx] = 0;
+  for (const FreshContact& c : wf_set_) c.kind->in_correction[c.idx] = 0;
   wf_set_.clear();
+}
+
+const double* ModelOde::FreshContact::columns() const {
+  return kind->cols.data() + static_cast<std::size_t>(idx) * 2 * Workspace::kDampDim;
 }
 
 double ModelOde::wf_dot(const FreshContact& c, int col, const double* z) const {
   constexpr int kH = 2 * half::kSize, kD = Workspace::kDampDim;
-  const double* u = c.u + col * kD;
+  const double* u = c.columns() + col * kD;
   const double* zp = z + static_cast<std::size_t>(m_.wrap(c.joint - 1)) * kLinkDim;
   const double* zc = z + static_cast<std::size_t>(c.joint) * kLinkDim;
   double a = 0;
@@ -355,7 +357,7 @@ void ModelOde::wf_join(const FreshContact& c) {
   const int lp = m_.wrap(c.joint - 1), lc = c.joint;
   LinkVector* v = w_rhs_.data();
   for (int a = 0; a < 2; ++a) {
-    const double* u = c.u + a * kD;
+    const double* u = c.columns() + a * kD;
     double* z = wf_z_.col(col + a).data();
     const auto prepare = [&](int l) {
       v[l].setZero();
@@ -368,7 +370,7 @@ void ModelOde::wf_join(const FreshContact& c) {
     w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
   }
   wf_set_.push_back(c);
-  (c.shaft < 0 ? wf_in_rocker_ : wf_in_pulley_)[c.idx] = 1;
+  c.kind->in_correction[c.idx] = 1;
   ++wf_joined_;
   const int k = col + 2;
   for (int i = 0; i < k; ++i)
@@ -382,38 +384,29 @@ void ModelOde::wf_update(double gh) {
   const double tol = ws_.mu_tol;
   // The contacts not yet in whose mu moved by more than tol, the largest change first (ties
   // by index): a deterministic order, the same on any number of threads.
-  struct Candidate {
-    double dmu;
-    int key;  // rocker idx, or rocker count + pulley idx
-  };
-  std::vector<Candidate> cand;
-  const int nr = static_cast<int>(ws_.rocker_mu.size()), np = static_cast<int>(ws_.pulley_mu.size());
-  for (int i = 0; i < nr; ++i) {
-    const double d = std::abs(ws_.rocker_mu[i] - ws_.rocker_mu_w[i]);
-    if (d > tol && !wf_in_rocker_[i] && ws_.rocker_cols_set[i]) cand.push_back({d, i});
+  // Rocker stations first, then pin ends (rank: the rocker count plus the pin end's index).
+  wf_cand_.clear();
+  Workspace::FreshMu* kinds[2] = {&ws_.rocker_fresh, &ws_.pulley_fresh};
+  for (int kind = 0, rank0 = 0; kind < 2; rank0 += static_cast<int>(kinds[kind]->mu.size()), ++kind) {
+    const Workspace::FreshMu& f = *kinds[kind];
+    for (int i = 0; i < static_cast<int>(f.mu.size()); ++i) {
+      const double d = std::abs(f.mu[i] - f.mu_w[i]);
+      if (d > tol && !f.in_correction[i] && f.cols_set[i]) wf_cand_.push_back({d, rank0 + i, kind, i});
+    }
   }
-  for (int i = 0; i < np; ++i) {
-    const double d = std::abs(ws_.pulley_mu[i] - ws_.pulley_mu_w[i]);
-    if (d > tol && !wf_in_pulley_[i] && ws_.pulley_cols_set[i]) cand.push_back({d, nr + i});
-  }
-  std::sort(cand.begin(), cand.end(),
-            [](const Candidate& a, const Candidate& b) { return a.dmu > b.dmu || (a.dmu == b.dmu && a.key < b.key); });
-  constexpr int kD = Workspace::kDampDim;
-  for (const Candidate& x : cand) {
+  std::sort(wf_cand_.begin(), wf_cand_.end(), [](const FreshCandidate& a, const FreshCandidate& b) {
+    return a.dmu > b.dmu || (a.dmu == b.dmu && a.rank < b.rank);
+  });
+  for (const FreshCandidate& x : wf_cand_) {
     if (static_cast<int>(wf_set_.size()) >= opt_.w_fresh_max) {
       wf_force_ = true;  // the next step rebuilds the friction blocks
       break;
     }
-    FreshContact c{};
-    if (x.key < nr) {
-      c.idx = x.key, c.joint = x.key / m_.cfg.rocker.stations, c.shaft = -1;
-      c.u = ws_.rocker_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kD;
-      c.v = nullptr;
-    } else {
-      c.idx = x.key - nr, c.joint = c.idx / 8, c.shaft = c.idx % 2;  // ContactStatus::pulley_index
-      c.u = ws_.pulley_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kD;
-      c.v = ws_.pulley_shaft_cols.data() + static_cast<std::size_t>(c.idx) * 2 * kShaftSize;
-    }
+    FreshContact c{kinds[x.kind], x.idx, 0, -1};
+    if (x.kind == 0)
+      c.joint = x.idx / m_.cfg.rocker.stations;
+    else
+      c.joint = x.idx / 8, c.shaft = x.idx % 2;  // ContactStatus::pulley_index
     wf_join(c);
   }
   const int k = 2 * static_cast<int>(wf_set_.size());
@@ -421,9 +414,7 @@ void ModelOde::wf_update(double gh) {
   wf_d_.resize(k);
   for (int i = 0; i < k; i += 2) {
     const FreshContact& c = wf_set_[i / 2];
-    const double dmu = c.shaft < 0 ? ws_.rocker_mu[c.idx] - ws_.rocker_mu_w[c.idx]
-                                   : ws_.pulley_mu[c.idx] - ws_.pulley_mu_w[c.idx];
-    wf_d_[i] = wf_d_[i + 1] = gh * dmu;
+    wf_d_[i] = wf_d_[i + 1] = gh * (c.kind->mu[c.idx] - c.kind->mu_w[c.idx]);
   }
   Eigen::MatrixXd cap = wf_d_.asDiagonal() * wf_g_.topLeftCorner(k, k);
   cap.diagonal().array() += 1.0;
@@ -444,7 +435,7 @@ void ModelOde::wf_correct(double* x) const {
     const FreshContact& c = wf_set_[i / 2];
     double w = 0;
     if (c.shaft >= 0) {
-      const double* v = c.v + (i % 2) * kShaftSize;
+      const double* v = ws_.pulley_shaft_cols.data() + (static_cast<std::size_t>(c.idx) * 2 + i % 2) * kShaftSize;
       for (int s = 0; s < kShaftSize; ++s) {
         const int r = n + m_.shaft(c.shaft) + s;
         w += v[s] * (opt_.scaled ? x[r] * unit_[r] : x[r]);

@@ -72,7 +72,8 @@ struct ModelOdeOptions {
   // more than w_fresh * m_pin / (gamma h), i.e. whose stiffness gamma h mu / m_pin changed by
   // more than w_fresh. Each such contact costs two solves with the factorized W when it
   // joins, and a rank-2 term in every solve after. More than w_fresh_max of them make the
-  // next step rebuild the friction blocks. 0: off (the stale blocks of 12.6). Needs w_secant.
+  // next step rebuild the friction blocks. 0: off (the stale blocks of 12.6); off too
+  // without w_secant.
   double w_fresh = 0;
   int w_fresh_max = 12;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
@@ -137,7 +138,8 @@ class ModelOde {
   std::int64_t w_fresh_contacts() const { return wf_joined_; }
   std::int64_t w_fresh_rebuilds() const { return wf_rebuilds_; }
   // Whether the next step's first evaluation must record each contact's mu (w_fresh).
-  bool w_fresh_on() const { return opt_.w_fresh > 0 && opt_.w_blocks; }
+  // Off without the secant slope (a contact's block is then not mu U U^T).
+  bool w_fresh_on() const { return opt_.w_fresh > 0 && opt_.w_blocks && opt_.w_secant; }
 
  private:
   void eval(double t, const double* y, double* dy) {
@@ -239,17 +241,21 @@ class ModelOde {
   // each), D = gh (mu - mu_w) on both; Z = W^-1 U (chain velocities in link order, physical
   // units), G = U^T Z, the capacitance I + D G factorized once per step.
   struct FreshContact {
-    int idx, joint, shaft;  // shaft: the sheave of a pulley contact, -1 for a rocker station
-    const double* u;        // its columns (Workspace::rocker_cols / pulley_cols), 2 x 40
-    const double* v;        // the sheave's (pulley_shaft_cols), 2 x 7, or null
+    Workspace::FreshMu* kind;  // ws_.rocker_fresh or ws_.pulley_fresh
+    int idx, joint, shaft;     // shaft: the sheave of a pin end, -1 for a rocker station
+    const double* columns() const;  // its U, 2 x 40 (a pin end's sheave part: ws_.pulley_shaft_cols)
   };
+  struct FreshCandidate {
+    double dmu;
+    int rank, kind, idx;  // rank: the order of ties (rocker stations, then pin ends)
+  };
+  std::vector<FreshCandidate> wf_cand_;
   void wf_clear();
   void wf_update(double gh);
   void wf_join(const FreshContact& c);
   double wf_dot(const FreshContact& c, int col, const double* z) const;  // U(:, col)^T z
   void wf_correct(double* x) const;
   std::vector<FreshContact> wf_set_;
-  std::vector<std::uint8_t> wf_in_rocker_, wf_in_pulley_;
   Eigen::MatrixXd wf_z_, wf_g_;
   Eigen::VectorXd wf_d_;
   Eigen::PartialPivLU<Eigen::MatrixXd> wf_cap_;

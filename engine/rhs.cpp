@@ -21,12 +21,8 @@ Workspace::Workspace(const Model& m) {
   pulley_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
   pulley_shaft_damping.assign(static_cast<std::size_t>(N) * 2 * kDampDim * kShaftSize, 0.0);
   const std::size_t nr = static_cast<std::size_t>(N) * m.cfg.rocker.stations, np = static_cast<std::size_t>(N) * 8;
-  for (auto* v : {&rocker_mu, &rocker_mu_w}) v->assign(nr, 0.0);
-  for (auto* v : {&pulley_mu, &pulley_mu_w}) v->assign(np, 0.0);
-  rocker_cols_set.assign(nr, 0);
-  pulley_cols_set.assign(np, 0);
-  rocker_cols.assign(nr * 2 * kDampDim, 0.0);
-  pulley_cols.assign(np * 2 * kDampDim, 0.0);
+  rocker_fresh.resize(nr);
+  pulley_fresh.resize(np);
   pulley_shaft_cols.assign(np * 2 * kShaftSize, 0.0);
   chain_slots.resize(N);
   pulley_slots.resize(N);

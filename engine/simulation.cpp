@@ -61,7 +61,7 @@ void Simulation::step(double h, bool update_status) {
       ro.jac.w_every = m_.cfg.integrator.w_every;
       ro.jac.w_k_every = m_.cfg.integrator.w_k_every;
       ro.jac.w_secant = m_.cfg.integrator.w_secant;
-      ro.jac.w_fresh = m_.cfg.integrator.w_secant ? m_.cfg.integrator.w_fresh : 0.0;  // needs one mu per contact
+      ro.jac.w_fresh = m_.cfg.integrator.w_fresh;  // ModelOde leaves it off without the secant
       ro.jac.w_fresh_max = m_.cfg.integrator.w_fresh_max;
       return std::make_unique<OdeDriver>(*this, ro);
     };

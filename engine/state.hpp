@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -124,11 +125,36 @@ struct Workspace {
   // also, mu_w = mu and the columns of every active contact (the state the factorized W
   // holds). Indexed like the statuses; columns [idx][2][40] (G^T t, G^T s over the four
   // halves), for the pulley contacts also the sheave's [idx][2][7] (u's shaft part).
+  struct FreshMu {
+    std::vector<double> mu, mu_w, cols;
+    std::vector<std::uint8_t> cols_set;
+    std::vector<std::uint8_t> in_correction;  // ModelOde's: the contact is in its correction
+    void resize(std::size_t contacts) {
+      mu.assign(contacts, 0.0), mu_w.assign(contacts, 0.0), cols.assign(contacts * 2 * kDampDim, 0.0);
+      cols_set.assign(contacts, 0), in_correction.assign(contacts, 0);
+    }
+    // A joint's contacts [first, first + count) before its kernel: no mu until found active;
+    // at a rebuild none holds the factorized matrix's mu or columns.
+    void clear(int first, int count, bool rebuild) {
+      std::fill_n(mu.begin() + first, count, 0.0);
+      if (rebuild) std::fill_n(mu_w.begin() + first, count, 0.0), std::fill_n(cols_set.begin() + first, count, 0);
+    }
+    // An active contact's mu (and at a rebuild mu_w); true when its columns are to be written.
+    bool note(int idx, double m, bool rebuild, double tol) {
+      mu[idx] = m;
+      if (rebuild) mu_w[idx] = m;
+      return rebuild || (!cols_set[idx] && std::abs(m - mu_w[idx]) > tol);
+    }
+    // Where contact idx's two columns go (and they are then recorded).
+    double* columns(int idx) {
+      cols_set[idx] = 1;
+      return cols.data() + static_cast<std::size_t>(idx) * 2 * kDampDim;
+    }
+  };
   bool record_mu = false;
   double mu_tol = 0;
-  std::vector<double> rocker_mu, pulley_mu, rocker_mu_w, pulley_mu_w;
-  std::vector<std::uint8_t> rocker_cols_set, pulley_cols_set;
-  std::vector<double> rocker_cols, pulley_cols, pulley_shaft_cols;
+  FreshMu rocker_fresh, pulley_fresh;
+  std::vector<double> pulley_shaft_cols;
 };
 
 }  // namespace cvt

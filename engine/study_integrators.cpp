@@ -244,7 +244,6 @@ int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
   jac_opt.w_secant = opt.w_secant;
   jac_opt.w_fresh = opt.w_fresh < 0 ? m.cfg.integrator.w_fresh : opt.w_fresh;
   jac_opt.w_fresh_max = opt.w_fresh_max > 0 ? opt.w_fresh_max : m.cfg.integrator.w_fresh_max;
-  if (!jac_opt.w_secant) jac_opt.w_fresh = 0;  // one mu per contact needs the secant slope
   jac_opt.w_status_rebuild = opt.w_status_rebuild;
   jac_opt.w_blocks = !opt.ros2_full_jacobian;
 

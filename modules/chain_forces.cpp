@@ -255,10 +255,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
     double* Kd = ws.record_damping ? ws.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
     if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
     const bool rec_mu = ws.record_mu;
-    if (rec_mu) {
-      std::fill_n(ws.rocker_mu.begin() + j * nst, nst, 0.0);
-      if (Kd) std::fill_n(ws.rocker_mu_w.begin() + j * nst, nst, 0.0), std::fill_n(ws.rocker_cols_set.begin() + j * nst, nst, 0);
-    }
+    if (rec_mu) ws.rocker_fresh.clear(j * nst, nst, Kd != nullptr);
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
       const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
@@ -296,8 +293,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
         const double Rz = Rv[2];
         if (Kd || rec_mu) {
           const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-          const bool cols =
-              rec_mu && (Kd || (!ws.rocker_cols_set[idx] && std::abs(mu - ws.rocker_mu_w[idx]) > ws.mu_tol));
+          const bool cols = rec_mu && ws.rocker_fresh.note(idx, mu, Kd != nullptr, ws.mu_tol);
           if (Kd || cols) {
             double G[kD][3] = {};
             rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
@@ -305,14 +301,9 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
               add_friction_damping(Kd, kD, G, nrm, u, speed, mu,
                                    ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed));
             if (cols) {
-              double* U = ws.rocker_cols.data() + static_cast<std::size_t>(idx) * 2 * kD;
+              double* U = ws.rocker_fresh.columns(idx);
               friction_columns(kD, G, nrm, u, speed, U, U + kD);
-              ws.rocker_cols_set[idx] = 1;
             }
-          }
-          if (rec_mu) {
-            ws.rocker_mu[idx] = mu;
-            if (Kd) ws.rocker_mu_w[idx] = mu;
           }
         }
         fa[half::kZ] += (1 - xi) * Rz;

@@ -81,11 +81,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   double* Xd = ws.record_damping ? ws.pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
   if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
   const bool rec_mu = ws.record_mu;
-  if (rec_mu) {
-    const int i0 = ContactStatus::pulley_index(j, 0, 0, 0);
-    std::fill_n(ws.pulley_mu.begin() + i0, 8, 0.0);
-    if (Kd) std::fill_n(ws.pulley_mu_w.begin() + i0, 8, 0.0), std::fill_n(ws.pulley_cols_set.begin() + i0, 8, 0);
-  }
+  if (rec_mu) ws.pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), 8, Kd != nullptr);
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;
@@ -145,12 +141,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
           const double mu = (Kd || rec_mu) ? Nel * friction_over_speed(law, f0, v0, speed) : 0.0;
-          const bool cols =
-              rec_mu && (Kd || (!ws.pulley_cols_set[idx] && std::abs(mu - ws.pulley_mu_w[idx]) > ws.mu_tol));
-          if (rec_mu) {
-            ws.pulley_mu[idx] = mu;
-            if (Kd) ws.pulley_mu_w[idx] = mu;
-          }
+          const bool cols = rec_mu && ws.pulley_fresh.note(idx, mu, Kd != nullptr, ws.mu_tol);
           if (Kd || cols) {
             // Workspace::record_damping / record_mu: u as a function of the two halves of the link that
             // this half turns with (the sheave's velocity left out): c_dot, the cap's tilt, and
@@ -180,11 +171,10 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             if (g.gw != 0) Gs[kW][2] = -1;
             if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
             if (cols) {
-              double* U = ws.pulley_cols.data() + static_cast<std::size_t>(idx) * 2 * kD;
+              double* U = ws.pulley_fresh.columns(idx);
               double* V = ws.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
               friction_columns(kD, G, nrm, u, speed, U, U + kD);
               friction_columns(kShaftSize, Gs, nrm, u, speed, V, V + kShaftSize);
-              ws.pulley_cols_set[idx] = 1;
             }
           }
         }
