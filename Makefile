@@ -1,12 +1,14 @@
+MAKEFLAGS += --no-print-directory
+
 # The two README commands: `make run` and `make test`. Both install what is missing
 # (Debian packages), configure a Release build and build it first.
 BUILD   ?= build
 JOBS    ?= $(shell nproc)
-CONFIG  ?= configs/reference.toml
+CONFIG  ?= configs/reference-steady.toml
 OUT     ?= results.h5
 PYTHON  ?= /usr/bin/python3
 
-PACKAGES = cmake g++ make pkg-config \
+PACKAGES = cmake g++ make pkg-config graphviz \
   libtbb-dev libtbbbind-2-5 libeigen3-dev libhwloc-dev hwloc \
   libhdf5-dev hdf5-tools libgtest-dev libbenchmark-dev libtomlplusplus-dev libcli11-dev \
   python3-h5py python3-matplotlib python3-numpy
@@ -34,8 +36,9 @@ build: deps configure
 
 THREADS ?= $(shell nproc)
 
+# The reference model to a steady operating point (about 1.5 minutes on 2 cores).
 run: build
-	$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT) --scheduler flowgraph --threads $(THREADS)
+	@$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT) --scheduler flowgraph --threads $(THREADS)
 
 # The whole fast suite (minutes). Long physics runs are named Slow* and run by test-slow.
 test: build
@@ -47,9 +50,13 @@ test-slow: build
 bench: build
 	@for b in $(BUILD)/*_bench; do echo "== $$b"; $$b --benchmark_min_time=0.2; done
 
-# Figures of the last run ($(OUT)) into $(PLOTS): time histories, spectrogram of the output
-# torque, run-time profile (if the run was profiled), chain animation, and the scaling study
-# if $(STUDY) exists. docs/plots.md says what each shows.
+# Figures of the last run ($(OUT)) into $(PLOTS): history.png (speed and geometric ratio, slip,
+# torques, clamping forces, sheave positions, efficiency, strand tensions, then the tracked
+# link and pin, supports and speeds), spectrogram-output_torque.png, and chain.gif if the run
+# has snapshots. Then, separately and only where their input exists, the performance figures
+# into $(PLOTS)/perf: profile.png (the run's /profile), scaling.png ($(STUDY)) and
+# integrators.png (INTEGRATORS=FILE.csv of `cvt-engine study integrators`).
+# docs/plots.md says what each shows.
 PLOTS ?= plots
 STUDY ?= study.csv
 PLOT   = $(PYTHON) tools/cvt_plot.py
@@ -58,17 +65,25 @@ HAS    = $(PYTHON) -c 'import h5py, sys; sys.exit(sys.argv[2] not in h5py.File(s
 plots: deps
 	@test -f $(OUT) || { echo "make plots: $(OUT) not found: make run first, or OUT=FILE"; exit 2; }
 	@mkdir -p $(PLOTS)
-	$(PLOT) history $(OUT) --out $(PLOTS)/history.png
-	$(PLOT) spectrogram $(OUT) output_torque --out $(PLOTS)/spectrogram-output_torque.png
-	@if $(HAS) $(OUT) profile; then echo "$(PLOT) profile $(OUT) --out $(PLOTS)/profile.png"; \
-	  $(PLOT) profile $(OUT) --out $(PLOTS)/profile.png; \
-	else echo "make plots: $(OUT) has no /profile (run not profiled): no profile.png"; fi
-	@if $(HAS) $(OUT) particles/chain/position; then echo "$(PLOT) animate $(OUT) --out $(PLOTS)/chain.gif"; \
-	  $(PLOT) animate $(OUT) --out $(PLOTS)/chain.gif; \
+	@echo "make plots: run figures of $(OUT) into $(PLOTS)/"
+	$(PLOT) history $(OUT) -o $(PLOTS)/history.png
+	$(PLOT) spectrogram $(OUT) output_torque -o $(PLOTS)/spectrogram-output_torque.png
+	@if $(HAS) $(OUT) particles/chain/position; then echo "$(PLOT) animate $(OUT) -o $(PLOTS)/chain.gif"; \
+	  $(PLOT) animate $(OUT) -o $(PLOTS)/chain.gif; \
 	else echo "make plots: $(OUT) has no snapshots (run.snapshot_interval = 0): no chain.gif"; fi
-	@if [ -f $(STUDY) ]; then echo "$(PLOT) scaling $(STUDY) --out $(PLOTS)/scaling.png"; \
-	  $(PLOT) scaling $(STUDY) --out $(PLOTS)/scaling.png; \
-	else echo "make plots: no $(STUDY): no scaling.png"; fi
+	@echo "make plots: performance figures into $(PLOTS)/perf/ (where their input exists)"
+	@mkdir -p $(PLOTS)/perf
+	@if $(HAS) $(OUT) profile; then echo "$(PLOT) profile $(OUT) -o $(PLOTS)/perf/profile.png"; \
+	  $(PLOT) profile $(OUT) -o $(PLOTS)/perf/profile.png; \
+	else echo "make plots: $(OUT) has no /profile (run not profiled): no profile.png"; fi
+	@if [ -f $(STUDY) ]; then echo "$(PLOT) scaling $(STUDY) -o $(PLOTS)/perf/scaling.png"; \
+	  $(PLOT) scaling $(STUDY) -o $(PLOTS)/perf/scaling.png; \
+	else echo "make plots: no $(STUDY) (STUDY=FILE): no scaling.png"; fi
+	@if [ -n "$(INTEGRATORS)" ] && [ -f "$(INTEGRATORS)" ]; then \
+	  echo "$(PLOT) integrators $(INTEGRATORS) -o $(PLOTS)/perf/integrators.png"; \
+	  $(PLOT) integrators $(INTEGRATORS) -o $(PLOTS)/perf/integrators.png; \
+	else echo "make plots: no integrator study (INTEGRATORS=FILE.csv): no integrators.png"; fi
+	@rmdir $(PLOTS)/perf 2>/dev/null || true
 
 clean:
 	rm -rf $(BUILD)

@@ -1,4 +1,4 @@
-// Checkpoints (issue 4): everything a run needs to continue bit-identically, in a small
+// Checkpoints: everything a run needs to continue bit-identically, in a small
 // HDF5 file of its own: the resolved configuration, the state, the contact statuses, the
 // clock (its origin included, so that t = t0 + (n - n0) h is formed as in the first run)
 // and the reference energy of the balance. Written to FILE.tmp and renamed, so that a
@@ -19,6 +19,9 @@ struct Checkpoint {
   double t = 0, t0 = 0;                  // time, and the clock's origin
   long steps = 0, steps0 = 0;            // steps done, and the clock's origin
   double energy0 = 0;                    // E at the start of the first run (balance)
+  // The run this checkpoint continues: its id (also in its output file's /parameters) and
+  // the output file it writes. Empty in checkpoints that predate them.
+  std::string run_id, output;
 };
 
 void write_checkpoint(const std::string& path, const Checkpoint& c);

@@ -122,8 +122,9 @@ struct Config {
     double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
   } damping;
   struct Integrator {
-    std::string method = "rk4";  // "rk4" | "ros2" | "ros34pw2" (docs/integrators.md 12, 13)
-    double step = 1.0e-8;  // [s]
+    // "ros34pw2" (advised) | "ros2" | "rk4" (the reference); docs/integrators.md
+    std::string method = "ros34pw2";
+    double step = 8.333333333333333e-7;  // [s]: 1e-5 / 12, divides run.sample_interval and run.t_end
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
@@ -140,7 +141,7 @@ struct Config {
     double startup_step = 6.25e-8;  // [s]
   } integrator;
   struct Run {
-    double t_end = 5.0e-3;            // [s]
+    double t_end = 2.0e-2;            // [s]
     double sample_interval = 1.0e-5;  // [s]
     double snapshot_interval = 1.0e-4; // [s]; 0 turns snapshots off
     int tracked_pin = 0;

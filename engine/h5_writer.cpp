@@ -1,5 +1,6 @@
 #include "engine/h5_writer.hpp"
 
+#include <algorithm>
 #include <exception>
 #include <limits>
 #include <mutex>
@@ -139,6 +140,19 @@ H5Series::H5Series(hid_t file, std::string path, std::vector<hsize_t> row_shape,
   }
 
   const int rank = static_cast<int>(row_shape_.size()) + 1;
+  if (H5Lexists(file, path_.c_str(), H5P_DEFAULT) > 0) {
+    // An existing series (a run's own file, continued): appends go after its last row.
+    dataset_ = H5Handle(H5Dopen2(file, path_.c_str(), H5P_DEFAULT), "H5Dopen2", path_);
+    H5Handle space(H5Dget_space(dataset_.get()), "H5Dget_space", path_);
+    std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
+    if (H5Sget_simple_extent_ndims(space.get()) != rank) throw H5Error("HDF5: series '" + path_ + "' has another rank");
+    H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+    if (!std::equal(row_shape_.begin(), row_shape_.end(), dims.begin() + 1))
+      throw H5Error("HDF5: series '" + path_ + "' exists with another row shape");
+    rows_written_ = dims[0];
+    buffer_.reserve(static_cast<std::size_t>(chunk_rows_ * row_size_));
+    return;
+  }
   std::vector<hsize_t> dims{0}, max_dims{H5S_UNLIMITED}, chunk{chunk_rows_};
   for (hsize_t d : row_shape_) {
     dims.push_back(d);
@@ -195,6 +209,16 @@ void H5Series::write_buffer() {
         "H5Dwrite", path_);
   rows_written_ += n;
   buffer_.clear();
+}
+
+void H5Series::truncate(hsize_t rows) {
+  if (!dataset_) throw H5Error("HDF5: truncate of closed series '" + path_ + "'");
+  write_buffer();
+  if (rows >= rows_written_) return;
+  std::vector<hsize_t> extent{rows};
+  for (hsize_t d : row_shape_) extent.push_back(d);
+  check(H5Dset_extent(dataset_.get(), extent.data()), "H5Dset_extent", path_);
+  rows_written_ = rows;
 }
 
 void H5Series::flush() {
@@ -424,6 +448,55 @@ void H5File::close() {
     if (!first) first = std::current_exception();
   }
   if (first) std::rethrow_exception(first);
+}
+
+bool H5File::exists(const std::string& object_path) const {
+  return is_open() && link_exists(normalize(object_path));
+}
+
+void H5File::remove(const std::string& object_path) {
+  const std::string path = normalize(object_path);
+  require_open("remove", path);
+  if (link_exists(path)) check(H5Ldelete(file_.get(), path.c_str(), H5P_DEFAULT), "H5Ldelete", path);
+}
+
+std::vector<double> H5File::read_doubles(const std::string& dataset_path) const {
+  const std::string path = normalize(dataset_path);
+  require_open("read_doubles", path);
+  H5Handle dataset(H5Dopen2(file_.get(), path.c_str(), H5P_DEFAULT), "H5Dopen2", path);
+  H5Handle space(H5Dget_space(dataset.get()), "H5Dget_space", path);
+  const hssize_t n = H5Sget_simple_extent_npoints(space.get());
+  if (n < 0) fail("H5Sget_simple_extent_npoints", path);
+  std::vector<double> v(static_cast<std::size_t>(n));
+  if (n > 0)
+    check(H5Dread(dataset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()), "H5Dread", path);
+  return v;
+}
+
+std::string H5File::read_string(const std::string& dataset_path) const {
+  const std::string path = normalize(dataset_path);
+  require_open("read_string", path);
+  H5Handle dataset(H5Dopen2(file_.get(), path.c_str(), H5P_DEFAULT), "H5Dopen2", path);
+  H5Handle type = make_string_type(path);
+  char* text = nullptr;
+  check(H5Dread(dataset.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, &text), "H5Dread", path);
+  std::string s = text ? text : "";
+  H5free_memory(text);
+  return s;
+}
+
+std::string H5File::read_string_attribute(const std::string& object_path, const std::string& name) const {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("read_string_attribute", where);
+  H5Handle attr(H5Aopen_by_name(file_.get(), path.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT), "H5Aopen_by_name",
+                where);
+  H5Handle type = make_string_type(where);
+  char* text = nullptr;
+  check(H5Aread(attr.get(), type.get(), &text), "H5Aread", where);
+  std::string s = text ? text : "";
+  H5free_memory(text);
+  return s;
 }
 
 }  // namespace cvt

@@ -85,6 +85,8 @@ class H5Series {
 
   // Writes the buffered rows to the file (no H5Fflush). H5File::flush() calls it.
   void flush();
+  // Keeps the first `rows` rows and drops the rest (appends then continue after them).
+  void truncate(hsize_t rows);
   // Flushes, then closes the dataset; idempotent. append() afterwards throws H5Error.
   void close();
 
@@ -122,7 +124,8 @@ class H5File {
   ~H5File();
 
   // The series at `path` (a leading '/' is optional), created with its intermediate groups on
-  // first use ("/observables/input_speed/value"). A later call with the same path returns the
+  // first use ("/observables/input_speed/value"); a dataset already in the file (opened with
+  // open()) is continued: appends go after its rows. A later call with the same path returns the
   // same object and throws H5Error if row_shape differs. Every dimension of row_shape and
   // chunk_rows must be > 0. The reference stays valid for the lifetime of this H5File (after
   // close() the series is closed and append() throws).
@@ -144,6 +147,16 @@ class H5File {
   // A 1-D fixed-size (contiguous) double dataset of v.size() elements; creates intermediate
   // groups. The dataset must not exist yet.
   void write_vector(const std::string& dataset_path, const std::vector<double>& v);
+
+  // Whether a group or dataset exists at object_path.
+  bool exists(const std::string& object_path) const;
+  // Unlinks a group or dataset (nothing if there is none): to rewrite it.
+  void remove(const std::string& object_path);
+  // A whole double dataset, flattened in row-major order.
+  std::vector<double> read_doubles(const std::string& dataset_path) const;
+  // A scalar string dataset, and a string attribute.
+  std::string read_string(const std::string& dataset_path) const;
+  std::string read_string_attribute(const std::string& object_path, const std::string& name) const;
 
   // Writes the buffered rows of every series, then H5Fflush(H5F_SCOPE_GLOBAL).
   void flush();

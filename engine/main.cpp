@@ -1,11 +1,14 @@
 // The cvt-engine command line (docs/cli.md).
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <optional>
+#include <unistd.h>
 
 #include "engine/checkpoint.hpp"
 #include "engine/config.hpp"
@@ -56,7 +59,11 @@ int cmd_graph(const std::string& config_path, const std::vector<std::string>& ov
   const Model model = build_model(load_config(config_path, overrides));
   Workspace ws(model);
   const auto schedule = make_schedule(model, ws, sa.options());
-  std::printf("// %s\n%s", schedule->describe().c_str(), schedule->graphviz().c_str());
+  std::printf("// %s\n// view: cvt-engine graph CONFIG > graph.dot && dot -Tsvg graph.dot -o graph.svg (graphviz)\n%s",
+              schedule->describe().c_str(), schedule->graphviz().c_str());
+  if (isatty(fileno(stdout)))
+    std::fprintf(stderr, "(GraphViz text: save it and draw it with dot, e.g. cvt-engine graph %s > graph.dot && dot -Tsvg "
+                         "graph.dot -o graph.svg)\n", config_path.c_str());
   return kExitOk;
 }
 
@@ -125,12 +132,25 @@ struct RunArgs {
   std::string resume;
   long checkpoint_every = 50000;
   double flush_seconds = 10.0;
-  std::string profile_json;
+  std::string profile_json, summary_json;
   std::string method;  // --method: integrator.method
+  std::string out;     // --out (empty: results.h5, or with --resume the run's own file)
+  bool profile = false, quiet = false;
 };
 
+// "1.4 min per model second" for a throughput in model seconds per wall hour.
+std::string per_model_second(double model_s_per_hour) {
+  if (!(model_s_per_hour > 0)) return "-";
+  const double s = 3600.0 / model_s_per_hour;
+  char b[64];
+  if (s < 120) std::snprintf(b, sizeof b, "%.3g s", s);
+  else if (s < 7200) std::snprintf(b, sizeof b, "%.3g min", s / 60);
+  else std::snprintf(b, sizeof b, "%.3g h", s / 3600);
+  return b;
+}
+
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
-            const std::string& step, const std::string& out, bool quiet, const ScheduleArgs& sa, const RunArgs& ra) {
+            const std::string& step, const ScheduleArgs& sa, const RunArgs& ra) {
   using namespace cvt;
   // Command-line shortcuts are overrides too, passed as typed: validated like any key and
   // recorded in the resolved TOML.
@@ -148,57 +168,66 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   }
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume) : load_config(config_path, overrides);
   const Model model = build_model(cfg);
-  std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
-  std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
-  std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
-              1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
-  const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
-  std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
-              cfg.integrator.step,
-              cfg.integrator.method != "rk4"
-                  ? (" (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
-                     std::to_string(cfg.integrator.w_k_every) +
-                     (startup_sub > 1
-                          ? "; " + std::to_string(startup_sub) +
-                                " ros2 sub-steps per step before t = " + fmt_g(cfg.integrator.startup_time) + " s"
-                          : std::string()) +
-                     ")")
-                        .c_str()
-                  : "",
-              to_string(cfg.friction.law));
-  std::fflush(stdout);
+  // Without --out a resumed run appends to its own file (GROMACS's mdrun -cpi): the one
+  // the checkpoint names, else the checkpoint's name without ".ckpt".
+  const bool append = ckpt && ra.out.empty();
+  std::string out = ra.out.empty() ? "results.h5" : ra.out;
+  if (append) {
+    out = ckpt->output;
+    if (out.empty()) {
+      out = ra.resume;
+      if (out.size() > 5 && out.compare(out.size() - 5, 5, ".ckpt") == 0) out.resize(out.size() - 5);
+    }
+  }
+  const bool talk = !ra.quiet;
+  if (talk) {
+    std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
+    std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
+    std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
+                1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
+    const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
+    std::string w;
+    if (cfg.integrator.method != "rk4") {
+      w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+          std::to_string(cfg.integrator.w_k_every);
+      if (startup_sub > 1)
+        w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
+             fmt_g(cfg.integrator.startup_time) + " s";
+      w += ")";
+    }
+    std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
+                cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
+    std::fflush(stdout);
+  }
   RunOptions opt;
   opt.schedule = sa.options();
   opt.checkpoint_every = ra.checkpoint_every;
   opt.flush_seconds = ra.flush_seconds;
   opt.resume = ckpt ? &*ckpt : nullptr;
+  opt.append = append;
   opt.out_path = out;
-  opt.progress = !quiet;
+  opt.progress = talk;
   opt.profile_json = ra.profile_json;
-  const RunSummary r = run_simulation(model, opt);
+  opt.summary_json = ra.summary_json;
+  if (ra.quiet) std::freopen("/dev/null", "w", stdout);  // the driver's own lines too
+  const RunResult r = run_simulation(model, opt);
+  // An interrupt is said on stderr, --quiet or not: the run did not reach t_end.
   if (r.interrupted)
-    std::printf("\nrun interrupted by signal %d at t = %.9g s after %ld steps: results up to there in %s\n",
-                r.signal, r.model_time, r.steps, out.c_str());
-  else
-    std::printf("\nrun complete: %s\n", out.c_str());
-  std::printf("  steps                      %ld\n", r.steps);
-  std::printf("  wall time                  %.3f s\n", r.wall_s);
-  std::printf("  time per step              %.2f us\n", r.us_per_step);
-  std::printf("  model seconds per wall hour %.4g\n", r.model_s_per_hour);
-  std::printf("  last 20 %% of the run:\n");
-  std::printf("    speed ratio              %.5f\n", r.speed_ratio);
-  std::printf("    geometric ratio          %.5f\n", r.geometric_ratio);
-  std::printf("    input torque             %.3f N m\n", r.input_torque);
-  std::printf("    output torque            %.3f N m\n", r.output_torque);
-  std::printf("    efficiency               %.4f (mean output power / mean input power)\n", r.efficiency);
-  std::printf("    1 - dissipated/input     %.4f (work over the window)\n", r.loss_efficiency);
-  if (r.load_torque > 0 && std::abs(r.output_torque / r.load_torque - 1.0) > 0.1)
-    std::printf("    note: output torque differs from the load (%.3f N m) by %.0f %%: not yet steady (load ramp,\n"
-                "          torsion modes); means and the power ratio are transient values\n",
-                r.load_torque, 100.0 * std::abs(r.output_torque / r.load_torque - 1.0));
-  std::printf("  energy balance residual    %.4g J (%.3g of the work in)\n", r.energy_residual,
-              r.work_input != 0 ? std::abs(r.energy_residual / r.work_input) : 0.0);
-  std::printf("\n%s", format_profile(r.profile).c_str());
+    std::fprintf(stderr, "cvt-engine: run interrupted by signal %d at t = %.9g s after %ld steps: results up to "
+                 "there in %s; continue with: cvt-engine run --resume %s\n",
+                 r.signal, r.model_time, r.steps, out.c_str(),
+                 (opt.checkpoint_path.empty() ? out + ".ckpt" : opt.checkpoint_path).c_str());
+  if (talk) {
+    if (r.interrupted)
+      std::printf("\nrun stopped at t = %.9g s in %s\n", r.model_time, out.c_str());
+    else
+      std::printf("\nrun complete: t = %.9g s in %s\n", r.model_time, out.c_str());
+    std::printf("%s", format_summary(r).c_str());
+    std::printf("  throughput: %ld steps in %.1f s, %.1f us per step, %s per model second (%s, %d thread%s)\n",
+                r.steps, r.wall_s, r.us_per_step, per_model_second(r.model_s_per_hour).c_str(),
+                r.profile.scheduler.c_str(), r.profile.threads, r.profile.threads == 1 ? "" : "s");
+    if (ra.profile) std::printf("\n%s", format_profile(r.profile).c_str());
+  }
   return r.interrupted ? kExitInterrupted : kExitOk;
 }
 
@@ -256,21 +285,65 @@ int cmd_modes(const std::string& config_path, const std::vector<std::string>& ov
   return kExitOk;
 }
 
+// Edit distance of two option names (for "did you mean").
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> d(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) d[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t prev = d[0];
+    d[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t cur = d[j];
+      d[j] = std::min({d[j] + 1, d[j - 1] + 1, prev + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      prev = cur;
+    }
+  }
+  return d[b.size()];
+}
+
+// After an unknown option: the closest options of the subcommand that was given.
+void suggest_options(CLI::App& app, int argc, char** argv) {
+  const CLI::App* cmd = &app;
+  for (int i = 1; i < argc; ++i)
+    for (const CLI::App* sub : cmd->get_subcommands({}))
+      if (sub->get_name() == argv[i]) cmd = sub;
+  std::vector<std::string> names;
+  for (const CLI::Option* o : cmd->get_options())
+    for (const std::string& n : o->get_lnames()) names.push_back("--" + n);
+  for (int i = 1; i < argc; ++i) {
+    std::string a = argv[i];
+    if (a.rfind("--", 0) != 0) continue;
+    a = a.substr(0, a.find('='));
+    if (std::find(names.begin(), names.end(), a) != names.end()) continue;
+    std::string best;
+    std::size_t best_d = 3;  // at most two edits
+    for (const std::string& n : names) {
+      const std::size_t d = edit_distance(a, n);
+      if (d < best_d) best_d = d, best = n;
+    }
+    if (!best.empty()) std::fprintf(stderr, "%s: unknown option; did you mean '%s'?\n", a.c_str(), best.c_str());
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string(CVT_VERSION));
+  app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
+             "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
 
   auto* run = app.add_subcommand("run", "simulate a configuration and write the results to HDF5");
-  std::string config, out = "results.h5";
+  run->footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2 -o results.h5");
+  std::string config;
   std::vector<std::string> overrides;
   std::string t_end, step;
-  bool quiet = false;
   run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml); omit with --resume");
   RunArgs run_args;
-  run->add_option("--resume", run_args.resume, "continue bit-identically from a checkpoint (FILE.ckpt)");
+  run->add_option("--resume", run_args.resume,
+                  "continue bit-identically from a checkpoint (FILE.ckpt), appending to the run's own file "
+                  "(unless --out)");
   run->add_option("--checkpoint-every", run_args.checkpoint_every,
                   "steps between checkpoints to OUT.ckpt (0: only at the end and on SIGINT/SIGTERM)")
       ->check(CLI::NonNegativeNumber)
@@ -282,14 +355,18 @@ int main(int argc, char** argv) {
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
   run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 13)");
-  run->add_option("--out", out, "output HDF5 file")->capture_default_str();
+  run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
+                  "for the continuation only)");
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
-  run->add_flag("--quiet", quiet, "no progress line");
+  run->add_flag("-q,--quiet", run_args.quiet, "print nothing but warnings and errors");
+  run->add_flag("--profile", run_args.profile, "print the per-module profile table (always stored in /profile)");
   run->add_option("--profile-json", run_args.profile_json, "write the end-of-run profile table as JSON to FILE");
+  run->add_option("--summary-json", run_args.summary_json, "write the end-of-run summary as JSON to FILE");
   ScheduleArgs sched;
   add_schedule_options(run, sched);
 
   auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
+  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg");
   std::string graph_config;
   std::vector<std::string> graph_overrides;
   ScheduleArgs graph_sched;
@@ -299,6 +376,7 @@ int main(int argc, char** argv) {
   add_schedule_options(graph, graph_sched);
 
   auto* scale = app.add_subcommand("scale", "scaling study: time per step per scheduler, thread count and NUMA layout");
+  scale->footer("Example: cvt-engine scale configs/reference.toml --threads 1,2 --out scaling.csv");
   std::string scale_config, scale_out, scale_json;
   std::vector<std::string> scale_overrides, scale_layouts = {"native"};
   std::vector<std::string> scale_schedulers = {"serial", "flowgraph", "paper-omp"};
@@ -325,8 +403,12 @@ int main(int argc, char** argv) {
   scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
 
   auto* study = app.add_subcommand("study", "method studies");
+  study->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
   study->require_subcommand(1);
-  auto* study_int = study->add_subcommand("integrators", "integrator study of paper 2 (docs/integrators.md 11)");
+  auto* study_int = study->add_subcommand("integrators", "integrator study: by default RK4 at 1e-8 against ROS34PW2 at the configuration's step, over "
+                                          "5 ms after the load ramp, against RK4 at 5e-9 (docs/integrators.md); about 10 min on "
+                                          "2 threads, most of it the reference, which --cache keeps for the next run");
+  study_int->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
   std::string si_config;
   std::vector<std::string> si_overrides;
   cvt::IntegratorStudyOptions si;
@@ -348,7 +430,10 @@ int main(int argc, char** argv) {
                         "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
                         "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
       ->delimiter(',');
-  study_int->add_flag("--all", si.all, "(b): run every candidate (default: stop at each method's first accurate one)");
+  bool si_first_accurate = false, si_one_step = false;
+  study_int->add_flag("--all", si.all, "(b): run every candidate (the default)");
+  study_int->add_flag("--first-accurate", si_first_accurate, "(b): stop at each method's first accurate candidate");
+  study_int->add_flag("--one-step", si_one_step, "run part (a), the error after one step against h (minutes)");
   study_int->add_option("--repeat", si.repeat, "run (b) in this many rounds over all its runs; each run's wall time is the median")
       ->check(CLI::Range(1, 100))->capture_default_str();
   study_int->add_option("--tols", si.tolerances, "tolerances tried in (b), loosest first (atol in units of 1 um, 1 mm/s)")
@@ -391,20 +476,26 @@ int main(int argc, char** argv) {
   study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
   study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
   study_int->add_flag("--approximate-jacobian", si_approx, "leave the pins -> shaft rows out of the Jacobian");
+  si.cache_dir = "study-cache";
+  bool si_no_cache = false;
   study_int->add_option("--cache", si.cache_dir,
-                        "reuse the running state and reference curve kept in this folder (made if missing)")
-      ->check(CLI::ExistingDirectory);
+                        "keep the running state and the reference curve in this folder (made if missing) and reuse "
+                        "them")
+      ->capture_default_str();
+  study_int->add_flag("--no-cache", si_no_cache, "compute the running state and the reference anew, keep nothing");
   study_int->add_option("--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
   study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(study_int, si_sched);
 
   auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
+  topology->footer("Example: cvt-engine topology configs/reference.toml --threads 2");
   std::string topo_config;
   int topo_threads = 0;
   topology->add_option("CONFIG", topo_config, "TOML configuration (for the number of pins; default 84)");
   topology->add_option("--threads", topo_threads, "threads to lay out (default: all cores)");
 
   auto* modes = app.add_subcommand("modes", "natural frequencies, Jacobian spectrum and stable RK4 step at a state");
+  modes->footer("Example: cvt-engine modes configs/mini.toml --at 1e-3 --count 5");
   std::string modes_config;
   std::vector<std::string> modes_overrides;
   ModesArgs modes_args;
@@ -429,18 +520,22 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // Usage errors (unknown option, bad --scheduler, --threads 0 ...): EX_USAGE.
     app.exit(e);
+    if (dynamic_cast<const CLI::ExtrasError*>(&e)) suggest_options(app, argc, argv);
     return cvt::kExitUsage;
   }
   try {
     if (*scale)
       return cmd_scale(scale_config, scale_overrides, scale_threads, scale_schedulers, scale_layouts, scale_steps,
                        scale_repeat, scale_warmup, scale_grain, scale_out, scale_json);
-    if (*run) return cmd_run(config, overrides, t_end, step, out, quiet, sched, run_args);
+    if (*run) return cmd_run(config, overrides, t_end, step, sched, run_args);
     if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
     if (*topology) return cmd_topology(topo_config, topo_threads);
     if (*modes) return cmd_modes(modes_config, modes_overrides, modes_args);
     if (*study_int) {
-      si.one_step = !si_no_one_step;
+      si.one_step = si_one_step && !si_no_one_step;
+      if (si_first_accurate) si.all = false;
+      if (si_no_cache) si.cache_dir.clear();
+      if (!si.cache_dir.empty()) std::filesystem::create_directories(si.cache_dir);
       si.curve = !si_no_curve;
       si.exact_dense_rows = !si_approx;
       si.freeze_friction = !si_plain_friction;
@@ -448,6 +543,8 @@ int main(int argc, char** argv) {
       si.schedule = si_sched.options();
       const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
       if (!si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(si_w_steps);
+      else  // the configuration's own step and matrix intervals
+        si.w_steps = {{model.cfg.integrator.step, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
       if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
       if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
       return cvt::run_integrator_study(model, si);
@@ -455,6 +552,9 @@ int main(int argc, char** argv) {
   } catch (const cvt::ConfigError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitConfig;
+  } catch (const cvt::OutputError& e) {
+    std::fprintf(stderr, "cvt-engine: %s\n", e.what());
+    return cvt::kExitCantCreate;
   } catch (const cvt::BlowUpError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitBlowUp;

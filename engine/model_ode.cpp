@@ -304,18 +304,28 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   const bool first = w_gh_ == 0 || w_invalid_;
   const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
   ++w_index_;
+  Profiler* prof = schedule_.profiler();
+  // Times f as section s of the profile (wall time on the master).
+  const auto timed = [prof](Section s, auto&& f) {
+    const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
+    f();
+    if (prof) prof->add_master(s, Profiler::ticks() - t0), prof->call(s);
+  };
   if (!rebuild) {
-    if (w_fresh_on() && wf_recorded_) wf_update(w_gh_);
+    if (w_fresh_on() && wf_recorded_) timed(Section::w_assembly, [&] { wf_update(w_gh_); });
     return;
   }
   if (wf_force_ && !(opt_.w_every <= 1 || index % opt_.w_every == 0)) ++wf_rebuilds_;
   wf_force_ = false;
-  if (opt_.w_stiffness && (first || opt_.w_k_every <= 1 || index % opt_.w_k_every == 0)) w_stiffness(t, y);
+  if (opt_.w_stiffness && (first || opt_.w_k_every <= 1 || index % opt_.w_k_every == 0))
+    timed(Section::w_stiffness, [&] { w_stiffness(t, y); });
   if (w_invalid_) ++w_status_rebuilds_;
   w_invalid_ = false;
   w_gh_ = gh;
-  for_joints([this, gh](int l) { w_assemble_link(l, gh); });
-  if (!w_lu_.factor(TwoTasks{schedule_.threads() > 1})) throw std::runtime_error("W-method: the W matrix is singular");
+  timed(Section::w_assembly, [&] { for_joints([this, gh](int l) { w_assemble_link(l, gh); }); });
+  bool ok = false;
+  timed(Section::w_factor, [&] { ok = w_lu_.factor(TwoTasks{schedule_.threads() > 1}); });
+  if (!ok) throw std::runtime_error("W-method: the W matrix is singular");
   if (w_fresh_on()) {
     wf_clear();
     ws_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
@@ -637,6 +647,13 @@ void ModelOde::pack_columns(const LinkBlock& b, PackedColumns& p) {
 }
 
 void ModelOde::w_solve(double* x) const {
+  Profiler* prof = schedule_.profiler();
+  const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
+  w_solve_untimed(x);
+  if (prof) prof->add_master(Section::w_solve, Profiler::ticks() - t0), prof->call(Section::w_solve);
+}
+
+void ModelOde::w_solve_untimed(double* x) const {
   // W = [I, -gh I; gh A^-1 K, I + gh A^-1 C] on the chain (identity on the other
   // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
   // (Scaled: the chain's entries through w_unit_q_ / w_unit_v_, tables in link order.)

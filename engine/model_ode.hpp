@@ -124,6 +124,7 @@ class ModelOde {
   // ModelOdeOptions::w_stiffness = false leaves K out.
   void w_factor(double t, const double* y, double gh);
   void w_solve(double* x) const;
+  void w_solve_untimed(double* x) const;
   // The index of the next step (OdeDriver sets it from the simulation's step count), and
   // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
   void set_step_index(long i) { w_index_ = i; }
@@ -143,7 +144,10 @@ class ModelOde {
 
  private:
   void eval(double t, const double* y, double* dy) {
+    Profiler* prof = schedule_.profiler();
+    const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
     schedule_.rhs(t, y, dy, nullptr);
+    if (prof) prof->add_rhs_wall(Profiler::ticks() - t0);
     ++rhs_evals_;
     // The W-method's blocks come from the first evaluation of a rebuilding step only.
     ws_.record_damping = false;

@@ -1,5 +1,4 @@
-// Per-module profiling of a run (issue 4; DESIGN.md: the GROMACS and LAMMPS end-of-run
-// tables). The schedules time each pass chunk on the worker that runs it, with the time
+// Per-module profiling of a run (the GROMACS and LAMMPS end-of-run tables). The schedules time each pass chunk on the worker that runs it, with the time
 // stamp counter (about 10 ns a read here, against ~20 ns for steady_clock), into per-worker
 // accumulators: no lock, no shared cache line between workers. The driver times the whole
 // step, the output and the run; the table then adds up to the run's wall time:
@@ -25,8 +24,13 @@ enum class Section : int {
   other,     // other_forces
   inertia,   // link kinematics + inertia_decomposition
   accel,     // gather + structured solve (A0^-1, Woodbury) + dy
-  update,    // the RK4 stage update
+  update,    // the stage update (RK4: in the graph; the W-methods: their vector sums)
   status,    // contact status update
+  // The W-methods' linear algebra, timed on the master (engine/model_ode.cpp):
+  w_stiffness,  // the chain's stiffness blocks by finite differences
+  w_assembly,   // the matrix's blocks, and the fresh-friction correction
+  w_factor,     // the block-cyclic LU
+  w_solve,      // the solves (one per stage)
   count
 };
 inline constexpr int kSections = static_cast<int>(Section::count);
@@ -56,6 +60,17 @@ class Profiler {
   void call_rhs(bool update) {
     for (Section s : {Section::chain, Section::pulley, Section::other, Section::inertia, Section::accel}) call(s);
     if (update) call(Section::update);
+  }
+  // Wall time of `s` on the master while the other workers wait or help (a section that is
+  // not split into per-worker chunks): the whole of it counts as wall time.
+  void add_master(Section s, std::uint64_t dt) { master_[static_cast<int>(s)] += dt; }
+  // Wall time of whole RHS evaluations on the master (to find the rest of a step).
+  void add_rhs_wall(std::uint64_t dt) { rhs_wall_ += dt; }
+  std::uint64_t rhs_wall() const { return rhs_wall_; }
+  std::uint64_t master_total() const {
+    std::uint64_t s = 0;
+    for (auto x : master_) s += x;
+    return s;
   }
   // Wall time the master spent inside steps, in output, and the number of steps.
   void add_step(std::uint64_t dt) { step_ticks_ += dt, ++steps_; }
@@ -91,6 +106,8 @@ class Profiler {
   int workers_;
   std::vector<Slot> slots_;
   std::array<long, kSections> calls_{};
+  std::array<std::uint64_t, kSections> master_{};
+  std::uint64_t rhs_wall_ = 0;
   std::uint64_t step_ticks_ = 0, output_ticks_ = 0;
   long steps_ = 0, output_calls_ = 0;
   std::uint64_t tick0_ = 0;

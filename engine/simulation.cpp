@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <set>
 #include <unistd.h>
 
@@ -81,6 +82,7 @@ void Simulation::step(double h, bool update_status) {
     }
     // The driver takes one step (or the sub-steps) to exactly t0 + (n + 1) h and counts it;
     // the clock keeps its origin, so that t has no accumulated rounding, as with RK4.
+    const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
     const double t0 = t0_, t1 = t0_ + static_cast<double>(steps_ + 1 - steps0_) * h;
     const long s0 = steps0_, n1 = steps_ + 1;
     // A state gone non-finite is reported as RK4's is, by check_finite() at the next sample
@@ -96,7 +98,15 @@ void Simulation::step(double h, bool update_status) {
       }
     }
     t0_ = t0, steps0_ = s0, steps_ = n1, t_ = t1;
-    if (prof_) prof_->add_step(Profiler::ticks() - tick0);
+    if (prof_) {
+      // The step's rest on the master, outside the evaluations and the W rows: the
+      // method's vector sums and error norms, its "integrator update".
+      const std::uint64_t dt = Profiler::ticks() - tick0;
+      const std::uint64_t inside = (prof_->rhs_wall() - rhs0) + (prof_->master_total() - master0);
+      prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
+      prof_->call(Section::update);
+      prof_->add_step(dt);
+    }
     return;
   }
   schedule_->within([&] {
@@ -295,8 +305,18 @@ void Simulation::check_finite() {
                   at, rho, h_stable);
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
-    if (m_.cfg.integrator.method != "rk4")
-      cause += "the run uses " + m_.cfg.integrator.method + " with h = " + std::string(buf) +
+    const Config::Integrator& in = m_.cfg.integrator;
+    if (in.method != "rk4" && t_bad <= std::max(in.startup_time, m_.cfg.ramp.time) * (1 + 1e-9)) {
+      const int k1 = std::max(1, in.w_k_every / 4), k2 = std::max(1, in.w_k_every / 8);
+      cause += in.method + " could not start from rest at h = " + std::string(buf) +
+               " s: while the pins settle onto the sheaves and the loads ramp up, its matrix (the stiffness "
+               "rebuilt every integrator.w_k_every = " + std::to_string(in.w_k_every) +
+               " steps) falls behind the contacts loading up. Rebuild the stiffness more often (--set "
+               "integrator.w_k_every=" + std::to_string(k1) + (k2 < k1 ? ", or " + std::to_string(k2) : "") +
+               "), or take a smaller integrator.step; RK4 (--method rk4 --step 1e-8) always starts";
+    }
+    else if (in.method != "rk4")
+      cause += "the run uses " + in.method + " with h = " + std::string(buf) +
                " s, stable past that limit only while its matrix holds the stiff terms: reduce integrator.step, or "
                "rebuild the matrix more often (integrator.w_every, integrator.w_k_every)";
     else
@@ -423,12 +443,31 @@ class Recorder {
   Recorder(H5File& f, const Model& m) : f_(f), N_(m.links) {}
 
   void scalar(const std::string& name, const std::string& unit, double t, double value) {
-    series(name, unit, {}).append(value);
-    time(name).append(t);
+    H5Series& v = series(name, unit, {});
+    H5Series& tt = time(name);
+    if (declare_only_) return;
+    v.append(value);
+    tt.append(t);
   }
   void vector(const std::string& name, const std::string& unit, double t, const double* v, hsize_t k) {
-    series(name, unit, {k}).append(v);
-    time(name).append(t);
+    H5Series& s = series(name, unit, {k});
+    H5Series& tt = time(name);
+    if (declare_only_) return;
+    s.append(v);
+    tt.append(t);
+  }
+  // Creates (or opens, in a continued file) every series and its unit without appending:
+  // in SWMR mode no object may be created later.
+  void declare(const Sample& s, bool snapshots) {
+    declare_only_ = true;
+    record(s);
+    if (snapshots) snapshot(s.t, {}, {});
+    declare_only_ = false;
+  }
+  // Keeps the first `samples` rows of every observable and `snaps` of every snapshot series.
+  void truncate(hsize_t samples, hsize_t snaps) {
+    for (H5Series* x : observables_) x->truncate(samples);
+    for (H5Series* x : snapshots_) x->truncate(snaps);
   }
   void record(const Sample& s) {
     scalar("input_speed", "rad/s", s.t, s.input_speed);
@@ -439,7 +478,7 @@ class Recorder {
     scalar("load_torque", "N m", s.t, s.load_torque);
     scalar("speed_ratio", "1", s.t, s.speed_ratio);
     scalar("geometric_ratio", "1", s.t, s.geometric_ratio);
-    scalar("slip", "1", s.t, s.geometric_ratio != 0 ? 1.0 - s.speed_ratio / s.geometric_ratio : 0.0);
+    scalar("slip", "1", s.t, s.speed_ratio != 0 ? 1.0 - s.geometric_ratio / s.speed_ratio : 0.0);
     scalar("efficiency", "1", s.t, s.efficiency);
     scalar("clamping_force_driving", "N", s.t, s.clamp[0]);
     scalar("clamping_force_driven", "N", s.t, s.clamp[1]);
@@ -470,16 +509,20 @@ class Recorder {
   }
   void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension) {
     auto& p = f_.series("/particles/chain/position/value", {hsize_t(N_), 3}, 16);
+    auto& pt = f_.series("/particles/chain/position/time", {}, 256);
+    auto& l = f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16);
+    auto& lt = f_.series("/particles/chain/link_tension/time", {}, 256);
     if (!snap_init_) {
       f_.set_string_attribute("/particles/chain/position/value", "unit", "m");
-      f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16);
       f_.set_string_attribute("/particles/chain/link_tension/value", "unit", "N");
+      snapshots_ = {&p, &pt, &l, &lt};
       snap_init_ = true;
     }
+    if (declare_only_) return;
     p.append(pos.data());
-    f_.series("/particles/chain/position/time", {}, 256).append(t);
-    f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16).append(tension.data());
-    f_.series("/particles/chain/link_tension/time", {}, 256).append(t);
+    pt.append(t);
+    l.append(tension.data());
+    lt.append(t);
   }
 
  private:
@@ -489,6 +532,7 @@ class Recorder {
     if (!units_done_.count(name)) {
       f_.set_string_attribute(path, "unit", unit);
       units_done_.insert(name);
+      observables_.push_back(&s);
     }
     return s;
   }
@@ -498,14 +542,17 @@ class Recorder {
     if (!units_done_.count(name + "/time")) {
       f_.set_string_attribute(path, "unit", "s");
       units_done_.insert(name + "/time");
+      observables_.push_back(&s);
     }
     return s;
   }
   H5File& f_;
   int N_;
-  bool snap_init_ = false;
+  bool snap_init_ = false, declare_only_ = false;
   std::set<std::string> units_done_;
+  std::vector<H5Series*> observables_, snapshots_;
 };
+
 
 long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
 
@@ -531,26 +578,200 @@ struct StopSignals {
   }
 };
 
+std::string new_run_id() {
+  std::random_device rd;
+  const std::uint64_t x = (static_cast<std::uint64_t>(rd()) << 32) ^ rd() ^
+                          static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+  char b[20];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(x));
+  return b;
+}
+
+// The /summary group (docs/output.md): the verdicts as strings, the numbers as attributes.
+void write_summary(H5File& f, const RunSummary& s) {
+  f.remove("/summary");
+  f.write_strings("/summary/reasons", s.reasons);
+  f.write_strings("/summary/warnings", s.warnings);
+  f.set_string_attribute("/summary", "status", s.status);
+  f.set_string_attribute("/summary", "method", s.method);
+  f.set_string_attribute("/summary", "controller", s.controller);
+  f.set_string_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? "true" : "false");
+  for (auto [name, v] : std::initializer_list<std::pair<const char*, double>>{
+           {"step", s.step},
+           {"drive_speed", s.drive_speed},
+           {"load_torque_nominal", s.load_torque_nominal},
+           {"clamping_force_driving_nominal", s.clamp_driving_nominal},
+           {"clamping_force_driven_nominal", s.clamp_driven_nominal},
+           {"ratio_target", s.ratio_target},
+           {"window_start", s.window_start},
+           {"window_end", s.window_end},
+           {"speed_ratio", s.speed_ratio},
+           {"geometric_ratio", s.geometric_ratio},
+           {"slip", s.slip},
+           {"input_speed", s.input_speed},
+           {"output_speed", s.output_speed},
+           {"input_torque", s.input_torque},
+           {"output_torque", s.output_torque},
+           {"load_torque", s.load_torque},
+           {"clamping_force_driving", s.clamp_driving},
+           {"clamping_force_driven", s.clamp_driven},
+           {"sheave_position_driving", s.sheave_driving},
+           {"sheave_position_driven", s.sheave_driven},
+           {"efficiency", s.efficiency},
+           {"loss_efficiency", s.loss_efficiency},
+           {"energy_residual", s.energy_residual},
+           {"energy_turnover", s.energy_turnover},
+           {"residual_fraction", s.residual_fraction},
+           {"model_time", s.model_time},
+           {"wall_s", s.wall_s}})
+    f.set_double_attribute("/summary", name, v);
+}
+
+// The energy turned over so far: what the balance's residual is measured against.
+double energy_turnover(const Sample& s) {
+  return std::abs(s.work_input) + std::abs(s.work_output) + std::abs(s.work_dissipated) + std::abs(s.work_clamping) +
+         std::abs(s.work_contact_switching);
+}
+
+// The earlier part of a continued run, read back from its file: the rows up to the
+// checkpoint on the sample grid, for the summary and the running efficiency's window.
+struct FileHistory {
+  hsize_t samples = 0, snapshots = 0;
+  SummaryChannels channels;
+  std::vector<Sample> tail;  // the rows within run.efficiency_window of the checkpoint (t and works)
+};
+
+// Opens the run's own file for a continuation, checks that it belongs to the checkpoint and
+// holds every sample up to it, and reads the history. Throws std::runtime_error otherwise.
+FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long every_sample, long every_snapshot) {
+  const Config& c = m.cfg;
+  const double h = c.integrator.step;
+  const std::string& path = f.path();
+  const auto refuse = [&](const std::string& why) {
+    throw std::runtime_error("cannot continue " + path + " from the checkpoint: " + why +
+                             "; give --out NEW to write the continuation to a new file");
+  };
+  std::string id;
+  try {
+    id = f.read_string_attribute("/parameters", "run_id");
+  } catch (const H5Error&) {
+    refuse("the file has no run id (it was not written by this run)");
+  }
+  if (id != ck.run_id) refuse("it belongs to another run (run id " + id + ", the checkpoint's " + ck.run_id + ")");
+  const auto on_grid = [&](double t, long every) {
+    const double k = std::round(t / h);
+    return std::abs(k * h - t) <= 1e-6 * h && static_cast<long>(k) % every == 0;
+  };
+  const auto kept = [&](const std::vector<double>& t, long every) {
+    hsize_t n = 0;
+    while (n < t.size() && t[n] <= ck.t + 1e-6 * h) ++n;
+    if (n > 0 && !on_grid(t[n - 1], every) && n > 1) --n;  // an off-grid last sample (an interrupt, t_end)
+    return n;
+  };
+  FileHistory hist;
+  const std::vector<double> t = f.read_doubles("/observables/input_speed/time");
+  hist.samples = kept(t, every_sample);
+  const long last_grid = (ck.steps / every_sample) * every_sample;
+  if (hist.samples == 0 || std::abs(t[hist.samples - 1] - static_cast<double>(last_grid) * h) > 1e-6 * h) {
+    char b[256];
+    std::snprintf(b, sizeof b, "its samples end at t = %.9g s, before the checkpoint's last sample at t = %.9g s",
+                  hist.samples ? t[hist.samples - 1] : 0.0, static_cast<double>(last_grid) * h);
+    refuse(b);
+  }
+  if (every_snapshot && f.exists("/particles/chain/position/time"))
+    hist.snapshots = kept(f.read_doubles("/particles/chain/position/time"), every_snapshot);
+  const auto read = [&](const char* name) {
+    std::vector<double> v = f.read_doubles(std::string("/observables/") + name + "/value");
+    if (v.size() < hist.samples) refuse(std::string("its channel ") + name + " is shorter than its time");
+    return v;
+  };
+  SummaryChannels& ch = hist.channels;
+  const std::size_t n = hist.samples;
+  ch.t.assign(t.begin(), t.begin() + static_cast<long>(n));
+  for (auto [name, to] : std::initializer_list<std::pair<const char*, std::vector<double>*>>{
+           {"input_speed", &ch.input_speed},
+           {"output_speed", &ch.output_speed},
+           {"input_torque", &ch.input_torque},
+           {"output_torque", &ch.output_torque},
+           {"load_torque", &ch.load_torque},
+           {"speed_ratio", &ch.speed_ratio},
+           {"geometric_ratio", &ch.geometric_ratio},
+           {"clamping_force_driving", &ch.clamp_driving},
+           {"clamping_force_driven", &ch.clamp_driven},
+           {"work_input", &ch.work_input},
+           {"work_output", &ch.work_output},
+           {"work_dissipated", &ch.work_dissipated}}) {
+    const std::vector<double> v = read(name);
+    to->assign(v.begin(), v.begin() + static_cast<long>(n));
+  }
+  const std::vector<double> sheave = read("sheave_position");
+  for (std::size_t i = 0; i < n; ++i) ch.sheave_driving.push_back(sheave[2 * i]), ch.sheave_driven.push_back(sheave[2 * i + 1]);
+  for (std::size_t i = 0; i < n; ++i)
+    if (ch.t[i] >= ck.t - c.run.efficiency_window - 1e-6 * h) {
+      Sample s;
+      s.t = ch.t[i], s.work_input = ch.work_input[i], s.work_output = ch.work_output[i];
+      hist.tail.push_back(s);
+    }
+  return hist;
+}
+
 }  // namespace
 
-RunSummary run_simulation(const Model& m, const RunOptions& opt) {
+void check_step_grid(const Config& c) {
+  const double h = c.integrator.step;
+  const auto check = [&](const char* key, double x) {
+    if (!(x > 0)) return;
+    const double k = std::round(x / h);
+    if (k >= 1 && std::abs(k * h - x) <= 1e-6 * h) return;
+    // The largest step below h that divides x (and so, as x divides t_end or not, may still
+    // have to be checked against the other key).
+    const double fit = x / std::ceil(x / h * (1 - 1e-12));
+    char b[512];
+    std::snprintf(b, sizeof b,
+                  "does not divide %s = %.17g s (%.9g steps): samples would not fall on multiples of it and the "
+                  "run would not end at run.t_end; choose a step that divides run.t_end, run.sample_interval and "
+                  "run.snapshot_interval, e.g. %.17g s",
+                  key, x, x / h, fit);
+    char v[64];
+    std::snprintf(v, sizeof v, "%.17g", h);
+    throw ConfigError("integrator.step", v, b);
+  };
+  check("run.sample_interval", c.run.sample_interval);
+  check("run.snapshot_interval", c.run.snapshot_interval);
+  check("run.t_end", c.run.t_end);
+}
+
+void check_writable(const std::string& path, const std::string& what) {
+  namespace fs = std::filesystem;
+  const fs::path p(path);
+  const fs::path dir = p.has_parent_path() ? p.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    throw OutputError("cannot write the " + what + " '" + path + "': the folder '" + dir.string() +
+                      "' does not exist (create it first, or choose another path)");
+  if (fs::is_directory(p, ec)) throw OutputError("cannot write the " + what + " '" + path + "': it is a folder");
+  if (access(dir.c_str(), W_OK) != 0)
+    throw OutputError("cannot write the " + what + " '" + path + "': no permission to write in '" + dir.string() + "'");
+}
+
+RunResult run_simulation(const Model& m, const RunOptions& opt) {
   const Config& c = m.cfg;
+  check_step_grid(c);
   const double h = c.integrator.step;
   const long total = std::max(1L, std::lround(c.run.t_end / h));
   const long every_sample = steps_for(c.run.sample_interval, h);
   const long every_snapshot = steps_for(c.run.snapshot_interval, h);
+  const bool append = opt.append && opt.resume;
+  const std::string ckpt_path = opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path;
+  check_writable(opt.out_path, "output file");
+  check_writable(ckpt_path, "checkpoint");
+  for (const std::string* p : {&opt.profile_json, &opt.summary_json})
+    if (!p->empty()) check_writable(*p, "JSON file");
+  const auto warn = [&](const std::string& w) {
+    if (opt.warn) opt.warn(w);
+    else std::fprintf(stderr, "cvt-engine: warning: %s\n", w.c_str());
+  };
 
-  // Write to a temporary name and rename at the end: a failed run never leaves a file
-  // that looks complete.
-  const std::string tmp = opt.out_path + ".partial";
-  H5File file = H5File::create(tmp);
-  file.write_string("/parameters/config", c.resolved_toml);
-  file.write_string("/parameters/version", CVT_VERSION);
-  file.set_string_attribute("/parameters", "geometry",
-                            "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
-                                std::to_string(m.pulley[1].running_radius) +
-                                " m, closure residual = " + std::to_string(m.closure_residual) + " m");
-  Recorder rec(file, m);
   Simulation sim(m, opt.schedule);
   if (opt.resume) {
     sim.restore(*opt.resume);
@@ -570,12 +791,50 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   if (start >= total)
     throw std::runtime_error("the checkpoint is at step " + std::to_string(start) + " (t = " + std::to_string(sim.time()) +
                              " s), not before t_end = " + std::to_string(c.run.t_end) + " s: raise --t-end");
-  const std::string ckpt_path = opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path;
+
+  // Write to a temporary name and rename at the end: a failed run never leaves a file
+  // that looks complete. A continued run moves its file there while it writes.
+  const std::string tmp = opt.out_path + ".partial";
+  std::string run_id = opt.resume && append ? opt.resume->run_id : new_run_id();
+  FileHistory hist;
+  H5File file = [&] {
+    if (!append) return H5File::create(tmp);
+    namespace fs = std::filesystem;
+    if (!fs::exists(opt.out_path) && !fs::exists(tmp))
+      throw std::runtime_error("cannot continue " + opt.out_path + ": the file does not exist; give --out NEW to write "
+                               "the continuation to a new file");
+    if (fs::exists(opt.out_path)) fs::rename(opt.out_path, tmp);
+    return H5File::open(tmp);
+  }();
+  if (append) {
+    try {
+      hist = continue_file(file, m, *opt.resume, every_sample, every_snapshot);
+    } catch (...) {
+      file.close();
+      std::filesystem::rename(tmp, opt.out_path);
+      throw;
+    }
+    file.remove("/parameters/config");
+    file.remove("/profile");
+    file.remove("/summary");
+  }
+  if (!file.exists("/parameters/version")) file.write_string("/parameters/version", CVT_VERSION);
+  file.write_string("/parameters/config", c.resolved_toml);
+  file.set_string_attribute("/parameters", "run_id", run_id);
+  file.set_string_attribute("/parameters", "geometry",
+                            "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
+                                std::to_string(m.pulley[1].running_radius) +
+                                " m, closure residual = " + std::to_string(m.closure_residual) + " m");
+  Recorder rec(file, m);
   std::printf("  schedule: %s\n", sim.schedule().describe().c_str());
-  if (opt.resume) std::printf("  resumed at t = %.9g s, step %ld\n", sim.time(), start);
+  if (opt.resume)
+    std::printf("  resumed at t = %.9g s, step %ld%s\n", sim.time(), start,
+                append ? (", appending to " + opt.out_path).c_str() : "");
   std::fflush(stdout);
-  std::vector<Sample> samples;
+  std::vector<Sample> samples = hist.tail;  // the running efficiency's window reaches back into the file
+  SummaryChannels channels = hist.channels;
   std::vector<double> pos, ten;
+  RunResult r;
 
   const bool tty = isatty(fileno(stderr));
   using Clock = std::chrono::steady_clock;
@@ -588,49 +847,117 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
     f();
     prof.add_output(Profiler::ticks() - k0);
   };
+  // Guards: the energy balance, and RK4's step against its stability limit.
+  constexpr double kResidualLimit = 0.05, kTurnoverMin = 10.0;  // docs/output.md
+  bool warned_energy = false, warned_stability = false;
+  double next_stability_check = sim.time();
+  const auto watch = [&](const Sample& s) {
+    const double turnover = energy_turnover(s);
+    if (!warned_energy && turnover >= kTurnoverMin && std::abs(s.energy_residual) > kResidualLimit * turnover) {
+      char b[512];
+      std::snprintf(b, sizeof b,
+                    "at t = %.6g s the energy balance's residual is %.4g J, %.1f %% of the energy turned over (%.4g J; "
+                    "limit %.0f %%): the integration is not accurate, reduce integrator.step",
+                    s.t, s.energy_residual, 100 * std::abs(s.energy_residual) / turnover, turnover,
+                    100 * kResidualLimit);
+      r.warnings.push_back(b);
+      warn(b);
+      warned_energy = true;
+    }
+    if (c.integrator.method == "rk4" && !warned_stability && s.t >= next_stability_check) {
+      next_stability_check = s.t + 1e-3;
+      const double rho = sim.spectral_radius(sim.state(), sim.time(), sim.workspace().status);
+      const double h_stable = rho > 0 && std::isfinite(rho) ? 2.8 / rho : 0;
+      if (h_stable > 0 && h > h_stable) {
+        char b[512];
+        std::snprintf(b, sizeof b,
+                      "RK4's step %.4g s is above its stability limit of about %.3g s, estimated at t = %.6g s "
+                      "(the Jacobian's spectral radius %.3g 1/s): the results are not to be trusted; use "
+                      "--step %.2g or less, or --method ros34pw2",
+                      h, h_stable, s.t, rho, 0.5 * h_stable);
+        r.warnings.push_back(b);
+        warn(b);
+        warned_stability = true;
+      }
+    }
+  };
   auto record = [&]() {
     output([&] {
       samples.push_back(sim.sample());
       // Running-mean efficiency: work out over work in across the last window (or since
-      // the first sample of this run while the run is shorter than the window).
+      // the first sample of the run while the run is shorter than the window).
       Sample& s = samples.back();
       const double t_from = s.t - c.run.efficiency_window;
       const auto it = std::lower_bound(samples.begin(), samples.end(), t_from,
                                        [](const Sample& x, double t) { return x.t < t; });
       const double win = s.work_input - it->work_input;
       s.running_efficiency = win > 0 ? (s.work_output - it->work_output) / win : 0.0;
-      rec.record(samples.back());
+      rec.record(s);
+      channels.push(s);
+      watch(s);
+      // Only the running efficiency's window is needed later.
+      if (samples.size() > 4096 && samples.front().t < t_from - c.run.efficiency_window)
+        samples.erase(samples.begin(), samples.begin() + 2048);
     });
   };
   sim.check_finite();
-  record();
-  if (every_snapshot) {
-    sim.snapshot(pos, ten);
-    rec.snapshot(sim.time(), pos, ten);
+  if (append) {
+    // The file holds this state's sample if it is on the grid: declare the series (none may
+    // be created once SWMR starts) and drop the rows after the checkpoint.
+    const Sample s0 = sim.sample();
+    rec.declare(s0, every_snapshot > 0);
+    rec.truncate(hist.samples, hist.snapshots);
+  } else {
+    record();
+    if (every_snapshot) {
+      sim.snapshot(pos, ten);
+      rec.snapshot(sim.time(), pos, ten);
+    }
   }
   // Every dataset exists now: from here on the file is only appended to, and readers
   // (h5py.File(path, "r", swmr=True)) can follow the run while it writes.
   file.start_swmr();
+  const auto checkpoint = [&] {
+    Checkpoint ck = sim.checkpoint();
+    ck.run_id = run_id;
+    ck.output = std::filesystem::absolute(opt.out_path).string();
+    return ck;
+  };
   double step_wall = 0;
   StopSignals signals;
   long done = total;
   try {
   for (long n = start + 1; n <= total; ++n) {
     sim.step(h);
+    // The sample and the snapshot of this step, then a checkpoint (after a flush: a crash
+    // leaves a file that holds every sample up to the checkpoint), then a stop.
+    const bool on_grid = n % every_sample == 0;
+    if (on_grid || n == total) {
+      sim.check_finite();
+      record();
+    }
+    if (every_snapshot && n % every_snapshot == 0) {
+      output([&] {
+        sim.snapshot(pos, ten);
+        rec.snapshot(sim.time(), pos, ten);
+      });
+    }
     if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0)
-      output([&] { write_checkpoint(ckpt_path, sim.checkpoint()); });
+      output([&] {
+        file.flush();
+        last_flush = Clock::now();
+        write_checkpoint(ckpt_path, checkpoint());
+      });
     if (g_stop_signal) {
       // Keep everything up to this step: its sample ends the series.
       done = n;
-      if (n % every_sample != 0) {
+      if (!(on_grid || n == total)) {
         sim.check_finite();
         record();
       }
       break;
     }
-    if (n % every_sample == 0 || n == total) {
-      sim.check_finite();
-      record();
+    if (on_grid || n == total) {
       const auto now = Clock::now();
       if (std::chrono::duration<double>(now - last_flush).count() > opt.flush_seconds) {
         output([&] { file.flush(); });
@@ -638,18 +965,12 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
       }
       if (opt.progress && now - last_progress > std::chrono::seconds(3)) {
         const double el = std::chrono::duration<double>(now - t0).count();
-        const double eta = el / (n - start) * (total - n);
+        const double eta = el / static_cast<double>(n - start) * static_cast<double>(total - n);
         std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s",
-                     tty ? "\r" : "", n, total, sim.time(), 100.0 * n / total, sim.time() / el * 3600, eta,
-                     tty ? "   " : "\n");
+                     tty ? "\r" : "", n, total, sim.time(), 100.0 * static_cast<double>(n) / static_cast<double>(total),
+                     (sim.time() - (opt.resume ? opt.resume->t : 0.0)) / el * 3600, eta, tty ? "   " : "\n");
         last_progress = now;
       }
-    }
-    if (every_snapshot && n % every_snapshot == 0) {
-      output([&] {
-        sim.snapshot(pos, ten);
-        rec.snapshot(sim.time(), pos, ten);
-      });
     }
   }
   } catch (const BlowUpError& e) {
@@ -662,60 +983,42 @@ RunSummary run_simulation(const Model& m, const RunOptions& opt) {
   step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
   if (opt.progress && tty) std::fprintf(stderr, "\n");
   output([&] {
-    write_checkpoint(ckpt_path, sim.checkpoint());
+    write_checkpoint(ckpt_path, checkpoint());
     file.close();
   });
-  RunSummary r;
-  r.profile = prof.report(std::chrono::duration<double>(Clock::now() - t0).count(), sim.time() - (opt.resume ? opt.resume->t : 0.0),
-                          sim.schedule().numa_nodes(), scheduler_name(opt.schedule.kind));
-  // SWMR allows no new objects: the profile goes in after the file is closed.
-  {
-    H5File f = H5File::open(tmp);
-    write_profile(f, r.profile);
-    f.close();
-  }
-  if (!opt.profile_json.empty()) {
-    std::ofstream js(opt.profile_json);
-    js << profile_json(r.profile);
-    if (!js) throw std::runtime_error("cannot write the profile to '" + opt.profile_json + "'");
-  }
-  std::filesystem::rename(tmp, opt.out_path);
-
+  r.profile = prof.report(std::chrono::duration<double>(Clock::now() - t0).count(),
+                          sim.time() - (opt.resume ? opt.resume->t : 0.0), sim.schedule().numa_nodes(),
+                          scheduler_name(opt.schedule.kind));
   r.steps = done - start;
   r.interrupted = g_stop_signal != 0;
   r.signal = g_stop_signal;
+  r.t_start = opt.resume ? opt.resume->t : 0.0;
   r.model_time = sim.time();
   r.wall_s = step_wall;
-  r.us_per_step = 1e6 * step_wall / std::max(1L, done - start);
-  r.model_s_per_hour = (done - start) * h / step_wall * 3600.0;
-  // Means over the last 20 % of the samples; efficiency as the ratio of mean powers.
-  const size_t from = samples.size() - std::max<size_t>(1, samples.size() / 5);
-  double pin = 0, pout = 0;
-  size_t cnt = 0;
-  for (size_t i = from; i < samples.size(); ++i, ++cnt) {
-    const Sample& s = samples[i];
-    r.speed_ratio += s.speed_ratio;
-    r.geometric_ratio += s.geometric_ratio;
-    r.input_torque += s.input_torque;
-    r.output_torque += s.output_torque;
-    r.load_torque += s.load_torque;
-    pin += s.input_torque * s.input_speed;
-    pout += s.output_torque * s.output_speed;
+  r.us_per_step = 1e6 * step_wall / static_cast<double>(std::max(1L, done - start));
+  r.model_s_per_hour = static_cast<double>(done - start) * h / step_wall * 3600.0;
+  summarize(m, channels, r);
+  const Sample& last = samples.back();
+  r.energy_residual = last.energy_residual;
+  r.work_input = last.work_input;
+  r.energy_turnover = energy_turnover(last);
+  r.residual_fraction = r.energy_turnover > 0 ? std::abs(r.energy_residual) / r.energy_turnover : 0.0;
+  // SWMR allows no new objects: the profile and the summary go in after the file is closed.
+  {
+    H5File f = H5File::open(tmp);
+    write_profile(f, r.profile);
+    write_summary(f, r);
+    f.close();
   }
-  r.speed_ratio /= cnt;
-  r.geometric_ratio /= cnt;
-  r.input_torque /= cnt;
-  r.output_torque /= cnt;
-  r.load_torque /= cnt;
-  r.efficiency = pin != 0 ? pout / pin : 0.0;
-  // 1 - D / W_in over the same window: unlike the ratio of mean powers, it does not see
-  // energy swinging in and out of the torsion springs and inertias.
-  const Sample& a = samples[from];
-  const Sample& b = samples.back();
-  const double win = b.work_input - a.work_input;
-  r.loss_efficiency = win > 0 ? 1.0 - (b.work_dissipated - a.work_dissipated) / win : 0.0;
-  r.energy_residual = samples.back().energy_residual;
-  r.work_input = samples.back().work_input;
+  const auto write_text = [](const std::string& path, const std::string& text) {
+    std::ofstream js(path);
+    js << text;
+    js.close();
+    if (!js) throw OutputError("cannot write '" + path + "'");
+  };
+  if (!opt.profile_json.empty()) write_text(opt.profile_json, profile_json(r.profile));
+  if (!opt.summary_json.empty()) write_text(opt.summary_json, summary_json(r));
+  std::filesystem::rename(tmp, opt.out_path);
   return r;
 }
 

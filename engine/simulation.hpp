@@ -12,6 +12,8 @@
 #include "graph/schedule.hpp"
 #include "engine/model.hpp"
 #include "engine/state.hpp"
+#include "engine/summary.hpp"
+#include "engine/profile.hpp"
 
 namespace cvt {
 
@@ -129,35 +131,50 @@ class Simulation {
 // Names coordinate i of the first-order state (e.g. "velocity of joint 17, half b, end 1, x").
 std::string describe_state_index(const Model& m, int i);
 
-struct RunSummary {
-  long steps = 0;
-  double model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
-  // Means over the last 20 % of the run.
-  double speed_ratio = 0, geometric_ratio = 0, input_torque = 0, output_torque = 0, efficiency = 0;
-  double load_torque = 0;
-  double loss_efficiency = 0;  // 1 - dissipated / input work over the window
-  double energy_residual = 0, work_input = 0;
-  bool interrupted = false;  // stopped by SIGINT or SIGTERM (the file holds the run so far)
-  int signal = 0;
-  Profiler::Report profile;  // the end-of-run table (also in /profile of the file)
-};
-
 struct RunOptions {
   std::string out_path = "results.h5";
   bool progress = true;
   ScheduleOptions schedule;
   // A checkpoint every this many steps (0: only at the end and on SIGINT/SIGTERM), to
-  // checkpoint_path (default: out_path + ".ckpt").
+  // checkpoint_path (default: out_path + ".ckpt"). The output file is flushed first, so
+  // that it holds every sample up to the checkpoint.
   long checkpoint_every = 50000;
   double flush_seconds = 10.0;  // wall time between flushes of the output file
   std::string checkpoint_path;
   // Continue from this checkpoint (its model: build it from resume->config_toml).
   const Checkpoint* resume = nullptr;
+  // With resume: append to out_path, the run's own file (its samples after the checkpoint
+  // dropped), so that it equals an uninterrupted run; otherwise out_path is a new file that
+  // holds the continuation only.
+  bool append = false;
   // The end-of-run profile as JSON to this file as well (empty: not written).
   std::string profile_json;
+  // The summary as JSON to this file as well (empty: not written).
+  std::string summary_json;
+  // Warnings as they happen (default: "cvt-engine: warning: ..." on stderr); they are also
+  // kept in the summary and the file's /summary.
+  std::function<void(const std::string&)> warn;
 };
 
+// What run_simulation returns: the summary and the profile.
+struct RunResult : RunSummary {
+  Profiler::Report profile;  // the end-of-run table (also in /profile of the file)
+};
+
+// A configuration whose step does not divide run.t_end, run.sample_interval or
+// run.snapshot_interval: ConfigError naming both keys (exit 78).
+void check_step_grid(const Config& c);
+
+// The output cannot be written (a folder that does not exist, no permission): exit 73.
+class OutputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+inline constexpr int kExitCantCreate = 73;  // EX_CANTCREAT
+// Throws OutputError unless a file can be created at path (its folder exists and is writable).
+void check_writable(const std::string& path, const std::string& what);
+
 // Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.
-RunSummary run_simulation(const Model& m, const RunOptions& opt);
+RunResult run_simulation(const Model& m, const RunOptions& opt);
 
 }  // namespace cvt

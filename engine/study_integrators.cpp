@@ -194,7 +194,14 @@ std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::ve
   return out;
 }
 
-int run_integrator_study(const Model& m, const IntegratorStudyOptions& opt) {
+int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) {
+  // The running state, the reference and the RK4 candidates are RK4 whatever the
+  // configuration's method (the W candidates name theirs); the running state at RK4's
+  // production step, 1e-8 s. The cache stays keyed on the configuration as given.
+  Config rk4_cfg = model.cfg;
+  rk4_cfg.integrator.method = "rk4";
+  rk4_cfg.integrator.step = opt.warm_step;
+  const Model m = build_model(rk4_cfg);
   const double h_prod = m.cfg.integrator.step;
   // The running state.
   const StudyCache cache(m, opt);

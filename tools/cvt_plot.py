@@ -1,25 +1,33 @@
 #!/usr/bin/python3
 """Plots of cvt-engine results (Debian's python3-h5py, python3-matplotlib, python3-numpy).
 
-    /usr/bin/python3 tools/cvt_plot.py history RUN.h5 [--from T0] [--to T1] [--out history.png]
-    /usr/bin/python3 tools/cvt_plot.py profile RUN.h5|PROFILE.json [--out profile.png]
-    /usr/bin/python3 tools/cvt_plot.py scaling STUDY.csv|STUDY.json [--out scaling.png]
-    /usr/bin/python3 tools/cvt_plot.py spectrogram RUN.h5 CHANNEL [--column K] [--nperseg N] [--out FILE.png]
-    /usr/bin/python3 tools/cvt_plot.py animate RUN.h5 [--every K] [--fps F] [--out chain.gif]
-    /usr/bin/python3 tools/cvt_plot.py integrators STUDY.csv [--curves STUDY-curves.csv] [--out integrators.png]
+Figures of a run:
 
-history: time histories of the tracked link and pin, chain torsion, supports, efficiency,
-speeds and torques (like Fig. 8 of Orlov et al. 2015). profile: share of each module in
-the run time (their Fig. 5) with the spread of busy time over threads. scaling: speedup
-against threads with the ideal line and the fitted Amdahl curve, per-module speedups and
-buffer zero+gather against compute time (their Fig. 9; Orlov et al. 2016, Figs. 8-11).
+    /usr/bin/python3 tools/cvt_plot.py history RUN.h5 [--from T0] [--to T1] [-o history.png]
+    /usr/bin/python3 tools/cvt_plot.py spectrogram RUN.h5 CHANNEL [--column K] [--nperseg N] [-o FILE.png]
+    /usr/bin/python3 tools/cvt_plot.py animate RUN.h5 [--every K] [--fps F] [-o chain.gif]
+
+Performance figures:
+
+    /usr/bin/python3 tools/cvt_plot.py profile RUN.h5|PROFILE.json [-o profile.png]
+    /usr/bin/python3 tools/cvt_plot.py scaling STUDY.csv|STUDY.json [-o scaling.png]
+    /usr/bin/python3 tools/cvt_plot.py integrators STUDY.csv [--curves STUDY-curves.csv] [-o integrators.png]
+
+history: first what a transmission engineer looks at (speed ratio with the geometric ratio,
+slip, input/output/load torque, clamping forces, sheave positions, efficiency on a fixed
+axis around [0, 1], tight and slack strand tension from the snapshots), then the tracked
+link and pin, chain torsion, supports and shaft speeds (like Fig. 8 of Orlov et al. 2015).
 spectrogram: short-time Fourier transform of one output channel. animate: the chain in
 the plane of the pulleys from the snapshots, links coloured by tension, as a GIF.
-integrators: the integrator study (`cvt-engine study integrators`, Orlov et al. 2016
-Figs. 12-17): one-step error against h, the sample curves of each method's chosen run
-against the reference, and wall time and RHS evaluations of every run tried.
-docs/plots.md describes every panel. Exit codes: 0 success, 2 bad input (missing file,
-group, channel or column; a message on stderr names it).
+profile: share of each module in the run time (their Fig. 5) with the spread of busy time
+over threads. scaling: speedup against threads with the ideal line and the fitted Amdahl
+curve, per-module speedups and buffer zero+gather against compute time (their Fig. 9;
+Orlov et al. 2016, Figs. 8-11). integrators: the integrator study (`cvt-engine study
+integrators`, Orlov et al. 2016 Figs. 12-17): one-step error against h, the sample curves
+of each method's chosen run against the reference, and wall time and RHS evaluations of
+every run tried. -o is short for --out everywhere. docs/plots.md describes every panel.
+Exit codes: 0 success, 2 bad input (missing file, group, channel or column; a message on
+stderr names it).
 """
 import argparse
 import csv
@@ -145,7 +153,10 @@ def scaled(values, unit):
 
 
 def ylabel(what, unit):
-    return f"{what} [{unit}]" if unit and unit != "-" else what
+    """'what [unit]'; '[-]' for a dimensionless quantity (unit "-" or "1" in the file)."""
+    if unit in ("-", "1"):
+        return f"{what} [-]"
+    return f"{what} [{unit}]" if unit else what
 
 
 def save(fig, out):
@@ -187,15 +198,19 @@ def _envelope(t, v, most=20000):
 
 
 def _lines(ax, t, v, unit, labels=None, what="", **kw):
+    v = _finite(v)
     fac, u = scaled(v, unit)
     if v.ndim == 1:
         ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[0] if labels else None, **kw)
     else:
         k = v.shape[1]
         colors = plt.cm.viridis(np.linspace(0, 0.9, k)) if k > 4 else [None] * k
+        # Columns that coincide (symmetric plates, the bearings of a shaft) stay visible.
+        styles = ["-", "--", "-.", ":"] if k <= 4 else ["-"]
         for j in range(k):
             lab = labels[j] if labels and j < len(labels) else f"{j + 1}"
-            ax.plot(*_envelope(t * TIME[0], v[:, j] * fac), lw=0.9, color=colors[j], label=lab, **kw)
+            ax.plot(*_envelope(t * TIME[0], v[:, j] * fac), lw=0.9 if k > 4 else 1.1, color=colors[j],
+                    ls=styles[j % len(styles)], label=lab, **kw)
     ax.set_ylabel(ylabel(what, u))
     return fac, u
 
@@ -221,19 +236,147 @@ def _windowed_ratio(f, num, den, t0, t1, window):
     return t[m], r[m], w
 
 
-def cmd_history(a):
-    f = open_h5(a.file)
-    if not channels(f):
-        raise UserError(f"{a.file}: no /observables group (not a cvt-engine run?)")
-    t0, t1 = a.t0, a.t1
-    panels = []  # (title, draw(ax) -> bool)
+# Efficiency axis: fixed, a little beyond [0, 1], so that a transient (where P_out / P_in can
+# reach 50 or -6000) does not squash the steady part.
+EFF_RANGE = (-0.1, 1.1)
 
-    def simple(title, name, what, labels=None):
+
+class Panel:
+    """One panel of the history figure: `present` says whether the file has its data, `missing`
+    why not (for the note), `draw(ax)` draws it and returns False when the window is empty."""
+
+    def __init__(self, title, draw, present, missing="", time_channel=None):
+        self.title, self.draw, self.present, self.missing = title, draw, present, missing
+        self.time_channel = time_channel
+
+
+def _finite(v):
+    v = np.asarray(v, dtype=float)
+    return np.where(np.isfinite(v), v, np.nan)
+
+
+def _spans(t, mask):
+    """[(t_start, t_end)] of the runs of True in mask."""
+    out = []
+    i, n = 0, len(mask)
+    while i < n:
+        if mask[i]:
+            j = i
+            while j + 1 < n and mask[j + 1]:
+                j += 1
+            out.append((float(t[i]), float(t[j])))
+            i = j + 1
+        else:
+            i += 1
+    return out
+
+
+def efficiency_outside(t, v, lo=0.0, hi=1.0):
+    """Where an efficiency curve leaves [lo, hi]: (mask, spans [(t0, t1)], extreme value or None)."""
+    v = np.asarray(v, dtype=float)
+    fin = np.isfinite(v)
+    out = fin & ((v < lo) | (v > hi))
+    if not np.any(out):
+        return out, [], None
+    ext = v[out][np.argmax(np.abs(v[out] - 0.5))]
+    return out, _spans(t, out), float(ext)
+
+
+def _fmt_spans(spans, most=3):
+    s = [f"{a * TIME[0]:.3g}-{b * TIME[0]:.3g}" if b > a else f"{a * TIME[0]:.3g}" for a, b in spans[:most]]
+    more = f" and {len(spans) - most} more" if len(spans) > most else ""
+    return ", ".join(s) + more + f" {TIME[1]}"
+
+
+def centre_distance(f, pos0=None):
+    """geometry.centre_distance of the run's config; estimated from a snapshot if absent."""
+    geo = read_config(f).get("geometry", {})
+    if "centre_distance" in geo:
+        return float(geo["centre_distance"])
+    if pos0 is None:
+        return float("nan")
+    dist = float(np.ptp(pos0[:, 0])) - 2 * _wrap_radius(pos0, float(np.min(pos0[:, 0])))
+    warn(f"{f.filename}: no geometry.centre_distance in /parameters/config; estimated {dist * 1e3:.1f} mm")
+    return dist
+
+
+def strand_tensions(pos, ten, dist):
+    """Mean link tension of the upper (y > 0) and lower (y < 0) free strand in each snapshot.
+
+    pos [S][N][3] joint centres, ten [S][N] link tensions (link i joins joints i and i + 1),
+    dist the centre distance (driving pulley at x = 0, driven at x = dist). A link counts for a
+    strand when its midpoint lies in the middle 60 % of the span (0.2 dist < x < 0.8 dist), as in
+    tools/cvt_check.py: away from where the chain runs onto or off a pulley. Returns
+    (upper [S], lower [S], links in upper [S], links in lower [S]); NaN where a strand has no link.
+    """
+    pos = np.asarray(pos, dtype=float)
+    ten = np.asarray(ten, dtype=float)
+    mid = 0.5 * (pos + np.roll(pos, -1, axis=1))
+    x, y = mid[..., 0], mid[..., 1]
+    free = (x > 0.2 * dist) & (x < 0.8 * dist)
+    up, lo = free & (y > 0), free & (y < 0)
+    nu, nl = up.sum(axis=1), lo.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mu = np.where(nu > 0, np.where(up, ten, 0).sum(axis=1) / nu, np.nan)
+        ml = np.where(nl > 0, np.where(lo, ten, 0).sum(axis=1) / nl, np.nan)
+    return mu, ml, nu, nl
+
+
+def has_snapshots(f):
+    return all(f"particles/chain/{g}/{d}" in f for g in ("position", "link_tension") for d in ("time", "value"))
+
+
+def read_strands(f, t0=None, t1=None):
+    """Strand tensions from the snapshots in [t0, t1]: dict with time, tight, slack (mean link
+    tension [N]), tight_is_upper, and demand = |output_torque| / R2 at the snapshot times (R2 the
+    wrap radius on the driven pulley) or None without output_torque. None without snapshots."""
+    if not has_snapshots(f):
+        return None
+    ts = np.asarray(f["particles/chain/position/time"][:], dtype=float)
+    P, T = f["particles/chain/position/value"], f["particles/chain/link_tension/value"]
+    S = min(len(ts), P.shape[0], T.shape[0], len(f["particles/chain/link_tension/time"]))
+    idx = np.nonzero(window_mask(ts[:S], t0, t1))[0]
+    if len(idx) == 0:
+        return dict(time=np.zeros(0), tight=np.zeros(0), slack=np.zeros(0), tight_is_upper=True, demand=None)
+    pos = np.asarray(P[idx.tolist()], dtype=float)
+    ten = np.asarray(T[idx.tolist()], dtype=float)
+    dist = centre_distance(f, pos[0])
+    up, lo, _, _ = strand_tensions(pos, ten, dist)
+    # The tight strand is the one with the higher tension over the window (the upper one when the
+    # driving pulley pulls it in); the names stay fixed so that the lines do not swap.
+    tight_is_upper = not (np.nanmean(lo) > np.nanmean(up)) if np.any(np.isfinite(up)) or np.any(np.isfinite(lo)) else True
+    tight, slack = (up, lo) if tight_is_upper else (lo, up)
+    demand = None
+    if has_channel(f, "output_torque"):
+        tm, m, _ = read_channel(f, "output_torque")
+        if len(tm):
+            r2 = np.array([_wrap_radius(p, dist) for p in pos])
+            with np.errstate(invalid="ignore", divide="ignore"):
+                demand = np.abs(np.interp(ts[idx], tm, m)) / r2
+    return dict(time=ts[idx], tight=tight, slack=slack, tight_is_upper=tight_is_upper, demand=demand)
+
+
+def history_panels(f, t0=None, t1=None, eff_window=None):
+    """The panels of the history figure in their order, present in the file or not."""
+    panels = []
+
+    def channel_panel(title, names, draw):
+        miss = [n for n in names if not has_channel(f, n)]
+        present = len(miss) < len(names)
+        first = next((n for n in names if has_channel(f, n)), names[0])
+        panels.append(Panel(title, draw, present, f"channel {miss[0]} not in the file" if miss else "", first))
+
+    def simple(title, name, what, labels=None, scale=None):
         def draw(ax):
             t, v, u = read_channel(f, name, t0, t1)
             if len(t) == 0:
                 return False
-            _lines(ax, t, v, u, labels, what)
+            if scale is not None:
+                fac, u2 = scale
+                _lines(ax, t, v * fac, "", labels, what)
+                ax.set_ylabel(ylabel(what, u2))
+            else:
+                _lines(ax, t, v, u, labels, what)
             if v.ndim == 2 and 1 < v.shape[1] <= 6:
                 ax.legend(fontsize=7, ncol=2, loc="best")
             elif v.ndim == 2:  # many lines: name the first and the last, the colours run between
@@ -241,102 +384,161 @@ def cmd_history(a):
                 ax.legend([h[0], h[-1]], [h[0].get_label(), h[-1].get_label()], fontsize=7, ncol=2,
                           loc="best", title=f"{v.shape[1]} lines, dark to light", title_fontsize=7)
             return True
-        panels.append((title, [name], draw))
+        channel_panel(title, [name], draw)
 
-    def group(title, names, what, labels):
+    def group(title, names, what, labels, ncol=1):
         def draw(ax):
-            fac = None
-            drawn = False
             present = [n for n in names if has_channel(f, n)]
-            vals = [read_channel(f, n, t0, t1) for n in present]
-            allv = np.concatenate([v.ravel() for _, v, _ in vals]) if vals else np.zeros(0)
-            for (t, v, u), n in zip(vals, present):
-                if len(t) == 0:
-                    continue
-                if fac is None:
-                    fac, uu = scaled(allv, u)
-                ax.plot(*_envelope(t * TIME[0], v * fac), lw=0.9, label=labels[names.index(n)])
-                ax.set_ylabel(ylabel(what, uu))
-                drawn = True
-            if drawn:
-                ax.legend(fontsize=7, loc="best")
-            return drawn
-        panels.append((title, names, draw))
+            vals = [(n, read_channel(f, n, t0, t1)) for n in present]
+            vals = [(n, x) for n, x in vals if len(x[0])]
+            if not vals:
+                return False
+            allv = np.concatenate([v.ravel() for _, (_, v, _) in vals])
+            fac, uu = scaled(allv, vals[0][1][2])
+            for n, (t, v, _) in vals:
+                i = names.index(n)  # solid, dashed, dash-dot: lines that coincide stay visible
+                ax.plot(*_envelope(t * TIME[0], _finite(v) * fac), lw=1.1, ls=["-", "--", "-."][i % 3],
+                        color=f"C{i}", label=labels[i])
+            ax.set_ylabel(ylabel(what, uu))
+            ax.legend(fontsize=7, loc="best", ncol=ncol)
+            return True
+        channel_panel(title, names, draw)
 
+    # -- what an engineer looks at first
+    group("Speed ratio and geometric ratio", ["speed_ratio", "geometric_ratio"], "ratio",
+          ["speed ratio ω_in / ω_out", "geometric ratio R2 / R1"])
+
+    def draw_slip(ax):
+        t, v, _ = read_channel(f, "slip", t0, t1)
+        if len(t) == 0:
+            return False
+        ax.axhline(0, color="0.5", lw=0.7)
+        ax.plot(*_envelope(t * TIME[0], _finite(v) * 100), lw=0.9, color="C3")
+        ax.set_ylabel("slip [%]")
+        return True
+    channel_panel("Slip = 1 - geometric ratio / speed ratio (> 0: the driven pulley lags)", ["slip"], draw_slip)
+
+    group("Torques", ["input_torque", "output_torque", "load_torque"], "torque",
+          ["input (drive spring)", "output (load spring)", "load"])
+    group("Clamping forces", ["clamping_force_driving", "clamping_force_driven"], "clamping force",
+          ["driving pulley (F1)", "driven pulley (F2)"])
+    simple("Sheave positions", "sheave_position", "axial position w", ["driving pulley", "driven pulley"],
+           scale=(1e3, "mm"))
+
+    def draw_eff(ax):
+        curves = []  # (label, t, v, style): drawn, and checked against [0, 1]
+        if has_channel(f, "efficiency"):
+            t, v, _ = read_channel(f, "efficiency", t0, t1)
+            if len(t):
+                curves.append(("instantaneous P_out / P_in", t, v, dict(lw=0.6, color="0.55", alpha=0.7),
+                               "instantaneous"))
+        main = None
+        if has_channel(f, "running_efficiency"):
+            t, v, _ = read_channel(f, "running_efficiency", t0, t1)
+            # The engine writes 0 until W_in has grown over a window: not a value, leave it out.
+            v = v.copy()
+            nz = np.nonzero(v != 0)[0]
+            v[: nz[0] if len(nz) else len(v)] = np.nan
+            main = ("running ΔW_out / ΔW_in (engine)", t, v, "running")
+        elif has_channel(f, "work_input") and has_channel(f, "work_output"):
+            r = _windowed_ratio(f, "work_output", "work_input", t0, t1, eff_window)
+            if r is not None:
+                main = (f"running ΔW_out / ΔW_in over {r[2] * 1e3:.3g} ms", r[0], r[1], "running")
+        if main is not None and len(main[1]):
+            curves.append((*main[:3], dict(lw=1.4, color="C3"), main[3]))
+        # Losses alone: blind to energy moving in and out of the torsion springs and inertias.
+        if has_channel(f, "work_dissipated") and has_channel(f, "work_input"):
+            r = _windowed_ratio(f, "work_dissipated", "work_input", t0, t1, eff_window)
+            if r is not None and len(r[0]):
+                curves.append((f"1 - ΔW_diss / ΔW_in over {r[2] * 1e3:.3g} ms", r[0], 1 - r[1],
+                               dict(lw=1.2, ls="--", color="C0"), "1 - ΔW_diss / ΔW_in"))
+        if not curves:
+            return False
+        for y in (0.0, 1.0):
+            ax.axhline(y, color="0.4", lw=0.6, ls=":")
+        shaded = False
+        notes = []
+        for label, t, v, style, short in curves:
+            v = _finite(v)
+            ax.plot(*_envelope(t * TIME[0], v), label=label, **style)
+            _, spans, ext = efficiency_outside(t, v)
+            if not spans:
+                continue
+            notes.append(f"{short}: {_fmt_spans(spans)} (extreme {ext:.3g})")
+            if style.get("color") == "C3":  # shade where the main curve is out (the others swing more)
+                for a_, b_ in spans:
+                    ax.axvspan(a_ * TIME[0], b_ * TIME[0], color="C1", alpha=0.15, lw=0,
+                               label=None if shaded else "running efficiency outside [0, 1]")
+                    shaded = True
+        ax.set_ylim(*EFF_RANGE)
+        ax.set_ylabel("efficiency [-]")
+        if notes:
+            ax.text(0.01, 0.03, f"Outside [0, 1]: not meaningful there (transient); axis cut at "
+                    f"{EFF_RANGE[0]:g} .. {EFF_RANGE[1]:g}\n" + "\n".join(notes), transform=ax.transAxes,
+                    fontsize=7, va="bottom", color="0.15", bbox=dict(fc="w", ec="0.7", alpha=0.75, pad=2),
+                    gid="efficiency-note")
+        ax.legend(fontsize=7, loc="lower right", framealpha=0.9)
+        return True
+    have_eff = [n for n in ("running_efficiency", "efficiency", "work_input") if has_channel(f, n)]
+    panels.append(Panel("Efficiency", draw_eff, bool(have_eff), "channels running_efficiency, efficiency "
+                        "and work_input not in the file", have_eff[0] if have_eff else None))
+
+    def draw_strands(ax):
+        s = read_strands(f, t0, t1)
+        if s is None or len(s["time"]) == 0:
+            return False
+        tt = s["time"] * TIME[0]
+        allv = np.concatenate([s["tight"], s["slack"]] + ([s["demand"]] if s["demand"] is not None else []))
+        fac, u = scaled(allv, "N")
+        up = "upper" if s["tight_is_upper"] else "lower"
+        lo = "lower" if s["tight_is_upper"] else "upper"
+        ax.plot(tt, s["tight"] * fac, "o-", ms=3, lw=1, color="C3", label=f"tight ({up}) strand")
+        ax.plot(tt, s["slack"] * fac, "o-", ms=3, lw=1, color="C0", label=f"slack ({lo}) strand")
+        ax.plot(tt, (s["tight"] - s["slack"]) * fac, "s-", ms=3, lw=1, color="C2", label="tight - slack")
+        if s["demand"] is not None:
+            ax.plot(tt, s["demand"] * fac, "x--", ms=4, lw=1, color="k",
+                    label="|output torque| / R2 (what the torque needs)")
+        ax.set_ylabel(ylabel("mean link tension", u))
+        top = np.nanmax(np.abs(allv)) * fac if np.any(np.isfinite(allv)) else 1.0
+        ax.set_ylim(top=1.5 * top if top > 0 else 1.0)  # the top third for the legend
+        ax.legend(fontsize=7, loc="upper left", ncol=2)
+        return True
+    panels.append(Panel("Strand tensions (mean over the free strand, from the snapshots)", draw_strands,
+                        has_snapshots(f), "no /particles/chain snapshots in the file (run.snapshot_interval = 0)"))
+
+    # -- the details: tracked link and pin, chain, supports, speeds
     simple("Link tension (tracked link)", "link_tension", "tension")
     simple("Plate tension (plates of the tracked link)", "plate_tension", "tension",
            labels=[f"plate {j + 1}" for j in range(64)])
     simple("Pin axial force (tracked pin)", "pin_axial_force", "axial force", ["half a", "half b"])
     simple("Chain torsion angle", "chain_torsion_angle", "angle")
     simple("Support forces", "support_force", "force", SUPPORT_LABELS)
-
-    def draw_eff(ax):
-        curves = []  # (t, value) that set the axis range
-        if has_channel(f, "efficiency"):
-            t, v, _ = read_channel(f, "efficiency", t0, t1)
-            if len(t):
-                ax.plot(*_envelope(t * TIME[0], v), lw=0.6, color="0.6", alpha=0.6, label="instantaneous P_out / P_in")
-                curves.append((t, v))
-        run = None
-        if has_channel(f, "running_efficiency"):
-            t, v, _ = read_channel(f, "running_efficiency", t0, t1)
-            run = (t, v, "running efficiency (engine)")
-        elif has_channel(f, "work_input") and has_channel(f, "work_output"):
-            r = _windowed_ratio(f, "work_output", "work_input", t0, t1, a.eff_window)
-            if r is not None:
-                run = (r[0], r[1], f"ΔW_out / ΔW_in over {r[2] * 1e3:.3g} ms")
-        if run is not None and len(run[0]):
-            ax.plot(run[0] * TIME[0], run[1], lw=1.4, color="C3", label=run[2])
-            curves = [(run[0], run[1])]
-        # Losses alone: blind to energy moving in and out of the torsion springs and inertias.
-        if has_channel(f, "work_dissipated") and has_channel(f, "work_input"):
-            r = _windowed_ratio(f, "work_dissipated", "work_input", t0, t1, a.eff_window)
-            if r is not None and len(r[0]):
-                ax.plot(r[0] * TIME[0], 1 - r[1], lw=1.2, ls="--", color="C0",
-                        label=f"1 - ΔW_dissipated / ΔW_in over {r[2] * 1e3:.3g} ms")
-                curves.append((r[0], 1 - r[1]))
-        if not curves:
-            return False
-        # Scale to the second half of the window: during the start-up the ramped load and the
-        # spinning-up inertias store and release energy, and P_out / P_in means nothing.
-        late = [v[np.isfinite(v) & (t >= t[0] + 0.5 * (t[-1] - t[0]))] for t, v in curves]
-        late = np.concatenate(late)
-        if late.size:
-            lo, hi = float(np.min(late)), float(np.max(late))
-            pad = max(0.02, 0.15 * (hi - lo))
-            top = hi + pad + 0.6 * (hi - lo + 2 * pad)  # the top third stays free for the legend
-            ax.set_ylim(lo - pad, top)
-            allf = np.concatenate([v[np.isfinite(v)] for _, v in curves])
-            if np.any((allf < lo - pad) | (allf > top)):
-                ax.text(0.01, 0.03, "scaled to the second half of the window; earlier values run off the axis",
-                        transform=ax.transAxes, fontsize=7, va="bottom", color="0.35")
-        ax.set_ylabel("efficiency [-]")
-        ax.legend(fontsize=7, loc="upper right", framealpha=0.9)
-        return True
-    panels.append(("Efficiency", ["running_efficiency", "efficiency", "work_input"], draw_eff))
-
     group("Shaft speeds", ["input_speed", "output_speed", "load_speed"], "speed",
           ["input (shaft 1)", "output (shaft 2)", "load"])
-    group("Torques", ["input_torque", "output_torque", "load_torque"], "torque",
-          ["input (drive spring)", "output (load spring)", "load"])
+    return panels
 
-    avail = [p for p in panels if any(has_channel(f, n) for n in p[1])]
-    span = [read_channel(f, n, t0, t1)[0] for p in avail for n in p[1][:1] if has_channel(f, n)]
-    span = max((float(x[-1] - x[0]) for x in span if len(x)), default=0.0)
+
+def history_figure(f, t0=None, t1=None, eff_window=None, name=None):
+    """(figure, panels left out) of the history of the open run file f."""
+    if not channels(f):
+        raise UserError(f"{f.filename}: no /observables group (not a cvt-engine run?)")
+    panels = history_panels(f, t0, t1, eff_window)
+    avail = [p for p in panels if p.present]
+    skipped = [p for p in panels if not p.present]
+    spans = [read_channel(f, p.time_channel, t0, t1)[0] for p in avail if p.time_channel]
+    span = max((float(x[-1] - x[0]) for x in spans if len(x)), default=0.0)
     TIME[:] = [1e3, "ms"] if span < 2.0 else [1.0, "s"]
-    for title, names, _ in panels:
-        if not any(has_channel(f, n) for n in names):
-            warn(f"history: skipping panel '{title}': channel {names[0]} not in {a.file}")
     if not avail:
-        raise UserError(f"{a.file}: none of the history channels is present")
+        raise UserError(f"{f.filename}: none of the history channels is present")
     ncol = 2
     nrow = math.ceil(len(avail) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.7 * nrow + 0.8), sharex=True, squeeze=False)
+    foot = 0.35 if skipped else 0.0
+    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.7 * nrow + 0.8 + foot), sharex=True, squeeze=False)
     drawn_any = False
-    for ax, (title, _, draw) in zip(axes.ravel(), avail):
-        ok = draw(ax)
+    for ax, p in zip(axes.ravel(), avail):
+        ok = p.draw(ax)
         drawn_any |= ok
-        ax.set_title(title, fontsize=10)
+        ax.set_title(p.title, fontsize=10)
         ax.grid(alpha=0.3)
         if not ok:
             ax.text(0.5, 0.5, "no samples in the window", ha="center", va="center", transform=ax.transAxes)
@@ -345,13 +547,26 @@ def cmd_history(a):
     for ax in axes[-1]:
         ax.set_xlabel(f"time [{TIME[1]}]")
         ax.xaxis.set_tick_params(labelbottom=True)
-    if len(avail) % ncol:
+    if len(avail) % ncol and nrow > 1:
         axes[-2][-1].set_xlabel(f"time [{TIME[1]}]")
         axes[-2][-1].xaxis.set_tick_params(labelbottom=True)
     if not drawn_any:
-        raise UserError(f"{a.file}: no samples in the window [{t0}, {t1}] s")
-    fig.suptitle(f"{os.path.basename(a.file)}: time histories" + _cfg_note(f), fontsize=12)
-    fig.tight_layout()
+        plt.close(fig)
+        raise UserError(f"{f.filename}: no samples in the window [{t0}, {t1}] s")
+    fig.suptitle(f"{name or os.path.basename(f.filename)}: time histories" + _cfg_note(f), fontsize=12)
+    if skipped:
+        fig.text(0.01, 0.005, "Not shown: " + "; ".join(f"{p.title.split(' (')[0]} ({p.missing})" for p in skipped),
+                 fontsize=8, color="0.3", va="bottom", wrap=True, gid="skipped-note")
+    h = fig.get_figheight()
+    fig.tight_layout(rect=(0, foot / h, 1, 1 - 0.3 / h))
+    return fig, skipped
+
+
+def cmd_history(a):
+    f = open_h5(a.file)
+    fig, skipped = history_figure(f, a.t0, a.t1, a.eff_window, os.path.basename(a.file))
+    for p in skipped:
+        warn(f"history: skipping panel '{p.title}': {p.missing} ({a.file})")
     save(fig, a.out)
 
 
@@ -671,7 +886,7 @@ def cmd_spectrogram(a):
     edges_f = np.concatenate([freqs - df / 2, [freqs[-1] + df / 2]]) * fsc
     edges_f[0] = max(edges_f[0], 0)
     m = ax1.pcolormesh(edges_t, edges_f, db, vmin=vmin, vmax=vmax, cmap="magma", shading="flat")
-    cu = (f"({unit})²/Hz" if " " in unit else f"{unit}²/Hz") if unit and unit != "-" else "1/Hz"
+    cu = (f"({unit})²/Hz" if " " in unit else f"{unit}²/Hz") if unit not in ("", "-", "1") else "1/Hz"
     fig.colorbar(m, ax=ax1, label=f"power spectral density [dB re 1 {cu}]", pad=0.01)
     ax1.set_ylabel(f"frequency [{funit}]")
     ax1.set_xlabel("time [ms]")
@@ -724,14 +939,8 @@ def cmd_animate(a):
         raise UserError(f"no snapshot in the window [{a.t0}, {a.t1}] s")
     pos = np.asarray(P[idx.tolist()], dtype=float)
     ten = np.asarray(T[idx.tolist()], dtype=float) if T is not None else None
-    cfg = read_config(f)
-    geo = cfg.get("geometry", {})
-    sh = cfg.get("sheave", {})
-    if "centre_distance" in geo:
-        dist = float(geo["centre_distance"])
-    else:
-        dist = float(np.ptp(pos[0][:, 0])) - 2 * _wrap_radius(pos[0], float(np.min(pos[0][:, 0])))
-        warn(f"{a.file}: no geometry.centre_distance in /parameters/config; estimated {dist * 1e3:.1f} mm")
+    sh = read_config(f).get("sheave", {})
+    dist = centre_distance(f, pos[0])
     r_out = float(sh.get("outer_radius", np.nan))
     r_hub = float(sh.get("hub_radius", np.nan))
     centres = [(0.0, 0.0), (dist, 0.0)]
@@ -875,6 +1084,8 @@ def cmd_integrators(a):
     ax[0].grid(True, which="both", alpha=0.3)
     if one:
         ax[0].legend(fontsize=8)
+    else:
+        ax[0].text(0.5, 0.5, "no one_step rows in the study", ha="center", va="center", transform=ax[0].transAxes)
     if cur is not None:
         head, data = cur
         t = (data[:, 0] - data[0, 0]) * 1e3
@@ -913,7 +1124,7 @@ def cmd_integrators(a):
                    transform=ax[2].transAxes, va="top", fontsize=8)
     ax[2].set_xlabel("wall time [s]")
     ax[2].set_ylabel("deviation from the reference [% of its range]")
-    ax[2].set_title("(b) accuracy against cost (star: chosen)")
+    ax[2].set_title("(c) accuracy against cost (star: chosen)")
     ax[2].grid(True, which="both", alpha=0.3)
     if runs:
         ax[2].legend(fontsize=8)
@@ -932,22 +1143,24 @@ def build_parser():
         p.add_argument("--from", dest="t0", type=float, default=None, metavar="T0", help="start of the window [s]")
         p.add_argument("--to", dest="t1", type=float, default=None, metavar="T1", help="end of the window [s]")
 
-    p = sub.add_parser("history", help="time histories (tensions, pin force, torsion, supports, efficiency, speeds, torques)")
+    p = sub.add_parser("history", help="time histories: ratio, slip, torques, clamping, sheaves, efficiency, strand "
+                       "tensions, then the tracked link and pin, torsion, supports, speeds")
     p.add_argument("file", metavar="RUN.h5")
     window(p)
     p.add_argument("--eff-window", type=float, default=None, metavar="S",
-                   help="window of the running efficiency from the works [s] (default 20 %% of the plotted span)")
-    p.add_argument("--out", default="history.png", help="output image (default history.png)")
+                   help="window of ΔW_out / ΔW_in (files without running_efficiency) and of 1 - ΔW_diss / ΔW_in [s] "
+                        "(default 20 %% of the plotted span)")
+    p.add_argument("-o", "--out", default="history.png", help="output image (default history.png)")
     p.set_defaults(func=cmd_history)
 
     p = sub.add_parser("profile", help="module shares of the run time (a run's /profile or --profile-json)")
     p.add_argument("file", metavar="PROFILE", help="RUN.h5 with a /profile group, or PROFILE.json")
-    p.add_argument("--out", default="profile.png", help="output image (default profile.png)")
+    p.add_argument("-o", "--out", default="profile.png", help="output image (default profile.png)")
     p.set_defaults(func=cmd_profile)
 
     p = sub.add_parser("scaling", help="speedup against threads from a scaling study (CSV or JSON)")
     p.add_argument("file", metavar="STUDY", help="STUDY.csv or STUDY.json")
-    p.add_argument("--out", default="scaling.png", help="output image (default scaling.png)")
+    p.add_argument("-o", "--out", default="scaling.png", help="output image (default scaling.png)")
     p.set_defaults(func=cmd_scaling)
 
     p = sub.add_parser("spectrogram", help="short-time Fourier transform of one channel")
@@ -962,7 +1175,7 @@ def build_parser():
     p.add_argument("--detrend", choices=["linear", "mean", "none"], default="linear",
                    help="removed from each segment before the FFT (default linear: a ramp leaks less)")
     window(p)
-    p.add_argument("--out", default=None, help="output image (default spectrogram-CHANNEL.png)")
+    p.add_argument("-o", "--out", default=None, help="output image (default spectrogram-CHANNEL.png)")
     p.set_defaults(func=cmd_spectrogram)
 
     p = sub.add_parser("animate", help="the chain and pulleys from the snapshots, as a GIF")
@@ -971,13 +1184,13 @@ def build_parser():
     p.add_argument("--fps", type=float, default=10.0, metavar="F", help="frames per second of the GIF (default 10)")
     p.add_argument("--dpi", type=int, default=80, help="resolution of the frames (default 80)")
     window(p)
-    p.add_argument("--out", default="chain.gif", help="output GIF (default chain.gif; PNG frames without Pillow)")
+    p.add_argument("-o", "--out", default="chain.gif", help="output GIF (default chain.gif; PNG frames without Pillow)")
     p.set_defaults(func=cmd_animate)
 
     p = sub.add_parser("integrators", help="integrator study: one-step error, sample curves, accuracy against cost")
     p.add_argument("file", metavar="STUDY", help="the CSV of `cvt-engine study integrators --out`")
     p.add_argument("--curves", default=None, help="the curves CSV (default: STUDY-curves.csv)")
-    p.add_argument("--out", default="integrators.png", help="output image (default integrators.png)")
+    p.add_argument("-o", "--out", default="integrators.png", help="output image (default integrators.png)")
     p.set_defaults(func=cmd_integrators)
     return ap
 

@@ -59,15 +59,17 @@ TEST(BlowUpTest, NonFiniteCoordinateIsNamed) {
 
 TEST(BlowUpTest, Ros2BlowUpPointsAtItsStepAndMatrixIntervals) {
   // A ros2 run's step is far above RK4's limit by design: the advice is its own step and
-  // matrix intervals, not RK4's limit.
+  // matrix intervals, not RK4's limit. A blow-up while the pins settle and the loads ramp
+  // up is a W-method that could not start from rest, and says what to change.
   const Model m = test::model("mini", {"integrator.method=ros2", "integrator.step=2e-7"});
   Simulation sim(m);
   for (int i = 0; i < 20; ++i) sim.step(1e-8);
   sim.check_finite();
   const std::string msg = push_joint_3_into_a_sheave(sim);
   ASSERT_FALSE(msg.empty()) << "no blow-up reported";
-  EXPECT_NE(msg.find("uses ros2"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("integrator.w_every"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("ros2 could not start from rest at h = 2e-07 s"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("--set integrator.w_k_every=4, or 2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("--method rk4 --step 1e-8"), std::string::npos) << msg;
   EXPECT_EQ(msg.find("is above it"), std::string::npos) << msg;
 }
 
@@ -88,7 +90,23 @@ TEST(BlowUpTest, NonFiniteInsideAWMethodStepReachesTheDiagnosis) {
   ASSERT_FALSE(msg.empty()) << "no blow-up reported";
   EXPECT_NE(msg.find("is not finite"), std::string::npos) << msg;
   EXPECT_NE(msg.find("replayed from t = 0 s"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("uses ros34pw2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("ros34pw2 could not start from rest"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("--set integrator.w_k_every=16, or 8"), std::string::npos) << msg;
+}
+
+// Past the start-up and the ramp, a W-method's blow-up points at its step and its matrix
+// intervals, not at RK4's limit.
+TEST(BlowUpTest, WMethodBlowUpAfterTheStartPointsAtItsMatrixIntervals) {
+  const Model m = test::model("mini", {"integrator.method=ros2", "integrator.step=2e-7", "ramp.time=0",
+                                       "integrator.startup_time=0"});
+  Simulation sim(m);
+  for (int i = 0; i < 20; ++i) sim.step(1e-8);
+  sim.check_finite();
+  const std::string msg = push_joint_3_into_a_sheave(sim);
+  ASSERT_FALSE(msg.empty()) << "no blow-up reported";
+  EXPECT_NE(msg.find("uses ros2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("integrator.w_every"), std::string::npos) << msg;
+  EXPECT_EQ(msg.find("could not start"), std::string::npos) << msg;
 }
 
 }  // namespace

@@ -225,22 +225,22 @@ TEST_F(CliTest, StiffnessIntervalNotAMultipleOfWEvery) {
 
 TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
   const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "1e-7", "--method", "ros2", "--set",
-                           "integrator.w_every=4", "--quiet", "--out", "ros2.h5"});
+                           "integrator.w_every=4", "--out", "ros2.h5"});
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
-  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps, its stiffness every 64; 2 ros2 sub-steps per "
+  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps, its stiffness every 16; 2 ros2 sub-steps per "
                        "step before t = 0.0001 s)"),
             std::string::npos)
       << r.out;
-  EXPECT_NE(r.out.find("steps                      20"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("throughput: 20 steps"), std::string::npos) << r.out;
   EXPECT_TRUE(fs::exists(dir_ / "ros2.h5"));
 }
 
 TEST_F(CliTest, Ros34pw2RunNamesTheMethod) {
-  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "2e-7", "--method", "ros34pw2", "--quiet",
-                           "--out", "ros34.h5"});
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "2e-7", "--method", "ros34pw2", "--out",
+                           "ros34.h5"});
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
   EXPECT_NE(r.out.find("ros34pw2 step = 2e-07 s (matrix every 8 steps"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("steps                      10"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("throughput: 10 steps"), std::string::npos) << r.out;
   EXPECT_TRUE(fs::exists(dir_ / "ros34.h5"));
 }
 
@@ -254,11 +254,18 @@ TEST_F(CliTest, MalformedSet) {
 }
 
 TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
+  // The config's own method and step (ROS34PW2), 30 steps.
   const std::string out = "good.h5";
-  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--quiet", "--out", out});
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "-o", out, "--summary-json", "s.json"});
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
-  for (const char* word : {"steps", "us", "model seconds per wall hour", "speed ratio", "efficiency"})
+  for (const char* word : {"run complete", "operating point", "ros34pw2, step 8.333e-07 s", "status: ",
+                           "means over t = ", "speed ratio", "efficiency", "energy balance residual",
+                           "throughput: 30 steps", "per model second"})
     EXPECT_NE(r.out.find(word), std::string::npos) << "'" << word << "' missing from stdout:\n" << r.out;
+  EXPECT_EQ(r.out.find("scheduling"), std::string::npos) << "the profile table without --profile:\n" << r.out;
+  const std::string json = read_text(dir_ / "s.json");
+  for (const char* key : {"\"status\": ", "\"reasons\": [", "\"efficiency_meaningful\": false", "\"speed_ratio\": "})
+    EXPECT_NE(json.find(key), std::string::npos) << key << " missing from --summary-json:\n" << json;
   EXPECT_TRUE(fs::exists(dir_ / out));
   EXPECT_GT(fs::file_size(dir_ / out), 0u);
   EXPECT_FALSE(fs::exists(dir_ / (out + ".partial")));
@@ -304,7 +311,8 @@ class CliSignalTest : public CliTest, public ::testing::WithParamInterface<int> 
 
 TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   const int sig = GetParam();
-  const pid_t pid = start({"run", kMini, "--t-end", "1.0", "--out", "sig.h5", "--quiet"});
+  const pid_t pid = start({"run", kMini, "--method", "rk4", "--step", "1e-8", "--t-end", "1.0", "--out", "sig.h5",
+                           "--quiet"});
   ASSERT_NE(pid, -1);
   // Let it run: the file exists from the start; wait a little longer for some samples.
   for (int i = 0; i < 200 && !fs::exists(dir_ / "sig.h5.partial"); ++i)
@@ -315,8 +323,10 @@ TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   ASSERT_EQ(waitpid(pid, &status, 0), pid);
   ASSERT_TRUE(WIFEXITED(status)) << "killed instead of stopping";
   EXPECT_EQ(WEXITSTATUS(status), 130);
-  const std::string out = read_text(dir_ / "stdout.txt");
-  EXPECT_NE(out.find("run interrupted by signal " + std::to_string(sig)), std::string::npos) << out;
+  const std::string err = read_text(dir_ / "stderr.txt");
+  EXPECT_NE(err.find("run interrupted by signal " + std::to_string(sig)), std::string::npos) << err;
+  EXPECT_NE(err.find("--resume sig.h5.ckpt"), std::string::npos) << err;
+  EXPECT_EQ(read_text(dir_ / "stdout.txt"), "") << "--quiet printed on stdout";
   EXPECT_FALSE(fs::exists(dir_ / "sig.h5.partial"));
   EXPECT_TRUE(fs::exists(dir_ / "sig.h5.ckpt")) << "no checkpoint written at the stop";
   ASSERT_TRUE(fs::exists(dir_ / "sig.h5"));
@@ -330,7 +340,8 @@ INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTE
 // The output file can be read while the run writes it (SWMR), and after kill -9 it still
 // opens and holds every sample up to the last flush.
 TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
-  const pid_t pid = start({"run", kMini, "--t-end", "1.0", "--out", "live.h5", "--quiet", "--flush-every", "0.2"});
+  const pid_t pid = start({"run", kMini, "--method", "rk4", "--step", "1e-8", "--t-end", "1.0", "--out", "live.h5",
+                           "--quiet", "--flush-every", "0.2"});
   ASSERT_NE(pid, -1);
   const auto rows = [&] { return h5_rows(dir_ / "live.h5.partial", "/observables/input_speed/time", true); };
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
@@ -351,7 +362,8 @@ TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
 // step, the coordinate and the stable step estimated from the Jacobian's spectral radius
 // (below the step that failed), and a file with every good sample.
 TEST_F(CliTest, BlowUpIsExplainedAndKeepsTheGoodSamples) {
-  const RunResult r = run({"run", kMini, "--step", "1e-5", "--t-end", "1e-3", "--out", "bu.h5", "--quiet"});
+  const RunResult r =
+      run({"run", kMini, "--method", "rk4", "--step", "1e-5", "--t-end", "1e-3", "--out", "bu.h5", "--quiet"});
   EXPECT_EQ(r.exit_code, 70) << r.err;
   for (const char* what : {"numerical blow-up at t = ", "(step ", "joint", "replayed from t = ", "first bad state",
                            "largest acceleration", "pin ", "dominate", "spectral radius", "stable for h up to about",

@@ -440,7 +440,7 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   const std::string csv = (dir / "study.csv").string();
   const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
                           test::shell_quote(test::config_path("mini")) +
-                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2,ros2 "
+                          " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2,ros2 --one-step --no-cache "
                           "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --ros2-steps 1e-7 --tols 1 --max-dev 0.2 --out " +
                           test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);

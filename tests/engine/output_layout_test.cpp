@@ -67,7 +67,8 @@ class OutputLayoutTest : public ::testing::Test {
     const std::string cfg = std::string(CVT_SOURCE_DIR) + "/configs/mini.toml";
     const std::string cmd = "cd " + shell_quote(dir_->string()) + " && " + shell_quote(CVT_ENGINE_EXE) + " run " +
                             shell_quote(cfg) +
-                            " --t-end 3e-5 --set run.sample_interval=1e-6 --set run.snapshot_interval=1e-5 --quiet"
+                            " --method rk4 --step 1e-8 --t-end 3e-5 --set run.sample_interval=1e-6 --set run.snapshot_interval=1e-5"
+                            " --quiet"
                             " --out " + shell_quote(file_->string()) + " >" +
                             shell_quote((*dir_ / "stdout.txt").string()) + " 2>" +
                             shell_quote((*dir_ / "stderr.txt").string());

@@ -18,9 +18,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-const std::vector<std::string> kRows = {"chain forces",   "pulley contact", "other forces", "inertia decomposition",
-                                        "accelerations",  "integrator update", "contact status", "scheduling",
-                                        "output",         "rest",           "total"};
+const std::vector<std::string> kRows = {"chain forces",     "pulley contact",  "other forces",  "inertia decomposition",
+                                        "accelerations",    "integrator update", "contact status", "W stiffness (FD)",
+                                        "W assembly",       "W factorization", "W solves",      "scheduling",
+                                        "output",           "rest",            "total"};
 
 class ProfileTest : public ::testing::TestWithParam<SchedulerKind> {
  protected:
@@ -40,7 +41,7 @@ TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
   o.progress = false;
   o.schedule.kind = GetParam();
   o.schedule.threads = GetParam() == SchedulerKind::serial ? 1 : 2;
-  const RunSummary r = run_simulation(m, o);
+  const RunResult r = run_simulation(m, o);
   const Profiler::Report& p = r.profile;
   const long steps = std::lround(5e-6 / m.cfg.integrator.step);
   EXPECT_EQ(p.steps, steps);
@@ -59,7 +60,8 @@ TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
   EXPECT_EQ(p.rows[0].calls, 4 * steps);
   EXPECT_EQ(p.rows[5].calls, 4 * steps);
   EXPECT_EQ(p.rows[6].calls, steps);
-  EXPECT_GE(p.rows[8].calls, 11);
+  for (int i = 7; i <= 10; ++i) EXPECT_EQ(p.rows[i].calls, 0) << p.rows[i].name << " in an RK4 run";
+  EXPECT_GE(p.rows[12].calls, 11);
   EXPECT_NEAR(sum, p.rows.back().wall_s, 1e-9 * p.rows.back().wall_s);
   // The kernels did run: the chain forces are the largest module.
   EXPECT_GT(p.rows[0].wall_s, 0.0);
@@ -89,6 +91,36 @@ TEST_P(ProfileTest, RowsAddUpAndAgreeWithTheFileAndTheJson) {
   text << js.rdbuf();
   for (const auto& name : kRows) EXPECT_NE(text.str().find("\"name\": \"" + name + "\""), std::string::npos) << name;
   EXPECT_NE(text.str().find("\"steps\": " + std::to_string(steps)), std::string::npos);
+}
+
+// A W-method's linear algebra has rows of its own (not "scheduling"), every step counts
+// as an integrator update, and the table shows the W rows only for a W-method.
+TEST(ProfileWMethod, NamesTheMatrixWork) {
+  const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.step=2e-7", "run.t_end=4e-6",
+                                       "run.sample_interval=1e-6", "integrator.startup_time=0"});
+  const fs::path dir = fs::temp_directory_path() / ("cvt_profile_w_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  RunOptions o;
+  o.out_path = (dir / "run.h5").string();
+  o.progress = false;
+  o.schedule.threads = 1;
+  const RunResult r = run_simulation(m, o);
+  fs::remove_all(dir);
+  const Profiler::Report& p = r.profile;
+  ASSERT_EQ(p.rows.size(), kRows.size());
+  EXPECT_EQ(p.steps, 20);
+  EXPECT_EQ(p.rows[5].calls, 20) << "integrator update";
+  EXPECT_GE(p.rows[7].calls, 1) << "W stiffness (FD)";
+  EXPECT_GE(p.rows[8].calls, 1) << "W assembly";
+  EXPECT_GE(p.rows[9].calls, 1) << "W factorization";
+  EXPECT_GE(p.rows[10].calls, 20) << "W solves";
+  EXPECT_GT(p.rows[9].wall_s, 0.0);
+  const std::string table = format_profile(p);
+  EXPECT_NE(table.find("W factorization"), std::string::npos) << table;
+  Profiler::Report rk4 = p;
+  for (auto& row : rk4.rows)
+    if (row.name.rfind("W ", 0) == 0) row.calls = 0;
+  EXPECT_EQ(format_profile(rk4).find("W factorization"), std::string::npos);
 }
 
 TEST_P(ProfileTest, TimingDoesNotChangeTheBits) {

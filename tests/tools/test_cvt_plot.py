@@ -6,10 +6,15 @@
 Builds, in a temporary directory, a run file (observables including the newer channels
 plate_tension, chain_torsion_angle and running_efficiency, chain snapshots, the resolved
 TOML, a /profile group), a --profile-json file and a scaling study as CSV and JSON; checks
-that each subcommand exits 0 and writes a non-trivial PNG or GIF, and that bad input
-(missing file, channel, column, group) exits 2 with a message and no Python traceback.
-Set CVT_PLOT_KEEP=DIR to keep the figures in DIR.
+that each subcommand exits 0 and writes a non-trivial PNG or GIF (with --out and with -o),
+and that bad input (missing file, channel, column, group) exits 2 with a message and no
+Python traceback. The history figure is also built in-process (the tool imported as a
+module) to check its panels and their order, what they draw (slip in %, sheave positions
+in mm), the fixed efficiency axis and its out-of-range note, and the strand tensions from
+snapshots with known tensions. Set CVT_PLOT_KEEP=DIR to keep the figures in DIR.
 """
+import argparse
+import importlib.util
 import json
 import os
 import shutil
@@ -87,6 +92,14 @@ def chain_positions(S, N, a=0.06, R=0.02):
     return out
 
 
+def SLIP(t):
+    return -0.005 * np.minimum(t / 3e-3, 1)
+
+
+def SHEAVE(t):
+    return 2e-4 * np.minimum(t / 2e-3, 1)
+
+
 def write_run(path, with_new=True, with_profile=True, fixed_strings=False):
     rng = np.random.default_rng(1)
     T = 600
@@ -101,6 +114,13 @@ def write_run(path, with_new=True, with_profile=True, fixed_strings=False):
 
     osc = np.sin(2 * np.pi * 2e3 * t) + 0.3 * np.sin(2 * np.pi * (5e3 + 4e6 * t) * t)
     ch("input_speed", 209.4 + 0.5 * osc, "rad/s")
+    # What the engine writes for the engineer's panels (dimensionless unit "1", as the engine does).
+    ch("speed_ratio", 1.01 + 0.001 * osc, "1")
+    ch("geometric_ratio", 1.0 + 0.0005 * t / t[-1], "1")
+    ch("slip", SLIP(t), "1")
+    ch("clamping_force_driving", 8e3 * np.minimum(t / 2e-3, 1), "N")
+    ch("clamping_force_driven", 1e4 * np.minimum(t / 2e-3, 1), "N")
+    ch("sheave_position", np.stack([-SHEAVE(t), SHEAVE(t)], axis=1), "m")
     ch("output_speed", 207.0 + 0.5 * osc, "rad/s")
     ch("load_speed", 206.5 + 0.2 * osc, "rad/s")
     ch("input_torque", 10 + 2 * osc, "N m")
@@ -321,6 +341,251 @@ class CvtPlotTest(unittest.TestCase):
 
     def test_not_hdf5(self):
         self.fails("history", self.study_csv, expect="cannot open")
+
+
+def load_tool():
+    spec = importlib.util.spec_from_file_location("cvt_plot", TOOL)
+    m = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(m)
+    return m
+
+
+def write_channels(path, channels, snapshots=None, config=CONFIG):
+    """A run file with the given {name: (time, value, unit)} and optional (time, pos, tension)."""
+    with h5py.File(path, "w") as f:
+        for name, (t, v, unit) in channels.items():
+            f[f"observables/{name}/time"] = t
+            f[f"observables/{name}/value"] = v
+            f[f"observables/{name}/value"].attrs["unit"] = unit
+        if snapshots is not None:
+            ts, pos, ten = snapshots
+            f["particles/chain/position/time"] = ts
+            f["particles/chain/position/value"] = pos
+            f["particles/chain/link_tension/time"] = ts
+            f["particles/chain/link_tension/value"] = ten
+        if config is not None:
+            f["parameters/config"] = config
+
+
+def strand_layout_tensions(pos, R=0.02, upper=3000.0, lower=1000.0, arc=9999.0):
+    """Tension of link i from where its first joint lies: `upper` on the top straight strand
+    (y = R), `lower` on the bottom one (y = -R), `arc` on the pulleys."""
+    y = pos[..., 1]
+    return np.where(np.isclose(y, R), upper, np.where(np.isclose(y, -R), lower, arc))
+
+
+FIRST_PANELS = ["Speed ratio and geometric ratio", "Slip", "Torques", "Clamping forces", "Sheave positions",
+                "Efficiency", "Strand tensions"]
+DETAIL_PANELS = ["Link tension", "Plate tension", "Pin axial force", "Chain torsion angle", "Support forces",
+                 "Shaft speeds"]
+
+
+class HistoryFigureTest(unittest.TestCase):
+    """The history figure built in-process: panels, order, what each draws."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.m = load_tool()
+        cls.dir = tempfile.mkdtemp(prefix="cvt_plot_hist_")
+        cls.run_h5 = os.path.join(cls.dir, "run.h5")
+        write_run(cls.run_h5)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def figure(self, path, **kw):
+        f = h5py.File(path, "r")
+        self.addCleanup(f.close)
+        fig, skipped = self.m.history_figure(f, **kw)
+        self.addCleanup(self.m.plt.close, fig)
+        axes = {ax.get_title(): ax for ax in fig.axes if ax.get_visible()}
+        titles = [ax.get_title() for ax in fig.axes if ax.get_visible()]
+        return fig, skipped, axes, titles
+
+    def panel(self, axes, prefix):
+        hit = [ax for title, ax in axes.items() if title.startswith(prefix)]
+        self.assertEqual(len(hit), 1, f"{prefix}: {list(axes)}")
+        return hit[0]
+
+    def test_panels_in_order(self):
+        _, skipped, _, titles = self.figure(self.run_h5)
+        self.assertEqual(skipped, [])
+        want = FIRST_PANELS + DETAIL_PANELS
+        self.assertEqual(len(titles), len(want), titles)
+        for title, prefix in zip(titles, want):
+            self.assertTrue(title.startswith(prefix), f"{title!r} where {prefix!r} belongs: {titles}")
+
+    def test_panel_list_function(self):
+        with h5py.File(self.run_h5, "r") as f:
+            titles = [p.title for p in self.m.history_panels(f) if p.present]
+        self.assertEqual([next(w for w in FIRST_PANELS + DETAIL_PANELS if t.startswith(w)) for t in titles],
+                         FIRST_PANELS + DETAIL_PANELS)
+
+    def test_ratio_slip_sheave_clamping_contents(self):
+        _, _, axes, _ = self.figure(self.run_h5)
+        ratio = self.panel(axes, "Speed ratio")
+        labels = [l.get_label() for l in ratio.get_lines()]
+        self.assertTrue(any("speed ratio" in x for x in labels) and any("geometric" in x for x in labels), labels)
+        slip = self.panel(axes, "Slip")
+        self.assertIn("%", slip.get_ylabel())
+        y = np.concatenate([l.get_ydata() for l in slip.get_lines() if len(l.get_ydata()) > 2])
+        self.assertAlmostEqual(float(np.min(y)), 100 * float(np.min(SLIP(np.arange(600) * 1e-5))), places=9)
+        sheave = self.panel(axes, "Sheave positions")
+        self.assertIn("[mm]", sheave.get_ylabel())
+        ys = [l.get_ydata() for l in sheave.get_lines()]
+        self.assertEqual(len(ys), 2)
+        self.assertAlmostEqual(float(np.max(ys[1])), 0.2, places=9)  # 2e-4 m drawn as 0.2 mm
+        self.assertAlmostEqual(float(np.min(ys[0])), -0.2, places=9)
+        clamp = self.panel(axes, "Clamping forces")
+        self.assertIn("[kN]", clamp.get_ylabel())
+        self.assertEqual(sorted(round(float(np.max(l.get_ydata())), 6) for l in clamp.get_lines()), [8.0, 10.0])
+        torques = self.panel(axes, "Torques")
+        self.assertEqual(len(torques.get_lines()), 3)
+
+    def eff_file(self, name, running, inst=None, works=True):
+        t = np.arange(500) * 1e-5
+        ch = {"running_efficiency": (t, running(t), "1"), "input_speed": (t, 200 + 0 * t, "rad/s")}
+        if inst is not None:
+            ch["efficiency"] = (t, inst(t), "1")
+        if works:
+            p_in = 2000.0
+            ch["work_input"] = (t, p_in * t, "J")
+            ch["work_dissipated"] = (t, 0.03 * p_in * t, "J")
+        path = os.path.join(self.dir, name)
+        write_channels(path, ch)
+        return path
+
+    def eff_note(self, ax):
+        return [x.get_text() for x in ax.texts if x.get_gid() == "efficiency-note"]
+
+    def test_efficiency_fixed_axis_and_note_in_transient(self):
+        # A start-up like a real run's: the running efficiency at 88 for 2 ms, then 0.95.
+        path = self.eff_file("eff_transient.h5", lambda t: np.where(t < 2e-3, 88.0, 0.95),
+                             inst=lambda t: np.where(t < 1e-3, -6000.0, 0.96))
+        _, _, axes, _ = self.figure(path)
+        ax = self.panel(axes, "Efficiency")
+        lo, hi = ax.get_ylim()
+        self.assertAlmostEqual(lo, -0.1)
+        self.assertAlmostEqual(hi, 1.1)
+        note = self.eff_note(ax)
+        self.assertEqual(len(note), 1, [x.get_text() for x in ax.texts])
+        self.assertIn("not meaningful", note[0])
+        self.assertIn("88", note[0])
+        self.assertIn("-6e+03", note[0])
+        self.assertIn("running: 0-1.99 ms", note[0])
+        # The running efficiency is drawn (off the axis while it is 88) and its span shaded.
+        self.assertTrue(any("running" in l.get_label() for l in ax.get_lines()))
+        self.assertGreaterEqual(len(ax.patches), 1)
+
+    def test_efficiency_in_range_has_no_note(self):
+        path = self.eff_file("eff_steady.h5", lambda t: 0.95 + 0.01 * np.sin(t * 5e3),
+                             inst=lambda t: 0.9 + 0.05 * np.sin(t * 7e3))
+        _, _, axes, _ = self.figure(path)
+        ax = self.panel(axes, "Efficiency")
+        self.assertEqual(tuple(round(x, 9) for x in ax.get_ylim()), (-0.1, 1.1))
+        self.assertEqual(self.eff_note(ax), [])
+        self.assertEqual(len(ax.patches), 0)
+        labels = [l.get_label() for l in ax.get_lines()]
+        self.assertTrue(any("engine" in x for x in labels), labels)  # running_efficiency shown
+        self.assertTrue(any("ΔW_diss" in x for x in labels), labels)
+
+    def test_efficiency_outside(self):
+        t = np.arange(10) * 1.0
+        v = np.array([0.5, 1.2, 1.3, 0.9, 0.9, -0.2, 0.5, np.nan, 0.5, 2.0])
+        mask, spans, ext = self.m.efficiency_outside(t, v)
+        self.assertEqual(list(np.nonzero(mask)[0]), [1, 2, 5, 9])
+        self.assertEqual(spans, [(1.0, 2.0), (5.0, 5.0), (9.0, 9.0)])
+        self.assertEqual(ext, 2.0)
+        self.assertEqual(self.m.efficiency_outside(t, np.full(10, 0.97))[1], [])
+
+    def test_strand_tensions_from_snapshots(self):
+        a, R = 0.06, 0.02
+        pos = chain_positions(7, 60, a=a, R=R)
+        ten = strand_layout_tensions(pos, R)
+        up, lo, nu, nl = self.m.strand_tensions(pos, ten, a)
+        np.testing.assert_allclose(up, 3000.0)
+        np.testing.assert_allclose(lo, 1000.0)
+        self.assertTrue(np.all(nu >= 3) and np.all(nl >= 3), (nu, nl))
+        # A link whose tension changes only on the pulleys leaves the strand means alone.
+        ten2 = np.where(ten == 9999.0, -5e5, ten)
+        np.testing.assert_allclose(self.m.strand_tensions(pos, ten2, a)[0], 3000.0)
+
+    def test_strand_panel_tight_slack_and_demand(self):
+        # Lower strand the tighter one here: the panel calls it tight; demand = |M_out| / R2.
+        a, R = 0.06, 0.02
+        S = 6
+        ts = np.arange(S) * 1e-4
+        pos = chain_positions(S, 60, a=a, R=R)
+        ten = strand_layout_tensions(pos, R, upper=800.0, lower=2500.0)
+        t = np.arange(60) * 1e-5
+        path = os.path.join(self.dir, "strands.h5")
+        write_channels(path, {"output_torque": (t, -10.0 + 0 * t, "N m"), "input_speed": (t, 200 + 0 * t, "rad/s")},
+                       snapshots=(ts, pos, ten))
+        with h5py.File(path, "r") as f:
+            s = self.m.read_strands(f)
+        self.assertFalse(s["tight_is_upper"])
+        np.testing.assert_allclose(s["tight"], 2500.0)
+        np.testing.assert_allclose(s["slack"], 800.0)
+        np.testing.assert_allclose(s["demand"], 10.0 / R, rtol=1e-9)
+        _, _, axes, _ = self.figure(path)
+        ax = self.panel(axes, "Strand tensions")
+        lines = {l.get_label(): l.get_ydata() for l in ax.get_lines()}
+        self.assertIn("tight (lower) strand", lines)
+        np.testing.assert_allclose(lines["tight (lower) strand"], 2.5)  # kN
+        np.testing.assert_allclose(lines["tight - slack"], 1.7)
+
+    def test_no_snapshots_skips_strand_panel_with_note(self):
+        path = os.path.join(self.dir, "nosnap.h5")
+        write_run(path)
+        with h5py.File(path, "a") as f:
+            del f["particles"]
+        fig, skipped, _, titles = self.figure(path)
+        self.assertFalse(any(x.startswith("Strand") for x in titles), titles)
+        self.assertEqual([p.title.split(" (")[0] for p in skipped], ["Strand tensions"])
+        notes = [x.get_text() for x in fig.texts if x.get_gid() == "skipped-note"]
+        self.assertEqual(len(notes), 1)
+        self.assertIn("snapshots", notes[0])
+        p = subprocess.run([PYTHON, TOOL, "history", path, "-o", os.path.join(self.dir, "nosnap.png")],
+                           capture_output=True, text=True, timeout=300)
+        self.assertEqual(p.returncode, 0, p.stderr)
+        self.assertIn("Strand tensions", p.stderr)
+        self.assertIn("snapshots", p.stderr)
+
+
+class ShortOutTest(unittest.TestCase):
+    """-o is --out in every subcommand."""
+
+    ARGS = {"history": ["RUN.h5"], "profile": ["RUN.h5"], "scaling": ["STUDY.csv"],
+            "spectrogram": ["RUN.h5", "output_torque"], "animate": ["RUN.h5"], "integrators": ["STUDY.csv"]}
+
+    def test_every_subcommand_parses_o(self):
+        ap = load_tool().build_parser()
+        sub = next(x for x in ap._actions if isinstance(x, argparse._SubParsersAction))
+        self.assertEqual(set(sub.choices), set(self.ARGS), "a subcommand without a case here")
+        for cmd, args in self.ARGS.items():
+            a = ap.parse_args([cmd, *args, "-o", "/tmp/x-short.png"])
+            self.assertEqual(a.out, "/tmp/x-short.png", cmd)
+            b = ap.parse_args([cmd, *args, "--out", "/tmp/x-long.png"])
+            self.assertEqual(b.out, "/tmp/x-long.png", cmd)
+
+    def test_o_writes_the_file(self):
+        d = tempfile.mkdtemp(prefix="cvt_plot_o_")
+        self.addCleanup(shutil.rmtree, d, True)
+        run = os.path.join(d, "run.h5")
+        write_run(run)
+        study = os.path.join(d, "study.csv")
+        with open(study, "w") as fh:
+            fh.write(",".join(SCALING_COLUMNS) + "\n")
+            for r in scaling_rows():
+                fh.write(",".join(str(r[k]) for k in SCALING_COLUMNS) + "\n")
+        for cmd, args, out in [("history", [run], "h.png"), ("profile", [run], "p.png"), ("scaling", [study], "s.png"),
+                               ("spectrogram", [run, "output_torque"], "sp.png"),
+                               ("animate", [run, "--every", "10"], "c.gif")]:
+            p = subprocess.run([PYTHON, TOOL, cmd, *args, "-o", os.path.join(d, out)], capture_output=True,
+                               text=True, timeout=300)
+            self.assertEqual(p.returncode, 0, p.stderr)
+            self.assertTrue(os.path.getsize(os.path.join(d, out)) > 1000, cmd)
 
 
 if __name__ == "__main__":

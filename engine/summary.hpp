@@ -1,0 +1,71 @@
+// The end-of-run summary (docs/output.md, /summary): the operating point, means over a
+// settled window, and verdicts a user can trust: steady or not (and why), gross slip,
+// whether the efficiency means anything, and the warnings the run raised.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "engine/model.hpp"
+
+namespace cvt {
+
+struct Sample;
+
+// The channels the summary reads, one entry per output sample (a run's samples, or the
+// observables read back from a run's file).
+struct SummaryChannels {
+  std::vector<double> t, input_speed, output_speed, input_torque, output_torque, load_torque, speed_ratio,
+      geometric_ratio, clamp_driving, clamp_driven, sheave_driving, sheave_driven, work_input, work_output,
+      work_dissipated;
+  void push(const Sample& s);
+  std::size_t size() const { return t.size(); }
+};
+
+// The thresholds of the verdicts (docs/output.md, "The summary's verdicts").
+struct SteadyCriteria {
+  double window_fraction = 0.2;  // the window: the last 20 % of the run, after the ramp
+  double drift = 0.02;           // means of the window's halves agree within 2 % (torques: of the load)
+  double ringing = 0.03;         // slow swing of the output torque, meshing ripple removed: 3 % of the load
+  double balance = 0.02;         // mean output torque against the mean load torque: 2 %
+  double shift = 0.001;          // geometric ratio of the window's halves within 0.1 %
+  double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
+  double falling = 0.02;         // output speed falling by 2 % across the window: slip
+};
+
+struct RunSummary {
+  // The run.
+  long steps = 0;
+  double t_start = 0, model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
+  bool interrupted = false;  // stopped by SIGINT or SIGTERM (the file holds the run so far)
+  int signal = 0;
+  std::string method, controller;
+  double step = 0;
+  // The operating point as configured.
+  double drive_speed = 0, load_torque_nominal = 0, clamp_driving_nominal = 0, clamp_driven_nominal = 0,
+         ratio_target = 0;
+  // The window and the means over it.
+  double window_start = 0, window_end = 0;
+  double speed_ratio = 0, geometric_ratio = 0, slip = 0, input_speed = 0, output_speed = 0, input_torque = 0,
+         output_torque = 0, load_torque = 0, clamp_driving = 0, clamp_driven = 0, sheave_driving = 0,
+         sheave_driven = 0;
+  double efficiency = 0;       // mean output power / mean input power over the window
+  double loss_efficiency = 0;  // 1 - dissipated / input work over the window
+  bool efficiency_meaningful = false;
+  // "steady", "not_steady" or "slip"; the reasons of the last two (empty when steady).
+  std::string status = "not_steady";
+  std::vector<std::string> reasons;
+  // Energy balance at the end: residual [J] and its fraction of the energy turned over.
+  double energy_residual = 0, work_input = 0, energy_turnover = 0, residual_fraction = 0;
+  // What the run warned about (also printed when it happened).
+  std::vector<std::string> warnings;
+};
+
+// Fills the window, the means and the verdicts of s from the channels (the whole run).
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {});
+
+// The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json).
+std::string format_summary(const RunSummary& s);
+std::string summary_json(const RunSummary& s);
+
+}  // namespace cvt
