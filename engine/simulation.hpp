@@ -131,6 +131,24 @@ class Simulation {
 // Names coordinate i of the first-order state (e.g. "velocity of joint 17, half b, end 1, x").
 std::string describe_state_index(const Model& m, int i);
 
+// The energy turned over so far, sum of |W_in|, |W_out|, |W_diss|, |W_clamp| and
+// |W_switch|: what the balance's residual is measured against (docs/output.md).
+double energy_turnover(const Sample& s);
+
+// The energy guard of a run: warns (once) when the balance's residual passes `limit` of the
+// energy turned over, judged once the turnover reaches `turnover_min` [J] (before that the
+// residual of the start from rest dominates a small sum). Returns the warning, or "".
+struct EnergyGuard {
+  double limit = 0.05;
+  double turnover_min = 10.0;
+  bool warned = false;
+  std::string check(const Sample& s);
+};
+
+// The RK4 guard: the warning for a step h above the stability limit 2.8 / rho (rho the
+// Jacobian's spectral radius at time t), or "" when h is within it.
+std::string rk4_stability_warning(double h, double rho, double t);
+
 struct RunOptions {
   std::string out_path = "results.h5";
   bool progress = true;

@@ -46,9 +46,9 @@ double mean_defined(const std::vector<double>& v, std::size_t a, std::size_t b) 
   return k ? s / static_cast<double>(k) : 0.0;
 }
 
-std::string fmt(const char* f, double a, double b = 0, double c = 0) {
-  char buf[256];
-  std::snprintf(buf, sizeof buf, f, a, b, c);
+std::string fmt(const char* f, double a, double b = 0, double c = 0, double d = 0) {
+  char buf[512];
+  std::snprintf(buf, sizeof buf, f, a, b, c, d);
   return buf;
 }
 
@@ -129,10 +129,10 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   {
     const double x = mean_defined(ch.geometric_ratio, a, mid), y = mean_defined(ch.geometric_ratio, mid, b);
     const double dt_halves = 0.5 * (s.window_end - s.window_start);
-    if (x > 0 && y > 0 && std::abs(y - x) > c.shift * std::abs(s.geometric_ratio) && dt_halves > 0)
-      unsteady.push_back(fmt("shifting: the geometric ratio moves %.5f -> %.5f over the window's halves (%+.3g %% per "
-                             "10 ms): the clamping forces do not hold this ratio at this load",
-                             x, y, 100 * (y - x) / s.geometric_ratio / dt_halves * 0.01));
+    if (x > 0 && y > 0 && dt_halves > 0 && std::abs(y - x) / std::abs(s.geometric_ratio) / dt_halves > c.shift)
+      unsteady.push_back(fmt("shifting: the geometric ratio moves %.5f -> %.5f over the window's halves (%+.2g %% per "
+                             "10 ms; limit %.2g): the clamping forces do not hold this ratio at this load",
+                             x, y, 100 * (y - x) / s.geometric_ratio / dt_halves * 0.01, c.shift));
   }
   // The slow swing of the output torque: a moving average over one meshing period (the time
   // a link takes to pass, pitch / (omega_in R1)) removes the polygon ripple and leaves the

@@ -28,7 +28,7 @@ struct SteadyCriteria {
   double drift = 0.02;           // means of the window's halves agree within 2 % (torques: of the load)
   double ringing = 0.03;         // slow swing of the output torque, meshing ripple removed: 3 % of the load
   double balance = 0.02;         // mean output torque against the mean load torque: 2 %
-  double shift = 0.001;          // geometric ratio of the window's halves within 0.1 %
+  double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
   double falling = 0.02;         // output speed falling by 2 % across the window: slip
 };

@@ -253,6 +253,89 @@ TEST_F(CliTest, MalformedSet) {
   expect_config_error({"run", kMini, "--set", "chain.links40"}, "chain.links40", "", "malformed override");
 }
 
+// A step that does not divide the sample interval or t_end is refused before the run, with
+// both keys named and a step that fits.
+TEST_F(CliTest, StepThatDoesNotDivideTheSampleIntervalIsRefused) {
+  const RunResult r = run({"run", kMini, "--method", "ros34pw2", "--step", "3e-7", "--t-end", "1e-4", "-o", "g.h5"});
+  EXPECT_EQ(r.exit_code, 78) << r.err;
+  for (const char* what : {"integrator.step = 3e-07", "does not divide run.sample_interval = 1e-05 s",
+                           "e.g. --step 2.94117647"})
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "g.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "g.h5.partial"));
+  const RunResult t = run({"run", kMini, "--t-end", "1.0000001e-4", "-o", "g.h5"});
+  EXPECT_EQ(t.exit_code, 78) << t.err;
+  EXPECT_NE(t.err.find("does not divide run.t_end = 0.00010000001 s"), std::string::npos) << t.err;
+  EXPECT_NE(t.err.find("run.t_end a multiple of run.sample_interval"), std::string::npos) << t.err;
+}
+
+// Samples fall on exact multiples of the step, and the run ends at t_end.
+TEST_F(CliTest, SampleTimesAreExactMultiplesOfTheStep) {
+  const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "3e-8", "--t-end", "3e-6", "--set",
+                           "run.sample_interval=3e-7", "--set", "run.snapshot_interval=0", "-q", "-o", "t.h5"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const hid_t f = H5Fopen((dir_ / "t.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const hid_t d = H5Dopen2(f, "/observables/input_speed/time", H5P_DEFAULT);
+  const hid_t sp = H5Dget_space(d);
+  hsize_t n = 0;
+  H5Sget_simple_extent_dims(sp, &n, nullptr);
+  std::vector<double> t(n);
+  H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, t.data());
+  H5Sclose(sp), H5Dclose(d), H5Fclose(f);
+  ASSERT_EQ(n, 11u);
+  for (hsize_t i = 0; i < n; ++i) EXPECT_EQ(t[i], static_cast<double>(10 * i) * 3e-8) << i;
+}
+
+// An output folder that does not exist is refused before the run is set up: exit 73, in
+// plain words, and nothing written.
+TEST_F(CliTest, OutputFolderThatDoesNotExistIsRefusedFirst) {
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "-o", "no/such/dir/r.h5"});
+  EXPECT_EQ(r.exit_code, 73) << r.err;
+  EXPECT_NE(r.err.find("cannot write the output file 'no/such/dir/r.h5': the folder 'no/such/dir' does not exist"),
+            std::string::npos)
+      << r.err;
+  EXPECT_EQ(r.err.find("H5F"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out.find("schedule"), std::string::npos) << "the run was set up first:\n" << r.out;
+}
+
+// RK4 with a step past its stability estimate warns with the estimated stable step (on
+// stderr and in the file's /summary), before it blows up or not.
+TEST_F(CliTest, Rk4StepPastItsStabilityLimitWarns) {
+  const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "1e-7", "--t-end", "2e-6", "--set",
+                           "run.sample_interval=1e-6", "-q", "-o", "w.h5", "--summary-json", "w.json"});
+  EXPECT_TRUE(r.exit_code == 0 || r.exit_code == 70) << r.err;
+  EXPECT_NE(r.err.find("cvt-engine: warning: RK4's step 1e-07 s is above its stability limit"), std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("--step "), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "") << "--quiet printed on stdout";
+  if (r.exit_code == 0) {
+    const std::string json = read_text(dir_ / "w.json");
+    EXPECT_NE(json.find("above its stability limit"), std::string::npos) << json;
+  }
+}
+
+// --quiet prints nothing on stdout; the run still writes its file.
+TEST_F(CliTest, QuietIsQuiet) {
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "--quiet", "-o", "q.h5"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(r.err, "");
+  EXPECT_TRUE(fs::exists(dir_ / "q.h5"));
+}
+
+// --profile prints the profile table; without it there is one throughput line.
+TEST_F(CliTest, ProfileTableOnlyWithProfile) {
+  const RunResult plain = run({"run", kMini, "--t-end", "2.5e-5", "-o", "p.h5"});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  EXPECT_EQ(plain.out.find("W factorization"), std::string::npos) << plain.out;
+  EXPECT_NE(plain.out.find("throughput: "), std::string::npos) << plain.out;
+  const RunResult prof = run({"run", kMini, "--t-end", "2.5e-5", "-o", "p.h5", "--profile"});
+  ASSERT_EQ(prof.exit_code, 0) << prof.err;
+  for (const char* row : {"W stiffness (FD)", "W assembly", "W factorization", "W solves", "chain forces", "total"})
+    EXPECT_NE(prof.out.find(row), std::string::npos) << row << " missing:\n" << prof.out;
+}
+
 TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
   // The config's own method and step (ROS34PW2), 30 steps.
   const std::string out = "good.h5";

@@ -1,0 +1,183 @@
+// The end-of-run summary's verdicts on synthetic channels (a steady operating point, a
+// ramp, drift, ringing, shifting, gross slip), and the run's guards (energy balance, RK4
+// step against its stability limit).
+#include "engine/summary.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <functional>
+
+#include "engine/simulation.hpp"
+#include "tests/test_util.hpp"
+
+namespace cvt {
+namespace {
+
+bool has_reason(const RunSummary& s, const std::string& what) {
+  for (const auto& r : s.reasons)
+    if (r.find(what) != std::string::npos) return true;
+  return false;
+}
+
+std::string reasons(const RunSummary& s) {
+  std::string out;
+  for (const auto& r : s.reasons) out += "\n  " + r;
+  return out;
+}
+
+// The reference model's operating point as channels: 20 ms sampled every 1e-5 s, the loads
+// ramped over the config's ramp time, a meshing ripple of +-5 % on the output torque, and
+// `tweak(t, sample)` to spoil it.
+struct Synthetic {
+  const Model m = test::model("reference");
+  SummaryChannels ch;
+
+  explicit Synthetic(const std::function<void(double, Sample&)>& tweak = {}, double t_end = 20e-3) {
+    const double w1 = m.cfg.drive.speed, load = m.cfg.load.torque, ratio = 1.0, slip = 0.01;
+    const double t_mesh = m.cfg.chain.pitch / (w1 * m.pulley[0].running_radius);
+    double win = 0, wout = 0, wd = 0;
+    for (int i = 0; i * 1e-5 <= t_end * (1 + 1e-12); ++i) {
+      Sample s;
+      s.t = i * 1e-5;
+      const double ramp = std::min(1.0, s.t / m.cfg.ramp.time);
+      s.geometric_ratio = ratio;
+      s.speed_ratio = ratio / (1 - slip);
+      s.input_speed = w1;
+      s.output_speed = w1 / s.speed_ratio;
+      s.load_torque = load * ramp;
+      s.output_torque = s.load_torque * (1 + 0.05 * std::sin(2 * M_PI * s.t / t_mesh));
+      s.input_torque = s.load_torque / s.speed_ratio / 0.97;
+      s.clamp[0] = m.cfg.clamping.driving * ramp;
+      s.clamp[1] = m.cfg.clamping.driven * ramp;
+      if (tweak) tweak(s.t, s);
+      const double pin = s.input_torque * s.input_speed, pout = s.output_torque * s.output_speed;
+      win += pin * 1e-5, wout += pout * 1e-5, wd += (pin - pout) * 1e-5;
+      s.work_input = win, s.work_output = wout, s.work_dissipated = wd;
+      ch.push(s);
+    }
+  }
+  RunSummary summary() const {
+    RunSummary s;
+    summarize(m, ch, s);
+    return s;
+  }
+};
+
+TEST(SummaryTest, SteadyOperatingPoint) {
+  const RunSummary s = Synthetic().summary();
+  EXPECT_EQ(s.status, "steady") << reasons(s);
+  EXPECT_TRUE(s.efficiency_meaningful);
+  EXPECT_NEAR(s.efficiency, 0.97, 0.005);
+  EXPECT_NEAR(s.loss_efficiency, 0.97, 0.005);
+  EXPECT_NEAR(s.slip, 0.01, 1e-9);
+  EXPECT_NEAR(s.window_start, 16e-3, 1e-9) << "the window is the last 20 % of the run";
+  EXPECT_NEAR(s.output_torque, 150.0, 1.0) << "the meshing ripple averages out";
+  EXPECT_DOUBLE_EQ(s.clamp_driving, 25e3);
+  EXPECT_NE(format_summary(s).find("efficiency               0.9"), std::string::npos) << format_summary(s);
+  const std::string json = summary_json(s);
+  EXPECT_NE(json.find("\"status\": \"steady\""), std::string::npos) << json;
+  EXPECT_NE(json.find("\"efficiency_meaningful\": true"), std::string::npos) << json;
+}
+
+TEST(SummaryTest, RunEndingInTheRampIsNotSteadyAndItsEfficiencyNotMeaningful) {
+  const RunSummary s = Synthetic({}, 1.5e-3).summary();
+  EXPECT_EQ(s.status, "not_steady");
+  EXPECT_TRUE(has_reason(s, "load ramp")) << reasons(s);
+  EXPECT_FALSE(s.efficiency_meaningful);
+  EXPECT_NE(format_summary(s).find("not meaningful"), std::string::npos) << format_summary(s);
+}
+
+TEST(SummaryTest, DriftOfTheMeansIsNamed) {
+  const RunSummary s = Synthetic([](double t, Sample& x) { x.output_torque *= 1 + 4.0 * std::max(0.0, t - 16e-3); })
+                           .summary();  // +1.6 % of the load over the window
+  EXPECT_EQ(s.status, "steady") << "a drift below the limit" << reasons(s);
+  const RunSummary d =
+      Synthetic([](double t, Sample& x) { x.output_torque *= 1 + 20.0 * std::max(0.0, t - 16e-3); }).summary();
+  EXPECT_EQ(d.status, "not_steady");
+  EXPECT_TRUE(has_reason(d, "drift of the means: output torque")) << reasons(d);
+}
+
+TEST(SummaryTest, RingingTorsionModeIsNamed) {
+  // An 18 ms torsion mode swinging +-10 N m around the load.
+  const RunSummary s =
+      Synthetic([](double t, Sample& x) { x.output_torque += 10 * std::sin(2 * M_PI * t / 18e-3); }).summary();
+  EXPECT_EQ(s.status, "not_steady");
+  EXPECT_TRUE(has_reason(s, "torsion mode still ringing")) << reasons(s);
+  EXPECT_FALSE(s.efficiency_meaningful);
+}
+
+TEST(SummaryTest, ShiftingRatioIsNamedWithItsRate) {
+  const RunSummary s = Synthetic([](double t, Sample& x) {
+                         x.geometric_ratio *= 1 + 0.4 * t;  // +0.4 % per 10 ms
+                         x.speed_ratio = x.geometric_ratio / 0.99;
+                       }).summary();
+  EXPECT_EQ(s.status, "not_steady");
+  EXPECT_TRUE(has_reason(s, "shifting")) << reasons(s);
+  EXPECT_TRUE(has_reason(s, "+0.4 % per 10 ms")) << reasons(s);
+}
+
+TEST(SummaryTest, GrossSlipIsReportedAsSlip) {
+  // The chain slips on the driven pulley: the output speed falls while the load holds.
+  const RunSummary s = Synthetic([](double t, Sample& x) {
+                         const double f = 1 + 20 * std::max(0.0, t - 10e-3);
+                         x.speed_ratio *= f;
+                         x.output_speed /= f;
+                       }).summary();
+  EXPECT_EQ(s.status, "slip");
+  EXPECT_TRUE(has_reason(s, "gross slip")) << reasons(s);
+  EXPECT_TRUE(has_reason(s, "output speed falling")) << reasons(s);
+  EXPECT_GT(s.slip, 0.05);
+  EXPECT_FALSE(s.efficiency_meaningful);
+}
+
+TEST(SummaryTest, EfficiencyOutsideZeroOneIsNeverPrintedAsAValue) {
+  // Power flowing back (output torque against the motion): the ratio is negative.
+  Synthetic syn;
+  RunSummary s = syn.summary();
+  s.efficiency = -1.5;
+  const std::string text = format_summary(s);
+  EXPECT_NE(text.find("not meaningful (outside [0, 1]"), std::string::npos) << text;
+}
+
+TEST(SummaryTest, StartFromRestWithoutContactsHasNoRatioVerdicts) {
+  // The geometric ratio is 0 while no pin touches a sheave: no slip, no shift.
+  Synthetic syn({}, 30e-5);
+  for (std::size_t i = 0; i < syn.ch.size(); ++i)
+    if (i % 3 == 0) syn.ch.geometric_ratio[i] = 0;
+  const RunSummary s = syn.summary();
+  EXPECT_NE(s.status, "slip") << reasons(s);
+  EXPECT_FALSE(has_reason(s, "shifting")) << reasons(s);
+  EXPECT_NEAR(s.geometric_ratio, 1.0, 1e-12);
+}
+
+TEST(GuardTest, EnergyResidualWarnsOnceItPassesItsShareOfTheTurnover) {
+  EnergyGuard g;
+  Sample s;
+  s.t = 1e-3;
+  s.work_input = 4, s.work_output = 3, s.work_dissipated = 1;  // 8 J turned over
+  s.energy_residual = 2;
+  EXPECT_EQ(g.check(s), "") << "judged before the turnover reaches 10 J";
+  s.work_input = 40, s.work_output = 30, s.work_dissipated = 10;  // 80 J
+  s.energy_residual = 3.9;
+  EXPECT_EQ(g.check(s), "") << "4.9 % of the turnover";
+  s.energy_residual = -4.1;
+  const std::string w = g.check(s);
+  EXPECT_NE(w.find("5.1 % of the energy turned over"), std::string::npos) << w;
+  EXPECT_NE(w.find("reduce integrator.step"), std::string::npos) << w;
+  EXPECT_EQ(g.check(s), "") << "warned twice";
+  EnergyGuard nan;
+  s.energy_residual = std::nan("");
+  EXPECT_NE(nan.check(s), "") << "a non-finite residual passes silently";
+}
+
+TEST(GuardTest, Rk4StepAboveItsStabilityLimitWarnsWithTheStableStep) {
+  EXPECT_EQ(rk4_stability_warning(1e-8, 2.5e8, 0), "");  // 2.8 / 2.5e8 = 1.12e-8
+  const std::string w = rk4_stability_warning(1e-7, 2.5e8, 0);
+  EXPECT_NE(w.find("above its stability limit of about 1.12e-08 s"), std::string::npos) << w;
+  EXPECT_NE(w.find("--step 5.6e-09 or less"), std::string::npos) << w;
+  EXPECT_EQ(rk4_stability_warning(1e-7, 0, 0), "") << "no estimate, no warning";
+}
+
+}  // namespace
+}  // namespace cvt
