@@ -6,6 +6,8 @@
 #include "engine/config.hpp"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
@@ -291,8 +293,16 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
   return d[n][m];
 }
 
-// Closest candidate within edit distance 2, if any.
+// The candidate the word begins (when only one does: "ros34" -> "ros34pw2"), else the
+// closest candidate within edit distance 2, if any.
 std::optional<std::string> closest(std::string_view word, const std::vector<std::string>& candidates) {
+  if (word.size() >= 3) {
+    std::optional<std::string> prefix;
+    int count = 0;
+    for (const auto& c : candidates)
+      if (c.size() > word.size() && c.compare(0, word.size(), word) == 0) prefix = c, ++count;
+    if (count == 1) return prefix;
+  }
   std::optional<std::string> best;
   std::size_t best_d = 3;
   for (const auto& c : candidates) {
@@ -356,22 +366,46 @@ std::string unknown_key_reason(const std::string& section, const std::string& ke
 
 class Validator {
  public:
-  Validator(const std::string& origin, const std::map<std::string, std::string>& override_text)
-      : origin_(origin), override_text_(override_text) {}
+  Validator(const std::string& origin, const std::map<std::string, std::string>& override_text,
+            const std::map<std::string, std::string>& shortcuts)
+      : origin_(origin), override_text_(override_text), shortcuts_(shortcuts) {}
 
   [[noreturn]] void fail(const std::string& qkey, const toml::node* node, const std::string& reason) const {
     std::string value = node ? node_text(*node) : std::string();
     std::string where;
     if (auto it = override_text_.find(qkey); it != override_text_.end()) {
       value = it->second;
-      where = " (from --set)";
+      const auto sc = shortcuts_.find(qkey);
+      where = " (from " + (sc != shortcuts_.end() ? sc->second : std::string("--set")) + ")";
     } else if (node && node->source().begin.line > 0) {
       where = " (" + origin_ + " line " + std::to_string(node->source().begin.line) + ")";
     }
     throw ConfigError(qkey, value, reason + where);
   }
 
-  void check_unknown(const toml::table& root) const {
+  // Runs `f`, keeping its ConfigError to report with the others (every problem of the
+  // input at once).
+  template <class F>
+  void collect(F&& f) {
+    try {
+      f();
+    } catch (const ConfigError& e) {
+      errors_.push_back(e);
+    }
+  }
+  // Throws the first error found, with the others as further lines.
+  void throw_collected() const {
+    if (errors_.empty()) return;
+    std::vector<std::string> more;
+    for (std::size_t i = 1; i < errors_.size(); ++i)
+      more.push_back(errors_[i].key() + (errors_[i].value().empty() ? "" : " = " + errors_[i].value()) + ": " +
+                     errors_[i].reason());
+    const ConfigError& e = errors_.front();
+    throw ConfigError(e.key(), e.value(), e.reason(), more);
+  }
+
+  // Collects every unknown section and key.
+  void check_unknown(const toml::table& root) {
     for (const auto& [k, node] : root) {
       const std::string section(k.str());
       if (!node.is_table()) {
@@ -380,24 +414,49 @@ class Validator {
         auto where = sections_with_key(section);
         if (where.empty())
           if (auto s = closest(section, section_names())) where = {"[" + *s + "]"};
-        fail(section, &node, reason + suggestion_text(where));
+        collect([&] { fail(section, &node, reason + suggestion_text(where)); });
+        continue;
       }
       const auto& tbl = *node.as_table();
       if (!is_section(section)) {
-        if (tbl.empty()) {
-          std::string reason = "unknown section";
-          if (auto s = closest(section, section_names())) reason += suggestion_text({"[" + *s + "]"});
-          fail(section, &node, reason);
+        // Named as a section, with the sections it may have meant (by its name, or by
+        // the keys it holds) and its keys.
+        std::string reason = "unknown section";
+        std::vector<std::string> keys;
+        for (const auto& [k2, n2] : tbl) keys.emplace_back(k2.str());
+        // From --set: named by the override's key, as the user wrote it.
+        bool from_set = false;
+        for (const auto& [k2, n2] : tbl)
+          if (override_text_.count(section + "." + std::string(k2.str()))) {
+            const std::string key(k2.str());
+            collect([&] { fail(section + "." + key, &n2, unknown_key_reason(section, key)); });
+            from_set = true;
+          }
+        if (from_set) continue;
+        if (auto s = closest(section, section_names())) reason += suggestion_text({"[" + *s + "]"});
+        else if (!keys.empty() && !sections_with_key(keys.front()).empty())
+          reason += suggestion_text(sections_with_key(keys.front()));
+        if (!keys.empty()) {
+          reason += " (it holds ";
+          for (std::size_t i = 0; i < keys.size(); ++i) reason += (i ? ", " : "") + keys[i];
+          reason += ")";
         }
-        const auto first = tbl.begin();  // the iterator owns the pair its operator* returns
-        const std::string key(first->first.str());
-        fail(section + "." + key, &first->second, unknown_key_reason(section, key));
+        collect([&] { fail("[" + section + "]", nullptr, reason + where_is(node)); });
+        continue;
       }
       for (const auto& [k2, n2] : tbl) {
         const std::string key(k2.str());
-        if (!find_key(section, key)) fail(section + "." + key, &n2, unknown_key_reason(section, key));
+        if (!find_key(section, key))
+          collect([&] { fail(section + "." + key, &n2, unknown_key_reason(section, key)); });
       }
     }
+  }
+
+  // " (FILE line N)" for a node of the file; "" without a line, or for an override.
+  std::string where_is(const toml::node& n) const {
+    const auto line = n.source().begin.line;
+    if (line == 0 || n.source().path && *n.source().path == "--set") return "";
+    return " (" + origin_ + " line " + std::to_string(line) + ")";
   }
 
   void read_key(const KeyDef& d, const toml::node& n, Config& cfg) const {
@@ -520,6 +579,8 @@ class Validator {
  private:
   const std::string& origin_;
   const std::map<std::string, std::string>& override_text_;
+  const std::map<std::string, std::string>& shortcuts_;
+  std::vector<ConfigError> errors_;
 };
 
 // ---- overrides --------------------------------------------------------------------------
@@ -622,7 +683,7 @@ void migrate_startup_substeps(toml::table& root) {
 }  // namespace
 
 Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides,
-                    const std::string& origin) {
+                    const std::string& origin, const std::map<std::string, std::string>& shortcuts) {
   toml::table root;
   try {
     root = toml::parse(std::string_view{toml_text}, std::string_view{origin});
@@ -637,30 +698,33 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
   for (const auto& o : overrides) apply_override(root, o, override_text);
 
   migrate_startup_substeps(root);
-  Validator val(origin, override_text);
+  Validator val(origin, override_text, shortcuts);
   val.check_unknown(root);
 
   Config cfg;
   for (const auto& d : schema()) {
     const toml::table* sec = root.get_as<toml::table>(d.section);
     if (!sec) continue;
-    if (const toml::node* n = sec->get(d.key)) val.read_key(d, *n, cfg);
+    if (const toml::node* n = sec->get(d.key)) val.collect([&] { val.read_key(d, *n, cfg); });
   }
+  val.throw_collected();
   val.check_relations(root, cfg);
 
   cfg.resolved_toml = resolved_toml(cfg);
   return cfg;
 }
 
-Config load_config(const std::string& path, const std::vector<std::string>& overrides) {
+Config load_config(const std::string& path, const std::vector<std::string>& overrides,
+                   const std::map<std::string, std::string>& shortcuts) {
   std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) throw ConfigError("<file>", path, "cannot open file (a directory)");
+  if (std::filesystem::is_directory(path, ec)) throw ConfigError::unreadable(path, "it is a folder");
+  if (!std::filesystem::exists(path, ec)) throw ConfigError::unreadable(path, "no such file");
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw ConfigError("<file>", path, "cannot open file");
+  if (!in) throw ConfigError::unreadable(path, std::strerror(errno));
   std::ostringstream ss;
   ss << in.rdbuf();
-  if (in.bad()) throw ConfigError("<file>", path, "cannot read file");
-  return parse_config(ss.str(), overrides, path);
+  if (in.bad()) throw ConfigError::unreadable(path, "read error");
+  return parse_config(ss.str(), overrides, path, shortcuts);
 }
 
 }  // namespace cvt

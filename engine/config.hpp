@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -16,15 +17,32 @@ inline constexpr int kExitConfig = 78;
 // A bad configuration value: names the key, the value and the reason.
 class ConfigError : public std::runtime_error {
  public:
-  ConfigError(std::string key, std::string value, std::string reason)
-      : std::runtime_error("configuration error: " + key + " = " + value + ": " + reason),
+  // "configuration error: KEY = VALUE: REASON" (without " = VALUE" when value is empty);
+  // `more`: further errors found in the same input, one line each after the first.
+  ConfigError(std::string key, std::string value, std::string reason, const std::vector<std::string>& more = {})
+      : std::runtime_error(text(key, value, reason, more)),
         key_(std::move(key)), value_(std::move(value)), reason_(std::move(reason)) {}
+  // A file that cannot be read: "configuration error: cannot read the configuration file ...".
+  static ConfigError unreadable(const std::string& path, const std::string& why) {
+    ConfigError e("<file>", path, why);
+    e.message_ = "configuration error: cannot read the configuration file '" + path + "': " + why;
+    return e;
+  }
+  const char* what() const noexcept override {
+    return message_.empty() ? std::runtime_error::what() : message_.c_str();
+  }
   const std::string& key() const { return key_; }
   const std::string& value() const { return value_; }
   const std::string& reason() const { return reason_; }
 
  private:
-  std::string key_, value_, reason_;
+  static std::string text(const std::string& key, const std::string& value, const std::string& reason,
+                          const std::vector<std::string>& more) {
+    std::string t = "configuration error: " + key + (value.empty() ? "" : " = " + value) + ": " + reason;
+    for (const auto& m : more) t += "\nconfiguration error: " + m;
+    return t;
+  }
+  std::string key_, value_, reason_, message_;
 };
 
 enum class FrictionLaw { nonsmooth, smooth, none };
@@ -155,10 +173,15 @@ struct Config {
 
 // Parses TOML text, applies the overrides ("section.key=value") and validates every key.
 // Throws ConfigError. `origin` names the source in messages.
+// Every problem in the text is reported (one line each), not only the first. `shortcuts`
+// names the command-line option an override came from ({"integrator.step", "--step"}):
+// messages then say "(from --step)" instead of "(from --set)".
 Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides = {},
-                    const std::string& origin = "<string>");
+                    const std::string& origin = "<string>",
+                    const std::map<std::string, std::string>& shortcuts = {});
 // Reads the file and calls parse_config. A missing file is a ConfigError too.
-Config load_config(const std::string& path, const std::vector<std::string>& overrides = {});
+Config load_config(const std::string& path, const std::vector<std::string>& overrides = {},
+                   const std::map<std::string, std::string>& shortcuts = {});
 
 const char* to_string(FrictionLaw law);
 

@@ -166,7 +166,10 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   } else if (config_path.empty()) {
     throw ConfigError("CONFIG", "", "missing: give a TOML configuration or --resume CHECKPOINT");
   }
-  const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume) : load_config(config_path, overrides);
+  const std::map<std::string, std::string> shortcuts = {
+      {"run.t_end", "--t-end"}, {"integrator.step", "--step"}, {"integrator.method", "--method"}};
+  const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
+                          : load_config(config_path, overrides, shortcuts);
   const Model model = build_model(cfg);
   // Without --out a resumed run appends to its own file (GROMACS's mdrun -cpi): the one
   // the checkpoint names, else the checkpoint's name without ".ckpt".
@@ -550,7 +553,10 @@ int main(int argc, char** argv) {
       return cvt::run_integrator_study(model, si);
     }
   } catch (const cvt::ConfigError& e) {
-    std::fprintf(stderr, "cvt-engine: %s\n", e.what());
+    std::string text = e.what();  // one line per problem found
+    for (std::size_t at = text.find('\n'); at != std::string::npos; at = text.find('\n', at + 1))
+      text.insert(at + 1, "cvt-engine: ");
+    std::fprintf(stderr, "cvt-engine: %s\n", text.c_str());
     return cvt::kExitConfig;
   } catch (const cvt::OutputError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());

@@ -246,7 +246,7 @@ TEST_F(CliTest, Ros34pw2RunNamesTheMethod) {
 
 TEST_F(CliTest, MissingConfigFile) {
   const std::string missing = (dir_ / "no_such_config.toml").string();
-  expect_config_error({"run", missing}, "<file>", missing, "cannot open file");
+  expect_config_error({"run", missing}, "cannot read the configuration file", missing, "no such file");
 }
 
 TEST_F(CliTest, MalformedSet) {

@@ -169,7 +169,7 @@ TEST(ConfigTest, IntegerAcceptedForDouble) {
 TEST(ConfigTest, MissingFile) {
   const std::string path = kConfigDir + "no-such-file.toml";
   auto e = expect_error([&] { load_config(path); }, "<file>", path);
-  EXPECT_TRUE(contains(e.reason(), "cannot open file"));
+  EXPECT_TRUE(contains(e.reason(), "no such file"));
 }
 
 TEST(ConfigTest, TomlSyntaxError) {
@@ -189,9 +189,49 @@ TEST(ConfigTest, UnknownKeyWithoutSuggestion) {
   EXPECT_FALSE(contains(e.reason(), "did you mean")) << e.reason();
 }
 
-TEST(ConfigTest, UnknownSection) {
-  auto e = expect_parse_error("[chian]\nlinks = 40\n", "chian.links", "40");
+TEST(ConfigTest, UnknownSectionIsNamedAsASection) {
+  auto e = expect_parse_error("[chian]\nlinks = 40\n", "[chian]", "");
+  EXPECT_TRUE(contains(e.reason(), "unknown section; did you mean '[chain]'")) << e.reason();
+  EXPECT_TRUE(contains(e.reason(), "it holds links")) << e.reason();
+  e = expect_parse_error("[lod]\ntorque = 3\ninertia = 0.1\n", "[lod]", "");
+  EXPECT_TRUE(contains(e.reason(), "'[load]'")) << e.reason();
+  EXPECT_TRUE(contains(e.reason(), "line 1")) << e.reason();
+  // From --set it is named by the override's key.
+  e = expect_override_error("chian.links=40", "chian.links", "40");
   EXPECT_TRUE(contains(e.reason(), "chain.links")) << e.reason();
+  EXPECT_TRUE(contains(e.reason(), "(from --set)")) << e.reason();
+}
+
+TEST(ConfigTest, EveryProblemOfAFileIsReported) {
+  auto e = expect_parse_error("[chain]\nlinkz = 3\npich = 2\n[lod]\ntorque = 3\n[pin]\nea = -1\n", "chain.linkz", "3");
+  const std::string all = e.what();
+  for (const char* what : {"chain.linkz = 3: unknown key; did you mean 'chain.links'? (<string> line 2)",
+                           "\nconfiguration error: chain.pich = 2: unknown key; did you mean 'chain.pitch'?",
+                           "\nconfiguration error: [lod]: unknown section", "\nconfiguration error: pin.ea = -1: must be positive"})
+    EXPECT_TRUE(contains(all, what)) << what << " missing: " << all;
+}
+
+TEST(ConfigTest, ShortcutOptionsAreNamedInMessages) {
+  try {
+    parse_config("", {"integrator.step=-1e-8"}, "<string>", {{"integrator.step", "--step"}});
+    FAIL();
+  } catch (const ConfigError& e) {
+    EXPECT_TRUE(contains(e.what(), "(from --step)")) << e.what();
+  }
+}
+
+TEST(ConfigTest, SuggestsTheNameAPrefixBegins) {
+  auto e = expect_override_error("integrator.method=ros34", "integrator.method", "ros34");
+  EXPECT_TRUE(contains(e.reason(), "did you mean 'ros34pw2'")) << e.reason();
+}
+
+TEST(ConfigTest, MissingFileSaysItCannotBeRead) {
+  try {
+    load_config("/no/such/cvt.toml");
+    FAIL();
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), "configuration error: cannot read the configuration file '/no/such/cvt.toml': no such file");
+  }
 }
 
 TEST(ConfigTest, TopLevelKeyIsUnknown) {
