@@ -372,6 +372,42 @@ void H5File::set_double_attribute(const std::string& object_path, const std::str
   object.close(path);
 }
 
+void H5File::set_strings_attribute(const std::string& object_path, const std::string& name,
+                                   const std::vector<std::string>& v) {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("set_strings_attribute", where);
+  std::vector<const char*> data;
+  for (const std::string& x : v) {
+    require_no_nul(x, where);
+    data.push_back(x.c_str());
+  }
+  H5Handle object = attribute_owner(path, name, where);
+  H5Handle type = make_string_type(where);
+  const hsize_t n = v.size();
+  H5Handle space(H5Screate_simple(1, &n, nullptr), "H5Screate_simple", where);
+  H5Handle acpl(H5Pcreate(H5P_ATTRIBUTE_CREATE), "H5Pcreate(H5P_ATTRIBUTE_CREATE)", where);
+  check(H5Pset_char_encoding(acpl.get(), H5T_CSET_UTF8), "H5Pset_char_encoding", where);
+  H5Handle attr(H5Acreate2(object.get(), name.c_str(), type.get(), space.get(), acpl.get(), H5P_DEFAULT),
+                "H5Acreate2", where);
+  if (n > 0) check(H5Awrite(attr.get(), type.get(), data.data()), "H5Awrite", where);
+  attr.close(where);
+  object.close(path);
+}
+
+void H5File::set_int_attribute(const std::string& object_path, const std::string& name, long long value) {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("set_int_attribute", where);
+  H5Handle object = attribute_owner(path, name, where);
+  H5Handle space(H5Screate(H5S_SCALAR), "H5Screate(H5S_SCALAR)", where);
+  H5Handle attr(H5Acreate2(object.get(), name.c_str(), H5T_STD_I64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT),
+                "H5Acreate2", where);
+  check(H5Awrite(attr.get(), H5T_NATIVE_LLONG, &value), "H5Awrite", where);
+  attr.close(where);
+  object.close(path);
+}
+
 void H5File::write_strings(const std::string& dataset_path, const std::vector<std::string>& v) {
   const std::string path = normalize(dataset_path);
   require_open("write_strings", path);

@@ -137,6 +137,12 @@ class H5File {
   // Replaces an attribute of the same name.
   void set_string_attribute(const std::string& object_path, const std::string& name,
                             const std::string& value);
+  // A 1-D attribute of variable-length UTF-8 strings (h5py reads its entries as str; a
+  // string *dataset* it reads as bytes).
+  void set_strings_attribute(const std::string& object_path, const std::string& name,
+                             const std::vector<std::string>& v);
+  // A scalar 64-bit integer attribute (same rules as set_string_attribute).
+  void set_int_attribute(const std::string& object_path, const std::string& name, long long value);
   // A scalar double attribute (same rules as set_string_attribute).
   void set_double_attribute(const std::string& object_path, const std::string& name, double value);
   // A 1-D dataset of variable-length UTF-8 strings; creates intermediate groups.

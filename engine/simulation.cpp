@@ -420,7 +420,7 @@ void write_profile(H5File& f, const Profiler::Report& r) {
     bmin.push_back(row.busy_min_s), bavg.push_back(row.busy_avg_s), bmax.push_back(row.busy_max_s);
     imb.push_back(row.imbalance_percent);
   }
-  f.write_strings("/profile/name", names);
+  f.set_strings_attribute("/profile", "rows", names);  // the rows' names, in the order of the columns
   f.write_vector("/profile/calls", calls);
   f.write_vector("/profile/wall_s", wall);
   f.write_vector("/profile/us_per_step", us);
@@ -429,11 +429,11 @@ void write_profile(H5File& f, const Profiler::Report& r) {
   f.write_vector("/profile/busy_avg_s", bavg);
   f.write_vector("/profile/busy_max_s", bmax);
   f.write_vector("/profile/imbalance_percent", imb);
-  f.set_double_attribute("/profile", "steps", static_cast<double>(r.steps));
+  f.set_int_attribute("/profile", "steps", r.steps);
   f.set_double_attribute("/profile", "us_per_step", r.us_per_step);
   f.set_double_attribute("/profile", "model_s_per_hour", r.model_s_per_hour);
-  f.set_double_attribute("/profile", "threads", r.threads);
-  f.set_double_attribute("/profile", "numa_nodes", r.numa_nodes);
+  f.set_int_attribute("/profile", "threads", r.threads);
+  f.set_int_attribute("/profile", "numa_nodes", r.numa_nodes);
   f.set_double_attribute("/profile", "wall_s", r.wall_s);
   f.set_string_attribute("/profile", "scheduler", r.scheduler);
 }
@@ -588,15 +588,18 @@ std::string new_run_id() {
   return b;
 }
 
-// The /summary group (docs/output.md): the verdicts as strings, the numbers as attributes.
+// The /summary group (docs/output.md): every entry an attribute (strings that h5py reads as
+// str, flags and counts as integers, the rest as doubles).
 void write_summary(H5File& f, const RunSummary& s) {
   f.remove("/summary");
-  f.write_strings("/summary/reasons", s.reasons);
-  f.write_strings("/summary/warnings", s.warnings);
+  f.set_strings_attribute("/summary", "reasons", s.reasons);
+  f.set_strings_attribute("/summary", "warnings", s.warnings);
   f.set_string_attribute("/summary", "status", s.status);
   f.set_string_attribute("/summary", "method", s.method);
   f.set_string_attribute("/summary", "controller", s.controller);
-  f.set_string_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? "true" : "false");
+  f.set_int_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? 1 : 0);
+  f.set_int_attribute("/summary", "interrupted", s.interrupted ? 1 : 0);
+  f.set_int_attribute("/summary", "steps", s.steps);
   for (auto [name, v] : std::initializer_list<std::pair<const char*, double>>{
            {"step", s.step},
            {"drive_speed", s.drive_speed},
@@ -865,12 +868,11 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
       std::filesystem::rename(tmp, opt.out_path);
       throw;
     }
-    file.remove("/parameters/config");
     file.remove("/profile");
     file.remove("/summary");
   }
-  if (!file.exists("/parameters/version")) file.write_string("/parameters/version", CVT_VERSION);
-  file.write_string("/parameters/config", c.resolved_toml);
+  file.set_string_attribute("/parameters", "version", CVT_VERSION);
+  file.set_string_attribute("/parameters", "config", c.resolved_toml);
   file.set_string_attribute("/parameters", "run_id", run_id);
   file.set_string_attribute("/parameters", "geometry",
                             "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +

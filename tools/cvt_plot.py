@@ -123,13 +123,17 @@ def read_channel(f, name, t0=None, t1=None):
 def read_config(f):
     """The resolved TOML of the run as a dict ({} if absent or unreadable)."""
     import tomllib
-    if "parameters/config" not in f:
+    g = f.get("parameters")
+    if g is not None and "config" in g.attrs:
+        text = as_str(g.attrs["config"])
+    elif "parameters/config" in f:  # files that hold it as a dataset
+        text = as_str(f["parameters/config"][()])
+    else:
         return {}
-    text = as_str(f["parameters/config"][()])
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        warn(f"{f.filename}: /parameters/config is not valid TOML ({e}); using defaults")
+        warn(f"{f.filename}: /parameters@config is not valid TOML ({e}); using defaults")
         return {}
 
 
@@ -622,10 +626,10 @@ def load_profile(path):
         raise UserError(f"{path}: no /profile group (was the run profiled?)")
     header = {k: (as_str(g.attrs[k]) if k == "scheduler" else g.attrs[k].item() if hasattr(g.attrs[k], "item") else g.attrs[k])
               for k in HEADER_KEYS if k in g.attrs}
-    miss = [k for k in ["name"] + PROFILE_COLUMNS if k not in g]
+    miss = [k for k in PROFILE_COLUMNS if k not in g] + ([] if "rows" in g.attrs or "name" in g else ["rows"])
     if miss:
         raise UserError(f"{path}: /profile lacks {', '.join(miss)}")
-    names = [as_str(x) for x in g["name"][:]]
+    names = [as_str(x) for x in (g.attrs["rows"] if "rows" in g.attrs else g["name"][:])]
     cols = {k: np.asarray(g[k][:], dtype=float) for k in PROFILE_COLUMNS}
     rows = [dict(name=n, **{k: float(cols[k][i]) for k in PROFILE_COLUMNS}) for i, n in enumerate(names)]
     return header, rows

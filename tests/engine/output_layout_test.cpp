@@ -298,13 +298,51 @@ TEST_F(OutputLayoutTest, ChainSnapshots) {
 }
 
 TEST_F(OutputLayoutTest, Parameters) {
-  ASSERT_TRUE(exists("/parameters/config"));
-  const std::string cfg = string_dataset("/parameters/config");
+  const std::string cfg = string_attribute("/parameters", "config");
   EXPECT_NE(cfg.find("[chain]"), std::string::npos) << cfg;
   EXPECT_NE(cfg.find("links = 30"), std::string::npos) << cfg;
   EXPECT_NE(cfg.find("sample_interval = 1e-6"), std::string::npos) << cfg;
-  ASSERT_TRUE(exists("/parameters/version"));
-  EXPECT_FALSE(string_dataset("/parameters/version").empty());
+  EXPECT_FALSE(string_attribute("/parameters", "version").empty());
+  EXPECT_EQ(string_attribute("/parameters", "run_id").size(), 16u);
+}
+
+// The kind of an attribute's type: strings are variable-length UTF-8 (h5py reads them as
+// str), flags and counts integers.
+H5T_class_t attribute_class(hid_t file, const char* object, const char* name, bool* utf8_vlen = nullptr) {
+  const hid_t a = H5Aopen_by_name(file, object, name, H5P_DEFAULT, H5P_DEFAULT);
+  if (a < 0) return H5T_NO_CLASS;
+  const hid_t t = H5Aget_type(a);
+  const H5T_class_t c = H5Tget_class(t);
+  if (utf8_vlen) *utf8_vlen = c == H5T_STRING && H5Tis_variable_str(t) > 0 && H5Tget_cset(t) == H5T_CSET_UTF8;
+  H5Tclose(t);
+  H5Aclose(a);
+  return c;
+}
+
+TEST_F(OutputLayoutTest, SummaryAndProfileAttributes) {
+  for (const char* name : {"status", "method", "controller", "reasons", "warnings"}) {
+    bool utf8 = false;
+    EXPECT_EQ(attribute_class(f_, "/summary", name, &utf8), H5T_STRING) << name;
+    EXPECT_TRUE(utf8) << name << " is not a variable-length UTF-8 string";
+  }
+  for (const char* name : {"efficiency_meaningful", "interrupted", "steps"})
+    EXPECT_EQ(attribute_class(f_, "/summary", name), H5T_INTEGER) << name;
+  for (const char* name : {"speed_ratio", "geometric_ratio", "slip", "efficiency", "window_start"})
+    EXPECT_EQ(attribute_class(f_, "/summary", name), H5T_FLOAT) << name;
+  for (const char* name : {"steps", "threads", "numa_nodes"})
+    EXPECT_EQ(attribute_class(f_, "/profile", name), H5T_INTEGER) << name;
+  bool utf8 = false;
+  EXPECT_EQ(attribute_class(f_, "/profile", "rows", &utf8), H5T_STRING);
+  EXPECT_TRUE(utf8);
+  for (const char* object : {"/parameters", "/profile"})
+    for (const char* name : {"config", "version", "scheduler"})
+      if (attribute_class(f_, object, name) == H5T_STRING) {
+        bool u = false;
+        attribute_class(f_, object, name, &u);
+        EXPECT_TRUE(u) << object << "@" << name;
+      }
+  // A run that ends in the ramp is not steady.
+  EXPECT_NE(string_attribute("/summary", "status"), "steady");
 }
 
 TEST_F(OutputLayoutTest, H5dumpReadsHeader) {

@@ -146,19 +146,24 @@ def write_run(path, with_new=True, with_profile=True, fixed_strings=False):
     g["position/value"].attrs["unit"] = "m"
     g["link_tension/time"] = ts
     g["link_tension/value"] = 2000 + 1000 * np.sin(np.linspace(0, 2 * np.pi, N))[None, :] + 10 * np.arange(S)[:, None]
-    f["parameters/config"] = CONFIG
-    f["parameters/version"] = "test"
+    # As cvt-engine writes them: attributes (the fixed-string variant: older datasets).
+    if fixed_strings:
+        f["parameters/config"] = CONFIG
+        f["parameters/version"] = "test"
+    else:
+        f.create_group("parameters").attrs["config"] = CONFIG
+        f["parameters"].attrs["version"] = "test"
     if with_profile:
         header, rows = profile_rows()
         p = f.create_group("profile")
         for k, v in header.items():
-            # cvt-engine writes the counts as doubles; the fixed-string variant checks that too.
+            # cvt-engine writes the counts as integers; the fixed-string variant checks doubles too.
             p.attrs[k] = float(v) if fixed_strings and not isinstance(v, str) else v
         names = [r["name"] for r in rows]
         if fixed_strings:
             p["name"] = np.array([n.encode() for n in names], dtype="S32")
         else:
-            p.create_dataset("name", data=names, dtype=h5py.string_dtype())
+            p.attrs.create("rows", data=names, dtype=h5py.string_dtype())
         for k in ["calls", "wall_s", "us_per_step", "percent", "busy_min_s", "busy_avg_s", "busy_max_s",
                   "imbalance_percent"]:
             p[k] = np.array([r[k] for r in rows], dtype=np.int64 if k == "calls" else float)
