@@ -108,8 +108,20 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   if (std::abs(s.slip) > c.gross_slip)
     slip.push_back(fmt("gross slip: speed ratio %.4f against geometric ratio %.4f (slip %.1f %%)", s.speed_ratio,
                        s.geometric_ratio, 100 * s.slip));
+  // The slow swing of the output torque: a moving average over one meshing period (the time
+  // a link takes to pass, pitch / (omega_in R1)) removes the polygon ripple and leaves the
+  // torsion modes of shafts and load.
+  const double dt = (t1 - t0) / static_cast<double>(std::max<std::size_t>(1, n - 1));
+  const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
+  const double t_mesh = v_chain > 0 ? cfg.chain.pitch / v_chain : 0;
+  const std::size_t k = t_mesh > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh / dt)) : 1;
+  // A window shorter than two meshing periods says nothing about drift, shift or ringing.
+  const bool short_window = b - a < 2 * k;
+  if (short_window)
+    unsteady.push_back(fmt("window too short: %.3g s holds fewer than two meshing periods (%.3g s)",
+                           s.window_end - s.window_start, t_mesh));
   const double w_a = mean(ch.output_speed, a, mid), w_b = mean(ch.output_speed, mid, b);
-  if (s.output_speed != 0 && (w_b - w_a) / std::abs(s.output_speed) < -c.falling)
+  if (!short_window && s.output_speed != 0 && (w_b - w_a) / std::abs(s.output_speed) < -c.falling)
     slip.push_back(fmt("output speed falling: %.2f -> %.2f rad/s across the window", w_a, w_b));
   // Drift of the means between the window's two halves.
   const auto drift = [&](const char* name, const char* unit, const std::vector<double>& v, double scale) {
@@ -121,30 +133,20 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
       unsteady.push_back(buf);
     }
   };
-  drift("output torque", "N m", ch.output_torque, torque_scale);
-  drift("input torque", "N m", ch.input_torque, torque_scale);
-  drift("speed ratio", "", ch.speed_ratio, std::abs(s.speed_ratio));
+  if (!short_window) drift("output torque", "N m", ch.output_torque, torque_scale);
+  if (!short_window) drift("input torque", "N m", ch.input_torque, torque_scale);
+  if (!short_window) drift("speed ratio", "", ch.speed_ratio, std::abs(s.speed_ratio));
   // A shift: the geometric ratio moving (the clamping forces do not hold this ratio at this
   // load), reported as a rate.
   {
     const double x = mean_defined(ch.geometric_ratio, a, mid), y = mean_defined(ch.geometric_ratio, mid, b);
     const double dt_halves = 0.5 * (s.window_end - s.window_start);
-    if (x > 0 && y > 0 && dt_halves > 0 && std::abs(y - x) / std::abs(s.geometric_ratio) / dt_halves > c.shift)
+    if (!short_window && x > 0 && y > 0 && dt_halves > 0 && std::abs(y - x) / std::abs(s.geometric_ratio) / dt_halves > c.shift)
       unsteady.push_back(fmt("shifting: the geometric ratio moves %.5f -> %.5f over the window's halves (%+.2g %% per "
                              "10 ms; limit %.2g): the clamping forces do not hold this ratio at this load",
                              x, y, 100 * (y - x) / s.geometric_ratio / dt_halves * 0.01, c.shift));
   }
-  // The slow swing of the output torque: a moving average over one meshing period (the time
-  // a link takes to pass, pitch / (omega_in R1)) removes the polygon ripple and leaves the
-  // torsion modes of shafts and load.
-  const double dt = (t1 - t0) / static_cast<double>(std::max<std::size_t>(1, n - 1));
-  const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
-  const double t_mesh = v_chain > 0 ? cfg.chain.pitch / v_chain : 0;
-  const std::size_t k = t_mesh > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh / dt)) : 1;
-  if (b - a < 2 * k) {
-    unsteady.push_back(fmt("window too short: %.3g s holds fewer than two meshing periods (%.3g s)",
-                           s.window_end - s.window_start, t_mesh));
-  } else {
+  if (!short_window) {
     double lo = 1e300, hi = -1e300, run = 0;
     for (std::size_t i = a; i < b; ++i) {
       run += ch.output_torque[i];
@@ -157,7 +159,8 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
                              "load) with the meshing ripple removed",
                              swing, 100 * swing / torque_scale));
   }
-  if (std::abs(s.load_torque) > 0 && std::abs(s.output_torque - s.load_torque) > c.balance * torque_scale)
+  if (!short_window && std::abs(s.load_torque) > 0 &&
+      std::abs(s.output_torque - s.load_torque) > c.balance * torque_scale)
     unsteady.push_back(fmt("torque balance: mean output torque %.4g N m against the load's %.4g N m (%.1f %%)",
                            s.output_torque, s.load_torque, 100 * (s.output_torque / s.load_torque - 1)));
   s.status = !slip.empty() ? "slip" : unsteady.empty() ? "steady" : "not_steady";
