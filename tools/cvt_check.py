@@ -47,7 +47,7 @@ def main():
         P = f["particles/chain/position/value"][-1]
         T = f["particles/chain/link_tension/value"][-1]
         ts = f["particles/chain/position/time"][-1]
-        cfg = f["parameters/config"][()]
+        cfg = f["parameters"].attrs["config"] if "config" in f["parameters"].attrs else f["parameters/config"][()]
         cfg = cfg.decode() if isinstance(cfg, bytes) else str(cfg)
         a_dist = float([l for l in cfg.splitlines() if l.strip().startswith("centre_distance")][0].split("=")[1].split("#")[0])
         x, y = P[:, 0], P[:, 1]
