@@ -401,7 +401,7 @@ int main(int argc, char** argv) {
   scale->add_option("--warmup", scale_warmup, "model time run first, serially [s]")->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   scale->add_option("--grain", scale_grain, "pins per task (flowgraph)")->check(CLI::Range(1, 1000000))->capture_default_str();
-  scale->add_option("--out", scale_out, "CSV file");
+  scale->add_option("-o,--out", scale_out, "CSV file");
   scale->add_option("--json", scale_json, "JSON file");
   scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
 
@@ -486,7 +486,7 @@ int main(int argc, char** argv) {
                         "them")
       ->capture_default_str();
   study_int->add_flag("--no-cache", si_no_cache, "compute the running state and the reference anew, keep nothing");
-  study_int->add_option("--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
+  study_int->add_option("-o,--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
   study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(study_int, si_sched);
 

@@ -7,7 +7,9 @@ Prints the window means of input, output and load torque, speed ratio against th
 geometric ratio (creep), the efficiency as 1 - dissipated / input work over the window
 (insensitive to energy swinging in and out of the torsion springs), and, from the last
 snapshot, the mean link tension of the two free strands against the difference the
-transmitted torque demands (T_tight - T_slack = M_out / R2).
+transmitted torque demands (T_tight - T_slack = M_out / R2), and the meshing frequency: the
+strongest line of the output torque's spectrum near the rate at which links enter the
+driving pulley, omega_in R1 / pitch.
 """
 import argparse
 import sys
@@ -43,13 +45,27 @@ def main():
     print(f"  speed ratio / geometric     {ratio:.5f} / {geo:.5f}   (creep {100 * (ratio / geo - 1):+.3f} %)")
     print(f"  efficiency 1 - D/W_in       {1 - d('work_dissipated') / d('work_input'):.4f}")
     print(f"  energy residual / W_in      {v('energy_residual')[i1] / v('work_input')[i1]:.2e} (whole run)")
+    cfg = f["parameters"].attrs["config"] if "config" in f["parameters"].attrs else f["parameters/config"][()]
+    cfg = cfg.decode() if isinstance(cfg, bytes) else str(cfg)
+    key = lambda name: float([l for l in cfg.splitlines() if l.strip().startswith(name + " ")][0].split("=")[1].split("#")[0])
+    geometry = f["parameters"].attrs.get("geometry", "")
+    geometry = geometry.decode() if isinstance(geometry, bytes) else str(geometry)
+    if "R1 = " in geometry and i1 - i0 > 64:
+        R1 = float(geometry.split("R1 = ")[1].split()[0])
+        f_mesh = v("input_speed")[w].mean() * R1 / key("pitch")
+        x = v("output_torque")[w] - Mout
+        F = np.abs(np.fft.rfft(x * np.hanning(x.size)))
+        fr = np.fft.rfftfreq(x.size, (t[i1] - t[i0]) / (i1 - i0))
+        band = (fr > 0.5 * f_mesh) & (fr < 1.5 * f_mesh)
+        if band.any():
+            peak = fr[band][np.argmax(F[band])]
+            print(f"  meshing frequency           {peak:.0f} Hz in the output torque against omega_in R1 / pitch = "
+                  f"{f_mesh:.0f} Hz ({100 * (peak / f_mesh - 1):+.1f} %; resolution {fr[1]:.0f} Hz)")
     if "particles/chain/position" in f:
         P = f["particles/chain/position/value"][-1]
         T = f["particles/chain/link_tension/value"][-1]
         ts = f["particles/chain/position/time"][-1]
-        cfg = f["parameters"].attrs["config"] if "config" in f["parameters"].attrs else f["parameters/config"][()]
-        cfg = cfg.decode() if isinstance(cfg, bytes) else str(cfg)
-        a_dist = float([l for l in cfg.splitlines() if l.strip().startswith("centre_distance")][0].split("=")[1].split("#")[0])
+        a_dist = key("centre_distance")
         x, y = P[:, 0], P[:, 1]
         mid = (x > 0.2 * a_dist) & (x < 0.8 * a_dist)
         up, lo = T[mid & (y > 0)], T[mid & (y < 0)]
