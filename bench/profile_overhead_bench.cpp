@@ -1,4 +1,4 @@
-// Cost of the per-module timers (issue 4: under 2 %): whole RK4 steps of the reference
+// Cost of the per-module timers: whole RK4 steps of the reference
 // model with and without the profiler, for the serial schedule and the flow graph, in
 // interleaved batches; the overhead is the median of the per-batch ratios. Also checks
 // that profiling does not change the bits.

@@ -1,4 +1,4 @@
-// The schedules side by side on the reference model (issue 3): one RHS and one RK4 step
+// The schedules side by side on the reference model: one RHS and one RK4 step
 // for serial, flowgraph and paper-omp at 1..max threads, the flow graph's own overhead
 // with empty node bodies, and the serial gap the master thread spends between graph runs.
 // Compare ratios within one run; `--benchmark_repetitions=5` gives medians.

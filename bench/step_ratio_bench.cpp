@@ -1,6 +1,6 @@
 // Interleaved timing of whole RK4 steps of the reference model under each schedule: on a
 // shared, noisy machine the schedules take turns in short batches, and the ratios are
-// medians over the batches (issue 3 targets: flowgraph vs serial, flowgraph vs paper-omp).
+// medians over the batches (flowgraph vs serial, flowgraph vs paper-omp).
 // Usage: step_ratio_bench [threads=2] [batches=15] [steps per batch=200] [grain=4]
 #include <algorithm>
 #include <chrono>

@@ -1,4 +1,4 @@
-// Scaling study (issue 4 item 2; paper 1 Fig. 9, paper 2 Figs. 8-11): whole RK4 steps of a
+// Scaling study (the published papers: 1 Fig. 9, 2 Figs. 8-11): whole RK4 steps of a
 // model under each scheduler, thread count and NUMA layout, timed in interleaved repeats
 // from the same running state; speedups against the serial schedule, per-module speedups,
 // the thread-local buffers' zeroing and gathering against compute, and the Amdahl serial

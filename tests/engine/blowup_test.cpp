@@ -1,4 +1,4 @@
-// Blow-up detection beyond non-finite numbers (issue 4 item 4): a contact penetrating
+// Blow-up detection beyond non-finite numbers: a contact penetrating
 // absurdly deep stops the run with a message naming the module and the joint; a sound
 // running state raises nothing.
 #include <gtest/gtest.h>

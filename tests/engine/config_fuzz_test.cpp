@@ -1,4 +1,4 @@
-// Bad input never crashes (issue 4, item 7): mutated configuration files and random
+// Bad input never crashes: mutated configuration files and random
 // --set strings go through the loader and the model builder. Every outcome must be either
 // a model with a finite initial state or a ConfigError that names a key and a reason;
 // any other exception, a crash or a hang is a failure. Deterministic seeds: a failure

@@ -1,4 +1,4 @@
-// The end-of-run profile (issue 4 item 1): its rows add up to the run's wall time, count
+// The end-of-run profile: its rows add up to the run's wall time, count
 // what was called, are the same in the table, the JSON and the file's /profile group, and
 // timing a run does not change its bits.
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// The scaling study (issue 4 item 2): the Amdahl fit recovers a known serial fraction,
+// The scaling study: the Amdahl fit recovers a known serial fraction,
 // and a small study measures every combination from the same state, ends in the serial
 // bits, and writes its CSV and JSON.
 #include <gtest/gtest.h>

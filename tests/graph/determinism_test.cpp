@@ -1,4 +1,4 @@
-// Every schedule gives the same bits (DESIGN.md; issue 3): the trajectory of the mini
+// Every schedule gives the same bits: the trajectory of the mini
 // model over a few hundred RK4 steps, from a perturbed state with contacts switching, is
 // compared byte for byte across schedulers, thread counts, grains and NUMA layouts.
 #include <gtest/gtest.h>
