@@ -1,4 +1,4 @@
-// The flow-graph schedule (DESIGN.md): per NUMA arena one oneTBB graph, built once and
+// The flow-graph schedule (docs/runtime.md): per NUMA arena one oneTBB graph, built once and
 // reused for every stage:
 //   start -> {chain_forces, pulley_contact, other_forces, inertia_decomposition}
 //         -> {gather (pins), gather_shafts} -> accelerations + stage update

@@ -1,4 +1,4 @@
-// How one RHS evaluation is scheduled (DESIGN.md, graph/): the same kernels and passes
+// How one RHS evaluation is scheduled: the same kernels and passes
 // (engine/rhs.hpp) run module after module on one thread, as a oneTBB flow graph per
 // NUMA arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
@@ -50,7 +50,7 @@ class Schedule {
   virtual void update_status(double t, const double* y) = 0;
   // Runs f (a whole step: its stages and the status update) where the schedule's threads
   // live, so that they stay awake between the stages instead of leaving the arena after
-  // each one (DESIGN.md: wake-up dominates short stages).
+  // each one (wake-up dominates short stages; docs/runtime.md).
   // (No std::function: a step's lambda would not fit its small buffer, and allocating
   // once per step is what the house style forbids.)
   template <class F>

@@ -1,4 +1,4 @@
-// The simulated CVT behaves like a CVT (docs/model.md 6; MODEL.md 8): on the mini model
+// The simulated CVT behaves like a CVT (docs/model.md 6, 8): on the mini model
 // at light load the load torque is transmitted through friction and the speed ratio
 // settles close to the geometric ratio (small creep, no gross slip).
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// No heap allocation inside the generic integrators' steps (DESIGN.md: nothing is
+// No heap allocation inside the generic integrators' steps (the house rule: nothing is
 // allocated inside a step). Counts calls of the global operator new while a solver whose
 // workspace is already built integrates. The replacement operators below serve the whole
 // test binary; they only count while `counting` is set.
