@@ -543,8 +543,10 @@ int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) 
         std::snprintf(p, sizeof p, "%s=%.3g W%d/%d%s", r.param_kind.c_str(), r.param, r.w_every, r.w_k_every, r.chosen ? "*" : "");
       else
         std::snprintf(p, sizeof p, "%s=%.3g%s", r.param_kind.c_str(), r.param, r.chosen ? "*" : "");
-      std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %11.2fx\n", r.method.c_str(), p,
-                  100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, rk4_wall / r.wall_s);
+      char vs[32] = "-";  // without an RK4 candidate in this study
+      if (std::isfinite(rk4_wall) && rk4_wall > 0) std::snprintf(vs, sizeof vs, "%.2fx", rk4_wall / r.wall_s);
+      std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %12s\n", r.method.c_str(), p,
+                  100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, vs);
     }
     if (opt.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt.repeat);
     std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,

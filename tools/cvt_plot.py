@@ -397,6 +397,9 @@ def history_panels(f, t0=None, t1=None, eff_window=None):
             vals = [(n, x) for n, x in vals if len(x[0])]
             if not vals:
                 return False
+            # The geometric ratio is 0 while no pin touches a sheave (the start from rest): undefined.
+            vals = [(n, (t, np.where(v > 0, v, np.nan), u) if n == "geometric_ratio" else (t, v, u))
+                    for n, (t, v, u) in vals]
             allv = np.concatenate([v.ravel() for _, (_, v, _) in vals])
             fac, uu = scaled(allv, vals[0][1][2])
             for n, (t, v, _) in vals:
@@ -416,6 +419,10 @@ def history_panels(f, t0=None, t1=None, eff_window=None):
         t, v, _ = read_channel(f, "slip", t0, t1)
         if len(t) == 0:
             return False
+        if has_channel(f, "geometric_ratio"):  # undefined while the geometric ratio is
+            tg, g, _ = read_channel(f, "geometric_ratio", t0, t1)
+            if len(tg) == len(t):
+                v = np.where(g > 0, v, np.nan)
         ax.axhline(0, color="0.5", lw=0.7)
         ax.plot(*_envelope(t * TIME[0], _finite(v) * 100), lw=0.9, color="C3")
         ax.set_ylabel("slip [%]")
