@@ -36,7 +36,7 @@ build: deps configure
 
 THREADS ?= $(shell nproc)
 
-# The reference model to a steady operating point (about 1.5 minutes on 2 cores).
+# The reference model to a steady operating point (about 1 minute on 2 cores after the build).
 run: build
 	@$(BUILD)/cvt-engine run $(CONFIG) --out $(OUT) --scheduler flowgraph --threads $(THREADS)
 
