@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/h5_writer.hpp"
 #include "tests/test_util.hpp"
 
 namespace cvt {
@@ -274,17 +275,9 @@ TEST_F(CliTest, SampleTimesAreExactMultiplesOfTheStep) {
   const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "3e-8", "--t-end", "3e-6", "--set",
                            "run.sample_interval=3e-7", "--set", "run.snapshot_interval=0", "-q", "-o", "t.h5"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  const hid_t f = H5Fopen((dir_ / "t.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0);
-  const hid_t d = H5Dopen2(f, "/observables/input_speed/time", H5P_DEFAULT);
-  const hid_t sp = H5Dget_space(d);
-  hsize_t n = 0;
-  H5Sget_simple_extent_dims(sp, &n, nullptr);
-  std::vector<double> t(n);
-  H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, t.data());
-  H5Sclose(sp), H5Dclose(d), H5Fclose(f);
-  ASSERT_EQ(n, 11u);
-  for (hsize_t i = 0; i < n; ++i) EXPECT_EQ(t[i], static_cast<double>(10 * i) * 3e-8) << i;
+  const std::vector<double> t = H5File::open((dir_ / "t.h5").string()).read_doubles("/observables/input_speed/time");
+  ASSERT_EQ(t.size(), 11u);
+  for (std::size_t i = 0; i < t.size(); ++i) EXPECT_EQ(t[i], static_cast<double>(10 * i) * 3e-8) << i;
 }
 
 // An output folder that does not exist is refused before the run is set up: exit 73, in
