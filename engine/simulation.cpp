@@ -554,7 +554,6 @@ class Recorder {
   std::vector<H5Series*> observables_, snapshots_;
 };
 
-
 long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
 
 // SIGINT / SIGTERM during a run: the step in progress finishes, the state at that moment
@@ -630,7 +629,6 @@ void write_summary(H5File& f, const RunSummary& s) {
            {"wall_s", s.wall_s}})
     f.set_double_attribute("/summary", name, v);
 }
-
 
 // The earlier part of a continued run, read back from its file: the rows up to the
 // checkpoint on the sample grid, for the summary and the running efficiency's window.
@@ -713,10 +711,6 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
     }
   return hist;
 }
-
-}  // namespace
-
-namespace {
 
 // The shortest decimal that reads back as x ("3e-07", not "2.9999999999999999e-07").
 std::string shortest(double x) {
