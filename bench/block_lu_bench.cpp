@@ -1,6 +1,6 @@
 // The W-methods' linear algebra on the reference chain's shape (84 links, 21 x 21 blocks):
 // CyclicBlockLU factorization and one solve, on a random diagonally dominant matrix of that
-// structure (docs/integrators.md 12.6, 13), with the two sweeps one after the other
+// structure (docs/integrators.md 12.2), with the two sweeps one after the other
 // ("Sequential") and on two threads (tbb::parallel_invoke in a 2-thread arena; same bits).
 #include <benchmark/benchmark.h>
 

@@ -148,13 +148,13 @@ struct Config {
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
     // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
     // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
-    // (ModelOdeOptions::w_fresh, docs/integrators.md 17); 0: off. w_fresh_max such contacts
+    // (ModelOdeOptions::w_fresh, docs/integrators.md 12.4); 0: off. w_fresh_max such contacts
     // at most; more make the next step rebuild the friction blocks.
     double w_fresh = 5.0;
     int w_fresh_max = 12;
     // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
     // no longer than startup_step (the pins settling onto the sheaves from rest;
-    // docs/integrators.md 12.8, 13.4)
+    // docs/integrators.md 12.3)
     double startup_time = 1.0e-4;   // [s]; 0: none
     double startup_step = 6.25e-8;  // [s]
   } integrator;

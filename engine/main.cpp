@@ -357,7 +357,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
-  run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 13)");
+  run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
   run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
                   "for the continuation only)");
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
@@ -409,8 +409,9 @@ int main(int argc, char** argv) {
   study->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
   study->require_subcommand(1);
   auto* study_int = study->add_subcommand("integrators", "integrator study: by default RK4 at 1e-8 against ROS34PW2 at the configuration's step, over "
-                                          "5 ms after the load ramp, against RK4 at 5e-9 (docs/integrators.md); about 10 min on "
-                                          "2 threads, most of it the reference, which --cache keeps for the next run");
+                                          "5 ms of a running chain, against RK4 at 5e-9 (docs/integrators.md): about 7 min for the "
+                                          "reference model, most of it the running state and the reference, which the cache keeps "
+                                          "for the next run (then about 2 min)");
   study_int->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
   std::string si_config;
   std::vector<std::string> si_overrides;

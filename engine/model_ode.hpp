@@ -45,7 +45,7 @@ struct ModelOdeOptions {
   // Workspace::damping_secant: true (the secant slope N f(v)/v along the sliding direction
   // too, never below the exact one) keeps a sliding contact that is about to stick stiff in
   // W; with the exact slope (0 above v0 for the nonsmooth law) a stale W meets such a
-  // contact explicitly, and its friction chatters (docs/integrators.md 12.6).
+  // contact explicitly, and its friction chatters (docs/integrators.md 12.2).
   bool w_secant = true;
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).
@@ -58,15 +58,15 @@ struct ModelOdeOptions {
   // true: a change of the contact statuses (after a step) makes the next step rebuild the
   // whole matrix. Off: measured worse (8-10 % against 0.8 % over the 5 ms window at 2.5e-7,
   // and 5x further from RK4 in the mini model's load ramp), as the stiffness differences
-  // taken right where a contact switches step across its boundary (docs/integrators.md 12.6).
+  // taken right where a contact switches step across its boundary (docs/integrators.md 15).
   bool w_status_rebuild = false;
   // The block LU of W drops the fill of its cyclic corners below this fraction of the next
   // pivot block (CyclicBlockLU::set_drop_tolerance): W is then factored exactly as W + E,
   // |E| <= 1e-12 |W|, the same for every stage, far below the approximation a W-method
   // works with anyway (a matrix up to w_every steps old). On the reference model at 1e-6
-  // the fill rows fall from 58 to 21 of 83 per factorization (docs/integrators.md 14).
+  // the fill rows fall from 58 to 21 of 83 per factorization (docs/integrators.md 12.2).
   double w_fill_drop = 1e-12;
-  // Fresh friction between rebuilds (docs/integrators.md 17): > 0 keeps W's friction part
+  // Fresh friction between rebuilds (docs/integrators.md 12.4): > 0 keeps W's friction part
   // current at every step, as a low-rank (Woodbury) correction of the factorized W for the
   // contacts whose friction coefficient mu (the secant N f(v)/v) moved since the rebuild by
   // more than w_fresh * m_pin / (gamma h), i.e. whose stiffness gamma h mu / m_pin changed by

@@ -1,4 +1,4 @@
-// The W-methods of the generic integrators (docs/integrators.md 12, 13): ROS2 and ROS34PW2.
+// The W-methods of the generic integrators (docs/integrators.md 12): ROS2 and ROS34PW2.
 //
 // Verwer, Spee, Blom & Hundsdorfer, "A second-order Rosenbrock method applied to
 // photochemical dispersion problems", SIAM J. Sci. Comput. 20 (1999) 1456-1480:

@@ -53,7 +53,7 @@ void Simulation::step(double h, bool update_status) {
     // The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and
     // the rocker faces load up, with contact stiffnesses that the matrix (taken at the start)
     // does not yet hold; ROS2 (gamma = 1.71) damps that mismatch, ROS34PW2 (gamma = 0.44)
-    // blows up on it within microseconds (docs/integrators.md 13.4).
+    // blows up on it within microseconds (docs/integrators.md 12.3).
     auto make = [this](double hh, bool startup) {
       OdeRunOptions ro;
       ro.method = startup ? OdeMethod::Ros2 : parse_ode_method(m_.cfg.integrator.method);

@@ -116,7 +116,7 @@ struct Workspace {
   // row-major: K_ps with the pins' friction force -K_ps v_shaft.
   std::vector<double> pulley_shaft_damping;
 
-  // Fresh friction for the W-method (ModelOdeOptions::w_fresh, docs/integrators.md 17). With
+  // Fresh friction for the W-method (ModelOdeOptions::w_fresh, docs/integrators.md 12.4). With
   // the secant slope a contact's block is mu U U^T, U = G^T [t s] (its slip velocity's
   // columns projected on the tangent plane), so between two rebuilds a contact whose mu
   // moved adds a rank-2 term to W. With record_mu set (the first evaluation of every

@@ -206,7 +206,7 @@ TEST(Ros2Run, StartupSubStepsFollowRk4FromRestOnTheSameGrid) {
 // ROS34PW2 from rest on the reference model: its small gamma (0.44) does not damp what the
 // matrix taken at the start misses while the pins settle and the rocker faces load up, and it
 // blows up within microseconds; the start-up phase, in ROS2 sub-steps of at most
-// integrator.startup_step, carries it through (docs/integrators.md 13.4).
+// integrator.startup_step, carries it through (docs/integrators.md 12.3).
 TEST(Ros2Run, Ros34pw2FromRestNeedsTheRos2StartUp) {
   const double h = 1.5625e-7;
   const Model bare = test::model("reference", {"integrator.method=ros34pw2", "integrator.startup_time=0"});
