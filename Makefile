@@ -67,7 +67,7 @@ plots: deps
 	@mkdir -p $(PLOTS)
 	@echo "make plots: run figures of $(OUT) into $(PLOTS)/"
 	$(PLOT) history $(OUT) -o $(PLOTS)/history.png
-	$(PLOT) spectrogram $(OUT) output_torque -o $(PLOTS)/spectrogram-output_torque.png
+	$(PLOT) spectrogram $(OUT) output_torque --fmax 6000 --nperseg 1024 -o $(PLOTS)/spectrogram-output_torque.png
 	@if $(HAS) $(OUT) particles/chain/position; then echo "$(PLOT) animate $(OUT) -o $(PLOTS)/chain.gif"; \
 	  $(PLOT) animate $(OUT) -o $(PLOTS)/chain.gif; \
 	else echo "make plots: $(OUT) has no snapshots (run.snapshot_interval = 0): no chain.gif"; fi

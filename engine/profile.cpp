@@ -73,10 +73,11 @@ Profiler::Report Profiler::report(double total_wall_s, double model_time, int nu
       busy_total[static_cast<std::size_t>(w)] += b;
       lo = std::min(lo, b), hi = std::max(hi, b), sum += b;
     }
-    row.busy_min_s = lo, row.busy_max_s = hi, row.busy_avg_s = sum / W;
+    // Work timed on the master alone (the W-methods' matrix work and step updates) is
+    // serial: every thread spends it in this section, the others waiting for it.
     const double master = static_cast<double>(master_[k]) * spt;
-    if (master > 0 && sum == 0) row.busy_min_s = row.busy_max_s = row.busy_avg_s = master;
-    row.wall_s = (sum > 0 ? sum / W : 0.0) + master;
+    row.busy_min_s = lo + master, row.busy_max_s = hi + master, row.busy_avg_s = sum / W + master;
+    row.wall_s = row.busy_avg_s;
     sections_s += row.wall_s;
     finish(row);
   }
