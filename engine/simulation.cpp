@@ -839,6 +839,12 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
   if (start >= total)
     throw std::runtime_error("the checkpoint is at step " + std::to_string(start) + " (t = " + std::to_string(sim.time()) +
                              " s), not before t_end = " + std::to_string(c.run.t_end) + " s: raise --t-end");
+  // A W-method's matrix is not in a checkpoint: a continuation repeats the bits only from a
+  // step that rebuilds all of it, a multiple of integrator.w_k_every. Periodic checkpoints
+  // and stops on a signal fall on such steps (docs/cli.md).
+  const long rebuild_every = c.integrator.method == "rk4" ? 1 : std::max(1, c.integrator.w_k_every);
+  const long checkpoint_every =
+      opt.checkpoint_every > 0 ? (opt.checkpoint_every + rebuild_every - 1) / rebuild_every * rebuild_every : 0;
 
   // Write to a temporary name and rename at the end: a failed run never leaves a file
   // that looks complete. A continued run moves its file there while it writes.
@@ -882,6 +888,14 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
   SummaryChannels channels = hist.channels;
   std::vector<double> pos, ten;
   RunResult r;
+  if (opt.resume && start % rebuild_every != 0) {
+    const std::string w = "the checkpoint is at step " + std::to_string(start) + ", not a multiple of "
+                          "integrator.w_k_every = " + std::to_string(rebuild_every) + ": " + c.integrator.method +
+                          "'s matrix is rebuilt here, so the continuation is close to, not bit-identical with, an "
+                          "uninterrupted run";
+    r.warnings.push_back(w);
+    warn(w);
+  }
 
   const bool tty = isatty(fileno(stderr));
   using Clock = std::chrono::steady_clock;
@@ -968,13 +982,13 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
         rec.snapshot(sim.time(), pos, ten);
       });
     }
-    if (opt.checkpoint_every > 0 && n % opt.checkpoint_every == 0)
+    if (checkpoint_every > 0 && n % checkpoint_every == 0)
       output([&] {
         file.flush();
         last_flush = Clock::now();
         write_checkpoint(ckpt_path, checkpoint());
       });
-    if (g_stop_signal) {
+    if (g_stop_signal && (n % rebuild_every == 0 || n == total)) {
       // Keep everything up to this step: its sample ends the series.
       done = n;
       if (!(on_grid || n == total)) {
