@@ -1,5 +1,5 @@
 // LU factorization of a block-tridiagonal matrix with cyclic corners (docs/integrators.md
-// 12.6): n diagonal blocks D_l, sub-diagonal blocks S_l = M(l, l-1 mod n) and
+// 12.2): n diagonal blocks D_l, sub-diagonal blocks S_l = M(l, l-1 mod n) and
 // super-diagonal blocks P_l = M(l-1 mod n, l), all B x B, so S_0 = M(0, n-1) and
 // P_0 = M(n-1, 0) are the corners. This is the structure of ROS2's matrix for the chain in
 // link order (each force couples at most two neighbouring links).

@@ -68,7 +68,7 @@ struct KeyDef {
 const std::vector<KeyDef>& schema() {
   static const std::vector<KeyDef> defs = {
       CVT_KEY(geometry, centre_distance, real, "m", positive),
-      CVT_KEY(geometry, ratio, real, "-", positive),
+      CVT_KEY(geometry, ratio, real, "1", positive),
 
       CVT_KEY(chain, links, integer, "", (Range{3, false, 10000, false})),
       CVT_KEY(chain, pitch, real, "m", positive),
@@ -99,7 +99,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(pulley_contact, damping, real, "N s/m", nonneg),
 
       CVT_KEY(friction, law, law, "", Range{}),
-      CVT_KEY(friction, f0, real, "-", positive),
+      CVT_KEY(friction, f0, real, "1", positive),
       CVT_KEY(friction, v0, real, "m/s", positive),
 
       CVT_KEY(sheave, cone_angle, real, "deg", (Range{0, true, 45, true})),
@@ -133,20 +133,20 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(clamping, sheave_damping, real, "N s/m", nonneg),
 
       CVT_KEY(controller, enabled, boolean, "", Range{}),
-      CVT_KEY(controller, target_ratio, real, "-", positive),
+      CVT_KEY(controller, target_ratio, real, "1", positive),
       CVT_KEY(controller, kp, real, "N", nonneg),
       CVT_KEY(controller, ki, real, "N/s", nonneg),
 
       CVT_KEY(ramp, time, real, "s", nonneg),
 
-      CVT_KEY(damping, scale, real, "-", nonneg),
+      CVT_KEY(damping, scale, real, "1", nonneg),
 
       CVT_KEY(integrator, method, string, "", Range{}),
       CVT_KEY(integrator, step, real, "s", positive),
       CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
-      CVT_KEY(integrator, w_fresh, real, "-", nonneg),
+      CVT_KEY(integrator, w_fresh, real, "1", nonneg),
       CVT_KEY(integrator, w_fresh_max, integer, "", (Range{1, false, 1000, false})),
       CVT_KEY(integrator, startup_time, real, "s", nonneg),
       CVT_KEY(integrator, startup_step, real, "s", positive),

@@ -166,8 +166,10 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   } else if (config_path.empty()) {
     throw ConfigError("CONFIG", "", "missing: give a TOML configuration or --resume CHECKPOINT");
   }
-  const std::map<std::string, std::string> shortcuts = {
-      {"run.t_end", "--t-end"}, {"integrator.step", "--step"}, {"integrator.method", "--method"}};
+  std::map<std::string, std::string> shortcuts;  // the keys the shortcut options set
+  if (!t_end.empty()) shortcuts["run.t_end"] = "--t-end";
+  if (!step.empty()) shortcuts["integrator.step"] = "--step";
+  if (!ra.method.empty()) shortcuts["integrator.method"] = "--method";
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
                           : load_config(config_path, overrides, shortcuts);
   const Model model = build_model(cfg);

@@ -72,7 +72,7 @@ struct ModelOdeOptions {
   // more than w_fresh * m_pin / (gamma h), i.e. whose stiffness gamma h mu / m_pin changed by
   // more than w_fresh. Each such contact costs two solves with the factorized W when it
   // joins, and a rank-2 term in every solve after. More than w_fresh_max of them make the
-  // next step rebuild the friction blocks. 0: off (the stale blocks of 12.6); off too
+  // next step rebuild the friction blocks. 0: off (the stale blocks of docs/integrators.md 12.3); off too
   // without w_secant.
   double w_fresh = 0;
   int w_fresh_max = 12;

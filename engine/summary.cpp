@@ -166,7 +166,7 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.status = !slip.empty() ? "slip" : unsteady.empty() ? "steady" : "not_steady";
   s.reasons = slip;
   s.reasons.insert(s.reasons.end(), unsteady.begin(), unsteady.end());
-  s.efficiency_meaningful = s.status == "steady";
+  s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
 std::string format_summary(const RunSummary& s) {

@@ -296,7 +296,8 @@ TEST_F(CliTest, OutputFolderThatDoesNotExistIsRefusedFirst) {
 // stderr and in the file's /summary), before it blows up or not.
 TEST_F(CliTest, Rk4StepPastItsStabilityLimitWarns) {
   const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "1e-7", "--t-end", "2e-6", "--set",
-                           "run.sample_interval=1e-6", "-q", "-o", "w.h5", "--summary-json", "w.json"});
+                           "run.sample_interval=1e-6", "--set", "ramp.time=0", "-q", "-o", "w.h5", "--summary-json",
+                           "w.json"});
   EXPECT_TRUE(r.exit_code == 0 || r.exit_code == 70) << r.err;
   EXPECT_NE(r.err.find("cvt-engine: warning: RK4's step 1e-07 s is above its stability limit"), std::string::npos)
       << r.err;

@@ -155,7 +155,7 @@ TEST(OdeTestSet, OregonatorEsdirk3) { check_esdirk3(orego(), 1, 1.5); }
 // ROS2 (W-method, here with the finite-difference Jacobian at every step): second order,
 // with steps controlled by its first-order embedded estimate (h ~ tol^(1/2)), so its global
 // error falls faster than the tol^(2/3) law below, which is checked as a lower bound with
-// the constants measured (less 0.3 digit, docs/integrators.md 12).
+// the constants measured (less 0.3 digit, docs/integrators.md 9).
 TEST(OdeTestSet, HiresRos2) { check_problem(hires(), OdeMethod::Ros2, 1, 1.1); }
 TEST(OdeTestSet, VanDerPolRos2) { check_problem(vdpol(), OdeMethod::Ros2, 1, 0.9); }
 TEST(OdeTestSet, RobertsonRos2) { check_problem(rober(), OdeMethod::Ros2, 1e-4, -0.7); }
