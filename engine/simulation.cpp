@@ -644,7 +644,8 @@ struct FileHistory {
 FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long every_sample, long every_snapshot) {
   const Config& c = m.cfg;
   const double h = c.integrator.step;
-  const std::string& path = f.path();
+  std::string path = f.path();  // the run's file, moved to FILE.partial while it is continued
+  if (path.size() > 8 && path.compare(path.size() - 8, 8, ".partial") == 0) path.resize(path.size() - 8);
   const auto refuse = [&](const std::string& why) {
     throw std::runtime_error("cannot continue " + path + " from the checkpoint: " + why +
                              "; give --out NEW to write the continuation to a new file");
