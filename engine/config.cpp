@@ -293,9 +293,11 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
   return d[n][m];
 }
 
+}  // namespace
+
 // The candidate the word begins (when only one does: "ros34" -> "ros34pw2"), else the
 // closest candidate within edit distance 2, if any.
-std::optional<std::string> closest(std::string_view word, const std::vector<std::string>& candidates) {
+std::optional<std::string> closest_name(std::string_view word, const std::vector<std::string>& candidates) {
   if (word.size() >= 3) {
     std::optional<std::string> prefix;
     int count = 0;
@@ -314,6 +316,8 @@ std::optional<std::string> closest(std::string_view word, const std::vector<std:
   }
   return best;
 }
+
+namespace {
 
 std::vector<std::string> keys_of(std::string_view section) {
   std::vector<std::string> out;
@@ -349,16 +353,16 @@ std::string suggestion_text(const std::vector<std::string>& names) {
 // Reason for an unknown `key` inside `section` (section may itself be unknown).
 std::string unknown_key_reason(const std::string& section, const std::string& key) {
   if (is_section(section)) {
-    if (auto k = closest(key, keys_of(section))) return "unknown key" + suggestion_text({section + "." + *k});
+    if (auto k = closest_name(key, keys_of(section))) return "unknown key" + suggestion_text({section + "." + *k});
     return "unknown key" + suggestion_text(sections_with_key(key));
   }
   std::string reason = "unknown key (there is no section [" + section + "])";
-  if (auto s = closest(section, section_names())) {
+  if (auto s = closest_name(section, section_names())) {
     if (find_key(*s, key)) return reason + suggestion_text({*s + "." + key});
-    if (auto k = closest(key, keys_of(*s))) return reason + suggestion_text({*s + "." + *k});
+    if (auto k = closest_name(key, keys_of(*s))) return reason + suggestion_text({*s + "." + *k});
     return reason + suggestion_text({"[" + *s + "]"});
   }
-  if (auto q = closest(section + "." + key, qualified_names())) return reason + suggestion_text({*q});
+  if (auto q = closest_name(section + "." + key, qualified_names())) return reason + suggestion_text({*q});
   return reason + suggestion_text(sections_with_key(key));
 }
 
@@ -413,7 +417,7 @@ class Validator {
         std::string reason = "unknown key (keys must sit inside a [section])";
         auto where = sections_with_key(section);
         if (where.empty())
-          if (auto s = closest(section, section_names())) where = {"[" + *s + "]"};
+          if (auto s = closest_name(section, section_names())) where = {"[" + *s + "]"};
         collect([&] { fail(section, &node, reason + suggestion_text(where)); });
         continue;
       }
@@ -433,7 +437,7 @@ class Validator {
             from_set = true;
           }
         if (from_set) continue;
-        if (auto s = closest(section, section_names())) reason += suggestion_text({"[" + *s + "]"});
+        if (auto s = closest_name(section, section_names())) reason += suggestion_text({"[" + *s + "]"});
         else if (!keys.empty() && !sections_with_key(keys.front()).empty())
           reason += suggestion_text(sections_with_key(keys.front()));
         if (!keys.empty()) {
@@ -516,7 +520,7 @@ class Validator {
     if (std::find(accepted.begin(), accepted.end(), v) != accepted.end()) return;
     std::string reason = std::string("unknown ") + what + "; accepted: ";
     for (std::size_t i = 0; i < accepted.size(); ++i) reason += (i ? ", " : "") + quote(accepted[i]);
-    if (auto c = closest(v, accepted)) reason += suggestion_text({*c});
+    if (auto c = closest_name(v, accepted)) reason += suggestion_text({*c});
     fail(qkey, &n, reason);
   }
 

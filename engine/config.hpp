@@ -6,7 +6,9 @@
 #include <cmath>
 #include <stdexcept>
 #include <map>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace cvt {
@@ -180,6 +182,10 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
                     const std::string& origin = "<string>",
                     const std::map<std::string, std::string>& shortcuts = {});
 // Reads the file and calls parse_config. A missing file is a ConfigError too.
+// The candidate a word begins (when only one does), else the closest within two edits
+// (insertions, deletions, substitutions, adjacent swaps): for "did you mean".
+std::optional<std::string> closest_name(std::string_view word, const std::vector<std::string>& candidates);
+
 Config load_config(const std::string& path, const std::vector<std::string>& overrides = {},
                    const std::map<std::string, std::string>& shortcuts = {});
 

@@ -290,22 +290,6 @@ int cmd_modes(const std::string& config_path, const std::vector<std::string>& ov
   return kExitOk;
 }
 
-// Edit distance of two option names (for "did you mean").
-std::size_t edit_distance(const std::string& a, const std::string& b) {
-  std::vector<std::size_t> d(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) d[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    std::size_t prev = d[0];
-    d[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j) {
-      const std::size_t cur = d[j];
-      d[j] = std::min({d[j] + 1, d[j - 1] + 1, prev + (a[i - 1] == b[j - 1] ? 0 : 1)});
-      prev = cur;
-    }
-  }
-  return d[b.size()];
-}
-
 // After an unknown option: the closest options of the subcommand that was given.
 void suggest_options(CLI::App& app, int argc, char** argv) {
   const CLI::App* cmd = &app;
@@ -320,13 +304,8 @@ void suggest_options(CLI::App& app, int argc, char** argv) {
     if (a.rfind("--", 0) != 0) continue;
     a = a.substr(0, a.find('='));
     if (std::find(names.begin(), names.end(), a) != names.end()) continue;
-    std::string best;
-    std::size_t best_d = 3;  // at most two edits
-    for (const std::string& n : names) {
-      const std::size_t d = edit_distance(a, n);
-      if (d < best_d) best_d = d, best = n;
-    }
-    if (!best.empty()) std::fprintf(stderr, "%s: unknown option; did you mean '%s'?\n", a.c_str(), best.c_str());
+    if (const auto best = cvt::closest_name(a, names))
+      std::fprintf(stderr, "%s: unknown option; did you mean '%s'?\n", a.c_str(), best->c_str());
   }
 }
 
