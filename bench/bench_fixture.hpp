@@ -1,9 +1,9 @@
 // The reference model in a running state, shared by the benchmark programs.
 #pragma once
 
-#include "engine/config.hpp"
-#include "engine/model.hpp"
-#include "engine/rhs.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/model.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "engine/simulation.hpp"
 #include "modules/inertia.hpp"
 

@@ -9,7 +9,7 @@
 #include <tbb/parallel_invoke.h>
 #include <tbb/task_arena.h>
 
-#include "engine/block_cyclic.hpp"
+#include "engine/ode/block_cyclic.hpp"
 
 namespace {
 

@@ -2,9 +2,9 @@
 // RHS and one RK4 step: the first performance record (README "Performance").
 #include <benchmark/benchmark.h>
 
-#include "engine/config.hpp"
-#include "engine/model.hpp"
-#include "engine/rhs.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/model.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "engine/simulation.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"

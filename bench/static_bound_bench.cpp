@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "engine/base/timing.hpp"
 #include "bench/bench_fixture.hpp"
 #include "graph/schedule.hpp"
 #include "modules/chain_forces.hpp"
@@ -21,10 +22,6 @@
 namespace {
 
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
 
 // Sense-reversing spin barrier for two threads.
 struct Barrier {
@@ -117,7 +114,7 @@ int main(int argc, char** argv) {
   }
   stop = true;
   worker.join();
-  const double s = median(serial_us), st = median(static_us), fg = median(flow_us);
+  const double s = cvt::median(serial_us), st = cvt::median(static_us), fg = cvt::median(flow_us);
   std::printf("reference model, one RHS, medians of %d x %d:\n", batches, per);
   std::printf("  serial                         %6.1f us\n", s);
   std::printf("  ideal static, 2 threads        %6.1f us  (x%.2f)\n", st, s / st);

@@ -1,6 +1,7 @@
+#include "engine/base/timing.hpp"
 #include "engine/simulation.hpp"
 
-#include "engine/model_ode.hpp"
+#include "engine/wmethod/model_ode.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -14,8 +15,8 @@
 #include <set>
 #include <unistd.h>
 
-#include "engine/h5_writer.hpp"
-#include "engine/rhs.hpp"
+#include "engine/io/h5_writer.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "modules/beam.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/pulley_contact.hpp"
@@ -1025,13 +1026,13 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
     std::filesystem::rename(tmp, opt.out_path);
     throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt.out_path);
   }
-  step_wall = std::chrono::duration<double>(Clock::now() - t0).count();
+  step_wall = seconds_since(t0);
   if (opt.progress && tty) std::fprintf(stderr, "\n");
   output([&] {
     write_checkpoint(ckpt_path, checkpoint());
     file.close();
   });
-  r.profile = prof.report(std::chrono::duration<double>(Clock::now() - t0).count(),
+  r.profile = prof.report(seconds_since(t0),
                           sim.time() - (opt.resume ? opt.resume->t : 0.0), sim.schedule().numa_nodes(),
                           scheduler_name(opt.schedule.kind));
   r.steps = done - start;

@@ -7,22 +7,15 @@
 #include <string>
 #include <vector>
 
-#include "engine/checkpoint.hpp"
-#include "engine/integrator.hpp"
+#include "engine/io/checkpoint.hpp"
+#include "engine/ode/rk4.hpp"
 #include "graph/schedule.hpp"
-#include "engine/model.hpp"
-#include "engine/state.hpp"
+#include "engine/model/model.hpp"
+#include "engine/model/state.hpp"
 #include "engine/summary.hpp"
-#include "engine/profile.hpp"
+#include "engine/rhs/profile.hpp"
 
 namespace cvt {
-
-// Exit codes of the CLI (docs/cli.md).
-inline constexpr int kExitOk = 0;
-inline constexpr int kExitFailure = 1;
-inline constexpr int kExitBlowUp = 70;
-inline constexpr int kExitUsage = 64;  // command-line usage error (EX_USAGE)
-inline constexpr int kExitInterrupted = 130;  // stopped by SIGINT or SIGTERM, file kept
 
 // Numerical blow-up: non-finite state or absurd penetration.
 class BlowUpError : public std::runtime_error {
@@ -73,7 +66,7 @@ class Simulation {
   Schedule& schedule() { return *schedule_; }
   // Energy at the start (E(0) of the balance, docs/model.md 6).
   double initial_energy() const { return energy0_; }
-  // Per-module timing of every following step (engine/profile.hpp); the profiler lives
+  // Per-module timing of every following step (engine/rhs/profile.hpp); the profiler lives
   // as long as the simulation.
   Profiler& enable_profiling();
   Profiler* profiler() { return prof_.get(); }
@@ -95,7 +88,7 @@ class Simulation {
   // Largest |eigenvalue| of the Jacobian of f at a state (power iteration on finite
   // differences, statuses as given) [1/s]; RK4 is stable for h up to about 2.8 / rho.
   double spectral_radius(const Eigen::VectorXd& y, double t, const ContactStatus& status, int iterations = 40);
-  // Everything needed to continue bit-identically (engine/checkpoint.hpp), and back.
+  // Everything needed to continue bit-identically (engine/io/checkpoint.hpp), and back.
   Checkpoint checkpoint() const;
   // Throws std::runtime_error if the checkpoint does not fit this model.
   void restore(const Checkpoint& c);
@@ -188,7 +181,6 @@ class OutputError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
-inline constexpr int kExitCantCreate = 73;  // EX_CANTCREAT
 // Throws OutputError unless a file can be created at path (its folder exists and is writable).
 void check_writable(const std::string& path, const std::string& what);
 

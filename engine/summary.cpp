@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <sstream>
 
-#include "engine/json.hpp"
+#include "engine/io/json.hpp"
 #include "engine/simulation.hpp"
 
 namespace cvt {

@@ -4,7 +4,7 @@
 // into its buffers, and then gathers a slice of the buffers into the common vectors;
 // everything else (other forces, inertia, the solve) runs serially. Each coordinate gets
 // at most two contributions per module, so the buffer sums equal the ordered gather to
-// the bit (engine/rhs.hpp) and the trajectory is that of the serial schedule.
+// the bit (engine/rhs/rhs.hpp) and the trajectory is that of the serial schedule.
 #include <omp.h>
 
 #include <vector>

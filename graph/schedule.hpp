@@ -1,5 +1,5 @@
 // How one RHS evaluation is scheduled: the same kernels and passes
-// (engine/rhs.hpp) run module after module on one thread, as a oneTBB flow graph per
+// (engine/rhs/rhs.hpp) run module after module on one thread, as a oneTBB flow graph per
 // NUMA arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/profile.hpp"
-#include "engine/rhs.hpp"
+#include "engine/rhs/profile.hpp"
+#include "engine/rhs/rhs.hpp"
 
 namespace cvt {
 
@@ -45,7 +45,7 @@ class Schedule {
   // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
   // the schedule was built with.
   virtual void rhs(double t, const double* y, double* dy, const StageOp* op) = 0;
-  // Contact statuses for the next step (engine/rhs.hpp update_contact_status), scheduled
+  // Contact statuses for the next step (engine/rhs/rhs.hpp update_contact_status), scheduled
   // like the RHS; the same bits for every schedule.
   virtual void update_status(double t, const double* y) = 0;
   // Runs f (a whole step: its stages and the status update) where the schedule's threads
@@ -67,7 +67,7 @@ class Schedule {
   // Tracing of the module nodes' start and end (flowgraph; others record nothing).
   virtual void set_tracing(bool) {}
   virtual std::vector<NodeSpan> last_spans() const { return {}; }
-  // Per-module timing (engine/profile.hpp) into p, which must have at least threads()
+  // Per-module timing (engine/rhs/profile.hpp) into p, which must have at least threads()
   // workers; nullptr turns it off (the default).
   void set_profiler(Profiler* p) { prof_ = p; }
   Profiler* profiler() const { return prof_; }

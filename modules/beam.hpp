@@ -6,7 +6,7 @@
 
 #include <array>
 
-#include "engine/model.hpp"
+#include "engine/model/model.hpp"
 
 namespace cvt {
 

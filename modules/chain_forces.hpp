@@ -3,7 +3,7 @@
 // pack of link j, and writes only chain_slots[j].
 #pragma once
 
-#include "engine/state.hpp"
+#include "engine/model/state.hpp"
 
 namespace cvt {
 

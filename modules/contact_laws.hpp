@@ -3,8 +3,8 @@
 
 #include <cmath>
 
-#include "engine/config.hpp"
-#include "engine/state.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/state.hpp"
 
 namespace cvt {
 

@@ -3,7 +3,7 @@
 
 #include <Eigen/Dense>
 
-#include "engine/state.hpp"
+#include "engine/model/state.hpp"
 #include "modules/beam.hpp"
 
 namespace cvt {

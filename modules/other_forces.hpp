@@ -2,7 +2,7 @@
 // ratio controller. Small; not split per pin. Writes ws.other.
 #pragma once
 
-#include "engine/state.hpp"
+#include "engine/model/state.hpp"
 
 namespace cvt {
 

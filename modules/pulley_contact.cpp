@@ -81,7 +81,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   double* Xd = ws.record_damping ? ws.pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
   if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
   const bool rec_mu = ws.record_mu;
-  if (rec_mu) ws.pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), 8, Kd != nullptr);
+  if (rec_mu) ws.pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), ContactStatus::kPulleyPerJoint, Kd != nullptr);
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;

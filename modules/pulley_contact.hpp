@@ -3,7 +3,7 @@
 // writes pulley_slots[j] (its two halves, the torques of links j-1 and j, both shafts).
 #pragma once
 
-#include "engine/state.hpp"
+#include "engine/model/state.hpp"
 
 namespace cvt {
 

@@ -5,8 +5,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/config.hpp"
-#include "engine/model.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/model.hpp"
 
 namespace cvt::test {
 

@@ -14,7 +14,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "engine/integrator.hpp"
+#include "engine/ode/rk4.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
 

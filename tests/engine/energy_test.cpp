@@ -4,7 +4,7 @@
 
 #include <cstdio>
 
-#include "engine/rhs.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
 

@@ -4,7 +4,7 @@
 
 #include <cstdio>
 
-#include "engine/rhs.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/other_forces.hpp"
 #include "modules/pulley_contact.hpp"

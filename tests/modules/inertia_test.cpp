@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/rhs.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "modules/inertia.hpp"
 #include "tests/test_util.hpp"
 

@@ -303,7 +303,7 @@ class CvtPlotTest(unittest.TestCase):
         self.ok("chain.gif", "animate", self.run_h5, "--every", "3", "--fps", "5", magic=b"GIF8")
 
     def test_integrators(self):
-        # The CSVs of `cvt-engine study integrators` (columns as engine/study_integrators.cpp writes them).
+        # The CSVs of `cvt-engine study integrators` (columns as engine/studies/integrators.cpp writes them).
         head = ("part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,"
                 "jac_evals,lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,"
                 "solve_s,chosen\n")

@@ -1,0 +1,556 @@
+// The cvt-engine command line (docs/cli.md).
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <unistd.h>
+
+#include "engine/cli/exit_codes.hpp"
+#include "engine/base/timing.hpp"
+#include "engine/io/checkpoint.hpp"
+#include "engine/model/config.hpp"
+#include "engine/io/h5_writer.hpp"
+#include "engine/model/model.hpp"
+#include "engine/studies/modes.hpp"
+#include "engine/studies/scale.hpp"
+#include "engine/studies/integrators.hpp"
+#include "engine/simulation.hpp"
+#include "graph/schedule.hpp"
+#include "numa/arenas.hpp"
+#include "numa/describe.hpp"
+#include "numa/topology.hpp"
+
+namespace {
+
+std::string fmt_g(double x) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", x);
+  return b;
+}
+
+struct ScheduleArgs {
+  std::string scheduler = "serial";
+  int threads = 1;
+  int grain = 4;
+  cvt::ScheduleOptions options() const {
+    cvt::ScheduleOptions o;
+    o.kind = cvt::parse_scheduler(scheduler);
+    o.threads = threads;
+    o.grain = grain;
+    return o;
+  }
+};
+
+void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
+  cmd->add_option("--scheduler", a.scheduler, "serial | flowgraph | paper-omp")
+      ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}))
+      ->capture_default_str();
+  cmd->add_option("--threads", a.threads, "threads (flowgraph, paper-omp)")->check(CLI::Range(1, 4096))->capture_default_str();
+  cmd->add_option("--grain", a.grain, "pins per task in the flow-graph module nodes")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+}
+
+int cmd_graph(const std::string& config_path, const std::vector<std::string>& overrides, const ScheduleArgs& sa) {
+  using namespace cvt;
+  const Model model = build_model(load_config(config_path, overrides));
+  Workspace ws(model);
+  const auto schedule = make_schedule(model, ws, sa.options());
+  std::printf("// %s\n// view: cvt-engine graph CONFIG > graph.dot && dot -Tsvg graph.dot -o graph.svg (graphviz)\n%s",
+              schedule->describe().c_str(), schedule->graphviz().c_str());
+  if (isatty(fileno(stdout)))
+    std::fprintf(stderr, "(GraphViz text: save it and draw it with dot, e.g. cvt-engine graph %s > graph.dot && dot -Tsvg "
+                         "graph.dot -o graph.svg)\n", config_path.c_str());
+  return kExitOk;
+}
+
+int cmd_topology(const std::string& config_path, int threads) {
+  using namespace cvt;
+  int pins = 84;
+  if (!config_path.empty()) pins = build_model(load_config(config_path, {})).links;
+  const numa::Topology topo = numa::discover_topology();
+  if (threads < 1) threads = topo.total_cores();
+  const numa::NodeArenas arenas(topo, threads);
+  std::printf("%s", numa::describe(topo, &arenas, pins).c_str());
+  return kExitOk;
+}
+
+int cmd_scale(const std::string& config_path, const std::vector<std::string>& overrides, const std::vector<int>& threads,
+              const std::vector<std::string>& schedulers, const std::vector<std::string>& layouts, long steps, int repeat,
+              double warmup, int grain, const std::string& csv, const std::string& json) {
+  using namespace cvt;
+  const Model model = build_model(load_config(config_path, overrides));
+  ScaleOptions o;
+  o.threads = threads;
+  o.schedulers.clear();
+  for (const auto& s : schedulers) o.schedulers.push_back(parse_scheduler(s));
+  o.layouts = layouts;
+  o.steps = steps;
+  o.repeat = repeat;
+  o.warmup = warmup;
+  o.grain = grain;
+  // The output files are created first: a bad path fails now, not after the study.
+  std::optional<std::ofstream> csv_file, json_file;
+  for (auto [path, file] : {std::pair{&csv, &csv_file}, std::pair{&json, &json_file}})
+    if (!path->empty()) {
+      file->emplace(*path);
+      if (!**file) throw std::runtime_error("cannot write '" + *path + "'");
+    }
+  const int cores = numa::discover_topology().total_cores();
+  std::printf("cvt-engine %s scale: %s, %d links, %ld steps x %d repeats per combination, %d cores here\n", CVT_VERSION,
+              config_path.c_str(), model.links, steps, repeat, cores);
+  for (int t : threads)
+    if (t > cores) std::printf("  note: %d threads on %d cores: oversubscribed, the figures show contention\n", t, cores);
+  std::fflush(stdout);
+  const auto rows = run_scaling_study(model, o, [](const std::string& line) {
+    std::fprintf(stderr, "  %s\n", line.c_str());
+  });
+  std::printf("\n%s", scale_table(rows).c_str());
+  std::printf("(medians over the repeats; speedups against the serial schedule in the same run; chain/pulley us:\n"
+              " the module's largest busy time over the threads per step; zero+gath, compute: per thread and step)\n");
+  const auto write = [](std::ofstream& f, const std::string& path, const std::string& text) {
+    f << text;
+    f.close();
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+    std::printf("wrote %s\n", path.c_str());
+  };
+  if (csv_file) write(*csv_file, csv, scale_csv(rows));
+  if (json_file) write(*json_file, json, scale_json(rows, config_path));
+  for (const auto& r : rows)
+    if (!r.identical) {
+      std::fprintf(stderr, "cvt-engine: %s with %d threads (%s) did not give the serial bits\n", r.scheduler.c_str(),
+                   r.threads, r.layout.c_str());
+      return kExitFailure;
+    }
+  return kExitOk;
+}
+
+struct RunArgs {
+  std::string resume;
+  long checkpoint_every = 50000;
+  double flush_seconds = 10.0;
+  std::string profile_json, summary_json;
+  std::string method;  // --method: integrator.method
+  std::string out;     // --out (empty: results.h5, or with --resume the run's own file)
+  bool profile = false, quiet = false;
+};
+
+// "1.4 min per model second" for a throughput in model seconds per wall hour.
+std::string per_model_second(double model_s_per_hour) {
+  if (!(model_s_per_hour > 0)) return "-";
+  const double s = 3600.0 / model_s_per_hour;
+  char b[64];
+  if (s < 120) std::snprintf(b, sizeof b, "%.3g s", s);
+  else if (s < 7200) std::snprintf(b, sizeof b, "%.3g min", s / 60);
+  else std::snprintf(b, sizeof b, "%.3g h", s / 3600);
+  return b;
+}
+
+int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
+            const std::string& step, const ScheduleArgs& sa, const RunArgs& ra) {
+  using namespace cvt;
+  // Command-line shortcuts are overrides too, passed as typed: validated like any key and
+  // recorded in the resolved TOML.
+  if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
+  if (!step.empty()) overrides.push_back("integrator.step=" + step);
+  if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
+  // A resumed run takes its configuration from the checkpoint (overrides still apply:
+  // --t-end to go further; changing the physics would break the continuation).
+  std::optional<Checkpoint> ckpt;
+  if (!ra.resume.empty()) {
+    if (!config_path.empty()) throw ConfigError("CONFIG", config_path, "give either CONFIG or --resume, not both");
+    ckpt = read_checkpoint(ra.resume);
+  } else if (config_path.empty()) {
+    throw ConfigError("CONFIG", "", "missing: give a TOML configuration or --resume CHECKPOINT");
+  }
+  std::map<std::string, std::string> shortcuts;  // the keys the shortcut options set
+  if (!t_end.empty()) shortcuts["run.t_end"] = "--t-end";
+  if (!step.empty()) shortcuts["integrator.step"] = "--step";
+  if (!ra.method.empty()) shortcuts["integrator.method"] = "--method";
+  const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
+                          : load_config(config_path, overrides, shortcuts);
+  const Model model = build_model(cfg);
+  // Without --out a resumed run appends to its own file (GROMACS's mdrun -cpi): the one
+  // the checkpoint names, else the checkpoint's name without ".ckpt".
+  const bool append = ckpt && ra.out.empty();
+  std::string out = ra.out.empty() ? "results.h5" : ra.out;
+  if (append) {
+    out = ckpt->output;
+    if (out.empty()) {
+      out = ra.resume;
+      if (out.size() > 5 && out.compare(out.size() - 5, 5, ".ckpt") == 0) out.resize(out.size() - 5);
+    }
+  }
+  const bool talk = !ra.quiet;
+  if (talk) {
+    std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
+    std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
+    std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
+                1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
+    const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
+    std::string w;
+    if (cfg.integrator.method != "rk4") {
+      w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+          std::to_string(cfg.integrator.w_k_every);
+      if (startup_sub > 1)
+        w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
+             fmt_g(cfg.integrator.startup_time) + " s";
+      w += ")";
+    }
+    std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
+                cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
+    std::fflush(stdout);
+  }
+  RunOptions opt;
+  opt.schedule = sa.options();
+  opt.checkpoint_every = ra.checkpoint_every;
+  opt.flush_seconds = ra.flush_seconds;
+  opt.resume = ckpt ? &*ckpt : nullptr;
+  opt.append = append;
+  opt.out_path = out;
+  opt.progress = talk;
+  opt.profile_json = ra.profile_json;
+  opt.summary_json = ra.summary_json;
+  if (ra.quiet) std::freopen("/dev/null", "w", stdout);  // the driver's own lines too
+  const RunResult r = run_simulation(model, opt);
+  // An interrupt is said on stderr, --quiet or not: the run did not reach t_end.
+  if (r.interrupted)
+    std::fprintf(stderr, "cvt-engine: run interrupted by signal %d at t = %.9g s after %ld steps: results up to "
+                 "there in %s; continue with: cvt-engine run --resume %s\n",
+                 r.signal, r.model_time, r.steps, out.c_str(),
+                 (opt.checkpoint_path.empty() ? out + ".ckpt" : opt.checkpoint_path).c_str());
+  if (talk) {
+    if (r.interrupted)
+      std::printf("\nrun stopped at t = %.9g s in %s\n", r.model_time, out.c_str());
+    else
+      std::printf("\nrun complete: t = %.9g s in %s\n", r.model_time, out.c_str());
+    std::printf("%s", format_summary(r).c_str());
+    std::printf("  throughput: %ld steps in %.1f s, %.1f us per step, %s per model second (%s, %d thread%s)\n",
+                r.steps, r.wall_s, r.us_per_step, per_model_second(r.model_s_per_hour).c_str(),
+                r.profile.scheduler.c_str(), r.profile.threads, r.profile.threads == 1 ? "" : "s");
+    if (ra.profile) std::printf("\n%s", format_profile(r.profile).c_str());
+  }
+  return r.interrupted ? kExitInterrupted : kExitOk;
+}
+
+
+struct ModesArgs {
+  double at = 0;
+  int count = 10;
+  double rigid_hz = 1.0;
+  bool no_jacobian = false;
+  std::string json;
+};
+
+int cmd_modes(const std::string& config_path, const std::vector<std::string>& overrides, const ModesArgs& a) {
+  using namespace cvt;
+  const Config cfg = load_config(config_path, overrides);
+  const Model model = build_model(cfg);
+  const double h = cfg.integrator.step;
+  std::printf("cvt-engine %s modes: %s\n", CVT_VERSION, config_path.c_str());
+  std::printf("  %d links, %d coordinates, %d first-order unknowns; friction %s\n", model.links, model.ndof,
+              model.nstate, to_string(cfg.friction.law));
+  // The state at --at: the serial schedule from the initial state with the config's
+  // step, statuses updated after every step as in a run.
+  Simulation sim(model);
+  const long steps = std::lround(a.at / h);
+  if (steps > 0) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const long every = std::max(1L, std::lround(cfg.run.sample_interval / h));
+    for (long s = 0; s < steps; ++s) {
+      sim.step(h);
+      if ((s + 1) % every == 0 || s + 1 == steps) sim.check_finite();
+    }
+    std::printf("  ran %ld steps of %g s to t = %.9g s (%.1f s)\n", steps, h, sim.time(),
+                seconds_since(t0));
+  }
+  std::fflush(stdout);
+  ModesOptions opt;
+  opt.count = a.count;
+  opt.rigid_hz = a.rigid_hz;
+  opt.jacobian = !a.no_jacobian;
+  const ModalReport r = modal_analysis(model, sim.workspace().status, sim.time(), sim.state(), opt);
+  std::printf("  rigid-body threshold |f| < %g Hz\n\n%s", a.rigid_hz, format_modal_report(r, h).c_str());
+  if (r.has_jacobian) {
+    // The estimate a blow-up message gives (Simulation::spectral_radius), for comparison.
+    const double rho_pi = sim.spectral_radius(sim.state(), sim.time(), sim.workspace().status);
+    std::printf("  (power iteration on differences, as in the blow-up message: rho ~ %.4g 1/s, 2.8/rho = %.4g s)\n",
+                rho_pi, rho_pi > 0 ? 2.8 / rho_pi : 0.0);
+  }
+  if (!a.json.empty()) {
+    std::ofstream f(a.json);
+    f << modal_report_json(r, h);
+    f.close();
+    if (!f) throw std::runtime_error("cannot write " + a.json);
+    std::printf("\nwritten: %s\n", a.json.c_str());
+  }
+  return kExitOk;
+}
+
+// After an unknown option: the closest options of the subcommand that was given.
+void suggest_options(CLI::App& app, int argc, char** argv) {
+  const CLI::App* cmd = &app;
+  for (int i = 1; i < argc; ++i)
+    for (const CLI::App* sub : cmd->get_subcommands({}))
+      if (sub->get_name() == argv[i]) cmd = sub;
+  std::vector<std::string> names;
+  for (const CLI::Option* o : cmd->get_options())
+    for (const std::string& n : o->get_lnames()) names.push_back("--" + n);
+  for (int i = 1; i < argc; ++i) {
+    std::string a = argv[i];
+    if (a.rfind("--", 0) != 0) continue;
+    a = a.substr(0, a.find('='));
+    if (std::find(names.begin(), names.end(), a) != names.end()) continue;
+    if (const auto best = cvt::closest_name(a, names))
+      std::fprintf(stderr, "%s: unknown option; did you mean '%s'?\n", a.c_str(), best->c_str());
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", std::string(CVT_VERSION));
+  app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
+             "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
+
+  auto* run = app.add_subcommand("run", "simulate a configuration and write the results to HDF5");
+  run->footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2 -o results.h5");
+  std::string config;
+  std::vector<std::string> overrides;
+  std::string t_end, step;
+  run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml); omit with --resume");
+  RunArgs run_args;
+  run->add_option("--resume", run_args.resume,
+                  "continue bit-identically from a checkpoint (FILE.ckpt), appending to the run's own file "
+                  "(unless --out)");
+  run->add_option("--checkpoint-every", run_args.checkpoint_every,
+                  "steps between checkpoints to OUT.ckpt (0: only at the end and on SIGINT/SIGTERM)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  run->add_option("--flush-every", run_args.flush_seconds,
+                  "wall seconds between flushes of the output file (what a kill -9 cannot take away)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
+  run->add_option("--step", step, "integration step [s] (integrator.step)");
+  run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
+  run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
+                  "for the continuation only)");
+  run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
+  run->add_flag("-q,--quiet", run_args.quiet, "print nothing but warnings and errors");
+  run->add_flag("--profile", run_args.profile, "print the per-module profile table (always stored in /profile)");
+  run->add_option("--profile-json", run_args.profile_json, "write the end-of-run profile table as JSON to FILE");
+  run->add_option("--summary-json", run_args.summary_json, "write the end-of-run summary as JSON to FILE");
+  ScheduleArgs sched;
+  add_schedule_options(run, sched);
+
+  auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
+  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg");
+  std::string graph_config;
+  std::vector<std::string> graph_overrides;
+  ScheduleArgs graph_sched;
+  graph_sched.scheduler = "flowgraph";
+  graph->add_option("CONFIG", graph_config, "TOML configuration")->required();
+  graph->add_option("--set", graph_overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(graph, graph_sched);
+
+  auto* scale = app.add_subcommand("scale", "scaling study: time per step per scheduler, thread count and NUMA layout");
+  scale->footer("Example: cvt-engine scale configs/reference.toml --threads 1,2 --out scaling.csv");
+  std::string scale_config, scale_out, scale_json;
+  std::vector<std::string> scale_overrides, scale_layouts = {"native"};
+  std::vector<std::string> scale_schedulers = {"serial", "flowgraph", "paper-omp"};
+  std::vector<int> scale_threads = {1, 2};
+  long scale_steps = 200;
+  int scale_repeat = 5, scale_grain = 4;
+  double scale_warmup = 3e-4;
+  scale->add_option("CONFIG", scale_config, "TOML configuration")->required();
+  scale->add_option("--threads", scale_threads, "thread counts, comma-separated")->delimiter(',')
+      ->check(CLI::Range(1, 4096))->capture_default_str();
+  scale->add_option("--schedulers", scale_schedulers, "serial,flowgraph,paper-omp")->delimiter(',')
+      ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}))->capture_default_str();
+  scale->add_option("--layouts", scale_layouts,
+                    "NUMA layouts for the flow graph: native, or hwloc synthetic strings "
+                    "(e.g. 'package:2 numa:1 core:8 pu:1'), comma-separated")
+      ->delimiter(',')->capture_default_str();
+  scale->add_option("--steps", scale_steps, "RK4 steps per repeat")->check(CLI::Range(1L, 100000000L))->capture_default_str();
+  scale->add_option("--repeat", scale_repeat, "repeats (medians)")->check(CLI::Range(1, 100000))->capture_default_str();
+  scale->add_option("--warmup", scale_warmup, "model time run first, serially [s]")->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  scale->add_option("--grain", scale_grain, "pins per task (flowgraph)")->check(CLI::Range(1, 1000000))->capture_default_str();
+  scale->add_option("-o,--out", scale_out, "CSV file");
+  scale->add_option("--json", scale_json, "JSON file");
+  scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
+
+  auto* study = app.add_subcommand("study", "method studies");
+  study->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
+  study->require_subcommand(1);
+  auto* study_int = study->add_subcommand("integrators", "integrator study: by default RK4 at 1e-8 against ROS34PW2 at the configuration's step, over "
+                                          "5 ms of a running chain, against RK4 at 5e-9 (docs/integrators.md): about 7 min for the "
+                                          "reference model, most of it the running state and the reference, which the cache keeps "
+                                          "for the next run (then about 2 min)");
+  study_int->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
+  std::string si_config;
+  std::vector<std::string> si_overrides;
+  cvt::IntegratorStudyOptions si;
+  ScheduleArgs si_sched;
+  bool si_no_one_step = false, si_no_curve = false, si_approx = false, si_plain_friction = false;
+  study_int->add_option("CONFIG", si_config, "TOML configuration")->required();
+  study_int->add_option("--t-sample", si.t_sample, "length of the sample-curve window [s]")->capture_default_str();
+  study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
+  study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
+  study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
+  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3,ros2,ros34pw2")->delimiter(',')
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2"}))->capture_default_str();
+  study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
+  study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
+      ->capture_default_str();
+  std::vector<std::string> si_w_steps;
+  study_int->add_option("--w-steps,--ros2-steps", si_w_steps,
+                        "W-methods' (ros2, ros34pw2) fixed steps tried in (b), largest first [s]; H:W:K also sets "
+                        "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
+                        "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
+      ->delimiter(',');
+  bool si_first_accurate = false, si_one_step = false;
+  study_int->add_flag("--all", si.all, "(b): run every candidate (the default)");
+  study_int->add_flag("--first-accurate", si_first_accurate, "(b): stop at each method's first accurate candidate");
+  study_int->add_flag("--one-step", si_one_step, "run part (a), the error after one step against h (minutes)");
+  study_int->add_option("--repeat", si.repeat, "run (b) in this many rounds over all its runs; each run's wall time is the median")
+      ->check(CLI::Range(1, 100))->capture_default_str();
+  study_int->add_option("--tols", si.tolerances, "tolerances tried in (b), loosest first (atol in units of 1 um, 1 mm/s)")
+      ->delimiter(',')->capture_default_str();
+  study_int->add_option("--max-dev", si.max_deviation, "accurate: deviation <= this fraction of the curve's range")
+      ->capture_default_str();
+  study_int->add_option("--max-wall", si.max_wall, "stop a candidate run after this many wall seconds")
+      ->capture_default_str();
+  study_int->add_option("--perturb", si.perturb,
+                        "(b): start every run from the running state with each position q moved by EPS |q| u, u uniform "
+                        "in [-1, 1) (a rounding-level change, to see how far it alone moves a curve)")
+      ->check(CLI::Range(0.0, 1e-3))->capture_default_str();
+  study_int->add_option("--seed", si.seed, "the seed of --perturb's u")->capture_default_str();
+  study_int->add_option("--status-interval", si.status_interval,
+                        "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
+  study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
+  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its matrix every N steps (default: integrator.w_every)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
+                     "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
+  bool si_exact_slope = false;
+  study_int->add_flag("--w-exact-slope", si_exact_slope,
+                      "ROS2: the exact friction slope along the sliding direction (default: the secant)");
+  study_int->add_option("--w-k-every", si.w_k_every,
+                        "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
+  study_int->add_option("--w-fresh", si.w_fresh,
+                        "W-methods: keep the matrix's friction current between rebuilds for the contacts whose "
+                        "stiffness gamma h mu / m_pin moved by more than this; 0: off (default: integrator.w_fresh)")
+      ->check(CLI::NonNegativeNumber);
+  study_int->add_option("--w-fresh-max", si.w_fresh_max,
+                        "W-methods: at most this many contacts in that correction (default: integrator.w_fresh_max)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
+                      "ROS2: rebuild its whole matrix when the contact statuses change");
+  study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
+  study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
+  study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
+  study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
+  study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
+  study_int->add_flag("--approximate-jacobian", si_approx, "leave the pins -> shaft rows out of the Jacobian");
+  si.cache_dir = "study-cache";
+  bool si_no_cache = false;
+  study_int->add_option("--cache", si.cache_dir,
+                        "keep the running state and the reference curve in this folder (made if missing) and reuse "
+                        "them")
+      ->capture_default_str();
+  study_int->add_flag("--no-cache", si_no_cache, "compute the running state and the reference anew, keep nothing");
+  study_int->add_option("-o,--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
+  study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(study_int, si_sched);
+
+  auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
+  topology->footer("Example: cvt-engine topology configs/reference.toml --threads 2");
+  std::string topo_config;
+  int topo_threads = 0;
+  topology->add_option("CONFIG", topo_config, "TOML configuration (for the number of pins; default 84)");
+  topology->add_option("--threads", topo_threads, "threads to lay out (default: all cores)");
+
+  auto* modes = app.add_subcommand("modes", "natural frequencies, Jacobian spectrum and stable RK4 step at a state");
+  modes->footer("Example: cvt-engine modes configs/mini.toml --at 1e-3 --count 5");
+  std::string modes_config;
+  std::vector<std::string> modes_overrides;
+  ModesArgs modes_args;
+  modes->add_option("CONFIG", modes_config, "TOML configuration")->required();
+  modes->add_option("--at", modes_args.at, "linearize at model time T [s] (runs the model there first)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  modes->add_option("--set", modes_overrides, "override a key: section.key=value (repeatable)");
+  modes->add_option("--count", modes_args.count, "lowest and highest modes to list")
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  modes->add_option("--rigid-hz", modes_args.rigid_hz, "|f| below this counts as a rigid-body or mechanism mode [Hz]")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  modes->add_flag("--no-jacobian", modes_args.no_jacobian, "skip the first-order Jacobian's spectrum");
+  modes->add_option("--json", modes_args.json, "also write the report as JSON to FILE");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::Success& e) {  // --help, --version
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    // Usage errors (unknown option, bad --scheduler, --threads 0 ...): EX_USAGE.
+    app.exit(e);
+    if (dynamic_cast<const CLI::ExtrasError*>(&e)) suggest_options(app, argc, argv);
+    return cvt::kExitUsage;
+  }
+  try {
+    if (*scale)
+      return cmd_scale(scale_config, scale_overrides, scale_threads, scale_schedulers, scale_layouts, scale_steps,
+                       scale_repeat, scale_warmup, scale_grain, scale_out, scale_json);
+    if (*run) return cmd_run(config, overrides, t_end, step, sched, run_args);
+    if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
+    if (*topology) return cmd_topology(topo_config, topo_threads);
+    if (*modes) return cmd_modes(modes_config, modes_overrides, modes_args);
+    if (*study_int) {
+      si.one_step = si_one_step && !si_no_one_step;
+      if (si_first_accurate) si.all = false;
+      if (si_no_cache) si.cache_dir.clear();
+      if (!si.cache_dir.empty()) std::filesystem::create_directories(si.cache_dir);
+      si.curve = !si_no_curve;
+      si.exact_dense_rows = !si_approx;
+      si.freeze_friction = !si_plain_friction;
+      si.w_secant = !si_exact_slope;
+      si.schedule = si_sched.options();
+      const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
+      if (!si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(si_w_steps);
+      else  // the configuration's own step and matrix intervals
+        si.w_steps = {{model.cfg.integrator.step, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
+      if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
+      if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
+      return cvt::run_integrator_study(model, si);
+    }
+  } catch (const cvt::ConfigError& e) {
+    std::string text = e.what();  // one line per problem found
+    for (std::size_t at = text.find('\n'); at != std::string::npos; at = text.find('\n', at + 1))
+      text.insert(at + 1, "cvt-engine: ");
+    std::fprintf(stderr, "cvt-engine: %s\n", text.c_str());
+    return cvt::kExitConfig;
+  } catch (const cvt::OutputError& e) {
+    std::fprintf(stderr, "cvt-engine: %s\n", e.what());
+    return cvt::kExitCantCreate;
+  } catch (const cvt::BlowUpError& e) {
+    std::fprintf(stderr, "cvt-engine: %s\n", e.what());
+    return cvt::kExitBlowUp;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "cvt-engine: error: %s\n", e.what());
+    return cvt::kExitFailure;
+  }
+  return cvt::kExitOk;
+}

@@ -1,0 +1,198 @@
+// Configuration of one simulation: every key of the TOML file, in SI units.
+// docs/config.md documents each key; load_config() validates each one at the door.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace cvt {
+
+// A bad configuration value: names the key, the value and the reason (exit 78).
+class ConfigError : public std::runtime_error {
+ public:
+  // "configuration error: KEY = VALUE: REASON" (without " = VALUE" when value is empty);
+  // `more`: further errors found in the same input, one line each after the first.
+  ConfigError(std::string key, std::string value, std::string reason, const std::vector<std::string>& more = {})
+      : std::runtime_error(text(key, value, reason, more)),
+        key_(std::move(key)), value_(std::move(value)), reason_(std::move(reason)) {}
+  // A file that cannot be read: "configuration error: cannot read the configuration file ...".
+  static ConfigError unreadable(const std::string& path, const std::string& why) {
+    ConfigError e("<file>", path, why);
+    e.message_ = "configuration error: cannot read the configuration file '" + path + "': " + why;
+    return e;
+  }
+  const char* what() const noexcept override {
+    return message_.empty() ? std::runtime_error::what() : message_.c_str();
+  }
+  const std::string& key() const { return key_; }
+  const std::string& value() const { return value_; }
+  const std::string& reason() const { return reason_; }
+
+ private:
+  static std::string text(const std::string& key, const std::string& value, const std::string& reason,
+                          const std::vector<std::string>& more) {
+    std::string t = "configuration error: " + key + (value.empty() ? "" : " = " + value) + ": " + reason;
+    for (const auto& m : more) t += "\nconfiguration error: " + m;
+    return t;
+  }
+  std::string key_, value_, reason_, message_;
+};
+
+enum class FrictionLaw { nonsmooth, smooth, none };
+
+struct Config {
+  struct Geometry {
+    double centre_distance = 0.160;  // a [m]
+    double ratio = 1.0;              // target geometric ratio R2/R1 of the initial state [-]
+  } geometry;
+  struct Chain {
+    int links = 84;
+    double pitch = 8.0e-3;           // joint-to-joint distance in the straight chain [m]
+    int plates_per_link = 12;
+    double plate_mass = 1.6e-3;      // [kg]
+    double plate_stiffness = 1.0e8;  // k_pl [N/m]
+    double plate_damping = 20.0;     // c_pl [N s/m]
+    double plate_spread = 0.024;     // axial width over which the plates of a link sit [m]
+    double link_inertia = 2.5e-7;    // J_link [kg m^2]
+    double pack_stiffness = 1.0e7;   // axial spring pack <-> pins [N/m]
+    double pack_damping = 40.0;      // [N s/m]
+  } chain;
+  struct Pin {
+    double length = 0.036;   // [m]
+    double ea = 2.7e6;       // [N]
+    double ei = 2.9;         // [N m^2]
+    double mass = 3.7e-3;    // per half [kg]
+    double damping_time = 5.0e-7;  // stiffness-proportional damping coefficient beta [s]
+  } pin;
+  struct Rocker {
+    int stations = 4;
+    double radius = 4.0e-3;        // R_r [m]
+    double half_distance = 2.6e-3; // d_h [m]
+    double stiffness = 7.9e10;     // Hertz c per station [N/m^1.5]
+    double damping = 50.0;         // b per station [N s/m]
+    // Rolling keeper: spring on the offset of the two halves across the bisector, which
+    // is zero for rolling without slip (docs/model.md 4.3). 0 turns it off.
+    double keeper_stiffness = 1.0e7;  // [N/m]
+  } rocker;
+  struct PulleyContact {
+    double end_radius = 0.02;   // R_end [m]
+    double stiffness = 2.2e10;  // [N/m^1.5]
+    double damping = 50.0;      // [N s/m]
+  } pulley_contact;
+  struct Friction {
+    FrictionLaw law = FrictionLaw::nonsmooth;
+    double f0 = 0.09;
+    double v0 = 1.0e-3;  // [m/s]
+  } friction;
+  struct Sheave {
+    double cone_angle = 11.0;     // beta [deg]
+    double outer_radius = 0.085;  // [m]
+    double hub_radius = 0.028;    // [m]
+  } sheave;
+  struct Shaft {
+    double mass = 5.0;             // shaft + pulley set [kg]; axially + sheave_mass
+    double polar_inertia = 0.02;   // [kg m^2]
+    double tilt_inertia = 0.01;    // [kg m^2]
+    double sheave_mass = 2.0;      // moving sheave, axial [kg]
+  } shaft;
+  struct Bearing {
+    double half_span = 0.05;         // l_b [m]
+    double k1 = 2.0e8;               // [N/m]
+    double k3 = 1.0e16;              // [N/m^3]
+    double radial_damping = 3.0e3;   // [N s/m]
+    double axial_stiffness = 1.0e8;  // [N/m]
+    double axial_damping = 2.0e3;    // [N s/m]
+  } bearing;
+  struct Drive {
+    double speed = 209.4;      // omega_in [rad/s]
+    double stiffness = 2.0e4;  // k_t [N m/rad]
+    double damping = 2.0;      // [N m s/rad]
+  } drive;
+  struct Load {
+    double torque = 150.0;            // M0 [N m]
+    double inertia = 0.05;            // J_load [kg m^2]
+    double speed_coefficient = 0.0;   // c_omega [N m s/rad]
+    double stiffness = 2.0e4;         // torsion spring pulley <-> load [N m/rad]
+    double damping = 2.0;             // [N m s/rad]
+  } load;
+  struct Clamping {
+    double driving = 25.0e3;  // F1 [N]
+    double driven = 30.0e3;   // F2 [N]
+    double sheave_damping = 2.0e3;  // moving sheave on its shaft [N s/m]
+  } clamping;
+  struct Controller {
+    bool enabled = false;
+    double target_ratio = 1.0;  // speed ratio omega_in/omega_out to hold
+    double kp = 0.0;            // [N]
+    double ki = 0.0;            // [N/s]
+  } controller;
+  struct Ramp {
+    double time = 2.0e-3;  // t_ramp [s]; 0 applies loads at once
+  } ramp;
+  struct Damping {
+    double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
+  } damping;
+  struct Integrator {
+    // "ros34pw2" (advised) | "ros2" | "rk4" (the reference); docs/integrators.md
+    std::string method = "ros34pw2";
+    double step = 8.333333333333333e-7;  // [s]: 1e-5 / 12, divides run.sample_interval and run.t_end
+    int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
+    int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
+    bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
+    // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
+    // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
+    // (ModelOdeOptions::w_fresh, docs/integrators.md 12.4); 0: off. w_fresh_max such contacts
+    // at most; more make the next step rebuild the friction blocks.
+    double w_fresh = 5.0;
+    int w_fresh_max = 12;
+    // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
+    // no longer than startup_step (the pins settling onto the sheaves from rest;
+    // docs/integrators.md 12.3)
+    double startup_time = 1.0e-4;   // [s]; 0: none
+    double startup_step = 6.25e-8;  // [s]
+  } integrator;
+  struct Run {
+    double t_end = 2.0e-2;            // [s]
+    double sample_interval = 1.0e-5;  // [s]
+    double snapshot_interval = 1.0e-4; // [s]; 0 turns snapshots off
+    int tracked_pin = 0;
+    int tracked_link = 0;
+    double efficiency_window = 1.0e-3;  // [s] of the running-mean efficiency channel
+  } run;
+
+  // The fully resolved configuration as TOML text (what /parameters/config stores).
+  std::string resolved_toml;
+};
+
+// Parses TOML text, applies the overrides ("section.key=value") and validates every key.
+// Throws ConfigError. `origin` names the source in messages.
+// Every problem in the text is reported (one line each), not only the first. `shortcuts`
+// names the command-line option an override came from ({"integrator.step", "--step"}):
+// messages then say "(from --step)" instead of "(from --set)".
+Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides = {},
+                    const std::string& origin = "<string>",
+                    const std::map<std::string, std::string>& shortcuts = {});
+// Reads the file and calls parse_config. A missing file is a ConfigError too.
+// The candidate a word begins (when only one does), else the closest within two edits
+// (insertions, deletions, substitutions, adjacent swaps): for "did you mean".
+std::optional<std::string> closest_name(std::string_view word, const std::vector<std::string>& candidates);
+
+Config load_config(const std::string& path, const std::vector<std::string>& overrides = {},
+                   const std::map<std::string, std::string>& shortcuts = {});
+
+const char* to_string(FrictionLaw law);
+
+// The W-methods' start-up phase: the sub-steps per step of h before integrator.startup_time,
+// the fewest whose length h / n is at most integrator.startup_step; 1 without a phase.
+inline int startup_substeps(const Config::Integrator& in, double h) {
+  if (!(in.startup_time > 0)) return 1;
+  return std::max(1, static_cast<int>(std::ceil(h / in.startup_step * (1 - 1e-12))));
+}
+
+}  // namespace cvt

@@ -1,0 +1,128 @@
+// docs/model.md 2, 3, 5: derived parameters, constant inertia, initial state.
+#include "engine/model/model.hpp"
+
+#include <cmath>
+
+#include "engine/model/geometry.hpp"
+
+namespace cvt {
+
+double ramp(double t, double t_ramp) {
+  if (t_ramp <= 0 || t >= t_ramp) return 1.0;
+  if (t <= 0) return 0.0;
+  return 0.5 * (1 - std::cos(M_PI * t / t_ramp));
+}
+
+double ramp_rate(double t, double t_ramp) {
+  if (t_ramp <= 0 || t >= t_ramp || t <= 0) return 0.0;
+  return 0.5 * M_PI / t_ramp * std::sin(M_PI * t / t_ramp);
+}
+
+Model build_model(const Config& cfg) {
+  Model m;
+  m.cfg = cfg;
+  m.links = cfg.chain.links;
+  m.ndof = kJointSize * m.links + 2 * kShaftSize + 1;
+  m.nstate = 2 * m.ndof + kAuxSize;
+
+  m.L0 = cfg.pin.length;
+  m.plate_rest = cfg.chain.pitch + cfg.rocker.half_distance;
+  m.kappa = 0.5 * cfg.rocker.half_distance - cfg.rocker.radius;
+  const double beta = cfg.sheave.cone_angle * M_PI / 180.0;
+  m.tan_beta = std::tan(beta);
+  m.sin_beta = std::sin(beta);
+  m.cos_beta = std::cos(beta);
+  m.damp = cfg.damping.scale;
+  m.beam_beta = cfg.pin.damping_time * m.damp;
+
+  const int npl = cfg.chain.plates_per_link;
+  m.plate_zeta.resize(npl);
+  for (int k = 0; k < npl; ++k)
+    m.plate_zeta[k] = npl == 1 ? 0.0 : cfg.chain.plate_spread * (double(k) / (npl - 1) - 0.5);
+  const int nst = cfg.rocker.stations;
+  m.station_xi.resize(nst);
+  for (int k = 0; k < nst; ++k) m.station_xi[k] = (k + 0.5) / nst;
+
+  // 3.1: consistent beam masses of a half, plus its share of the plate mass lumped on the
+  // lateral translations of its two ends.
+  const double mh = cfg.pin.mass, L = m.L0;
+  m.bend_mass << 156, 22 * L, 54, -13 * L,
+                 22 * L, 4 * L * L, 13 * L, -3 * L * L,
+                 54, 13 * L, 156, -22 * L,
+                 -13 * L, -3 * L * L, -22 * L, 4 * L * L;
+  m.bend_mass *= mh / 420.0;
+  const double plate_share = 0.5 * npl * cfg.chain.plate_mass;  // per half
+  m.bend_mass(0, 0) += 0.5 * plate_share;
+  m.bend_mass(2, 2) += 0.5 * plate_share;
+  m.bend_mass_inv = m.bend_mass.inverse();
+  m.axial_mass << 2, 1, 1, 2;
+  m.axial_mass *= mh / 6.0;
+  m.axial_mass_inv = m.axial_mass.inverse();
+  m.pack_mass = npl * cfg.chain.plate_mass;
+  const double ms = cfg.shaft.mass, mw = cfg.shaft.sheave_mass;
+  m.shaft_axial_mass << ms + mw, mw, mw, mw;
+  m.shaft_axial_mass_inv = m.shaft_axial_mass.inverse();
+  m.bend_inv_w = m.bend_mass_inv * Eigen::Vector4d(1, 0, 1, 0);
+  m.bend_inv_s = m.bend_inv_w[0] + m.bend_inv_w[2];
+
+  // 5: geometry.
+  ChainPathParams gp;
+  gp.centre_distance = cfg.geometry.centre_distance;
+  gp.ratio = cfg.geometry.ratio;
+  gp.links = m.links;
+  gp.plate_rest = m.plate_rest;
+  gp.kappa = m.kappa;
+  gp.rocker_radius = cfg.rocker.radius;
+  gp.r_min = cfg.sheave.hub_radius + 0.5 * cfg.chain.pitch;
+  gp.r_max = cfg.sheave.outer_radius - 0.5 * cfg.chain.pitch;
+  ChainPlacement pl = place_chain(gp);
+  m.closure_residual = pl.closure_residual;
+  m.geometry_iterations = pl.iterations;
+
+  m.pulley[0].centre = {0.0, 0.0};
+  m.pulley[1].centre = {cfg.geometry.centre_distance, 0.0};
+  m.pulley[0].moving_side = +1;
+  m.pulley[1].moving_side = -1;
+  m.pulley[0].running_radius = pl.R1;
+  m.pulley[1].running_radius = pl.R2;
+  // Faces placed so that the crowned ends of wrapped pins just touch them (5.3): the
+  // half centre lines of a regular arc sit at radius r_h.
+  const double Rend = cfg.pulley_contact.end_radius;
+  for (int k = 0; k < 2; ++k) {
+    // Every half starts on or (where lifted, 5.2) just outside the path circle rho_k.
+    const double r_h = k == 0 ? pl.rho1 : pl.rho2;
+    const double zc = 0.5 * L - Rend;  // sphere centre of the + end
+    const double zplus = zc + (Rend - r_h * m.sin_beta) / m.cos_beta;
+    m.pulley[k].face_z = {-zplus, zplus};
+  }
+
+  // Initial state: positions and rigid motion along the path (5.4).
+  m.y0 = Eigen::VectorXd::Zero(m.nstate);
+  double* q = m.y0.data();
+  double* v = q + m.ndof;
+  const double w1 = cfg.drive.speed;
+  const double speed = w1 * pl.R1;
+  const double w2 = speed / pl.R2;
+  for (int j = 0; j < m.links; ++j) {
+    const Eigen::Vector2d* P[2] = {&pl.pa[j], &pl.pb[j]};
+    const Eigen::Vector2d* U[2] = {&pl.unit_va[j], &pl.unit_vb[j]};
+    const int base[2] = {m.half_a(j), m.half_b(j)};
+    for (int h = 0; h < 2; ++h) {
+      const Eigen::Vector2d vel = speed * *U[h];
+      for (int e = 0; e < 2; ++e) {
+        const int o = base[h] + e * half::kEnd;
+        q[o + half::kX] = P[h]->x();
+        q[o + half::kY] = P[h]->y();
+        q[o + half::kZ] = (e == 0 ? -0.5 : 0.5) * L;
+        v[o + half::kX] = vel.x();
+        v[o + half::kY] = vel.y();
+      }
+    }
+  }
+  v[m.shaft(0) + kPhi] = w1;
+  v[m.shaft(1) + kPhi] = w2;
+  v[m.load_index()] = w2;
+  return m;
+}
+
+}  // namespace cvt

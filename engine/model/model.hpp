@@ -1,0 +1,90 @@
+// The immutable model (docs/model.md sections 1-3): parameters in SI units, the layout of
+// the generalized coordinates, the constant inertia blocks and the reference geometry.
+// Everything that changes during a run lives in State / Workspace (engine/model/state.hpp).
+#pragma once
+
+#include <Eigen/Dense>
+#include <array>
+#include <string>
+#include <vector>
+
+#include "engine/model/config.hpp"
+
+namespace cvt {
+
+// Coordinates of one pin half (docs/model.md 2.1): two ends, each x, y, z, sx, sy.
+namespace half {
+inline constexpr int kEnd = 5;  // stride between end 0 (z < 0) and end 1 (z > 0)
+inline constexpr int kX = 0, kY = 1, kZ = 2, kSx = 3, kSy = 4;
+inline constexpr int kSize = 10;
+}  // namespace half
+
+// Per joint j: half a_j (10), half b_j (10), plate pack s_j of link j (1).
+inline constexpr int kJointSize = 21;
+inline constexpr int kJointA = 0, kJointB = 10, kJointS = 20;
+// Per shaft k (0 driving, 1 driven): ux, uy, uz, theta_x, theta_y, phi, w.
+inline constexpr int kShaftSize = 7;
+inline constexpr int kUx = 0, kUy = 1, kUz = 2, kTx = 3, kTy = 4, kPhi = 5, kW = 6;
+// Auxiliary integrated quantities appended to the first-order state (docs/model.md 6).
+enum Aux : int { kWorkIn = 0, kWorkOut, kWorkDiss, kWorkClamp, kCtrlIntegral, kWorkSwitch, kAuxSize };
+
+struct Pulley {
+  Eigen::Vector2d centre;       // shaft axis in the xy plane [m]
+  int moving_side = +1;         // +1: moving sheave on the +z side, -1 on the -z side
+  std::array<double, 2> face_z; // nominal face offsets Z_- (index 0) and Z_+ (index 1) [m]
+  double running_radius = 0;    // R of the initial state [m]
+};
+
+struct Model {
+  Config cfg;
+
+  // Sizes.
+  int links = 0;   // N = number of joints = number of links
+  int ndof = 0;    // generalized coordinates n
+  int nstate = 0;  // 2n + kAuxSize
+
+  // Derived parameters (docs/model.md 4).
+  double L0 = 0;          // pin half length
+  double plate_rest = 0;  // l0 = p + d_h
+  double kappa = 0;       // rocker: d_h/2 - R_r
+  double tan_beta = 0, sin_beta = 0, cos_beta = 0;
+  std::vector<double> plate_zeta;    // axial offsets zeta_k of the plates in a pack
+  std::vector<double> station_xi;    // rocker stations along the half, xi in (0,1)
+  double damp = 1;                   // damping scale
+  double beam_beta = 0;              // stiffness-proportional damping (scaled)
+
+  std::array<Pulley, 2> pulley;
+
+  // Constant inertia A0 (docs/model.md 3): the blocks and their inverses.
+  Eigen::Matrix4d bend_mass, bend_mass_inv;   // (w1, s1, w2, s2) of one half, one plane
+  Eigen::Matrix2d axial_mass, axial_mass_inv; // (z1, z2)
+  double pack_mass = 0;
+  Eigen::Matrix2d shaft_axial_mass, shaft_axial_mass_inv;  // (uz, w)
+  Eigen::Vector4d bend_inv_w;  // bend_mass_inv * (1, 0, 1, 0): A0^-1 applied to g (3.2)
+  double bend_inv_s = 0;       // (1,0,1,0) . bend_inv_w
+
+  // Reference initial state (docs/model.md 5) and what the geometry solver reports.
+  Eigen::VectorXd y0;
+  double closure_residual = 0;  // [m]
+  int geometry_iterations = 0;
+
+  // Index helpers.
+  int joint(int j) const { return kJointSize * wrap(j); }
+  int half_a(int j) const { return joint(j) + kJointA; }
+  int half_b(int j) const { return joint(j) + kJointB; }
+  int pack(int j) const { return joint(j) + kJointS; }
+  int shaft(int k) const { return kJointSize * links + kShaftSize * k; }
+  int load_index() const { return kJointSize * links + 2 * kShaftSize; }
+  int wrap(int j) const { return ((j % links) + links) % links; }
+};
+
+// Builds the model from a validated configuration: derived parameters, inertia blocks,
+// and the initial state from the geometry solver. Throws ConfigError for geometry that
+// cannot be built (chain too short or too long, impossible ratio).
+Model build_model(const Config& cfg);
+
+// Smooth load ramp (docs/model.md 4.6): 0 at t = 0, 1 for t >= t_ramp, C1.
+double ramp(double t, double t_ramp);
+double ramp_rate(double t, double t_ramp);
+
+}  // namespace cvt

@@ -1,0 +1,36 @@
+#include "engine/model/state.hpp"
+
+namespace cvt {
+
+// Sizes every buffer once from the model: nothing is allocated inside a step.
+Workspace::Workspace(const Model& m) {
+  const int N = m.links;
+  for (auto* v : {&kin.ex, &kin.ey, &kin.inv_len, &kin.psi_dot, &kin.dx, &kin.dy, &kin.ddx, &kin.ddy})
+    v->assign(N, 0.0);
+  status.rocker.assign(N * m.cfg.rocker.stations, 1);
+  status.pulley.assign(N * ContactStatus::kPulleyPerJoint, 1);
+  rocker_stick.assign(N * m.cfg.rocker.stations, 0);
+  pulley_stick.assign(N * ContactStatus::kPulleyPerJoint, 0);
+  rocker_dir.assign(3 * N * m.cfg.rocker.stations, 0.0);
+  pulley_dir.assign(3 * N * ContactStatus::kPulleyPerJoint, 0.0);
+  rocker_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
+  pulley_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
+  pulley_shaft_damping.assign(static_cast<std::size_t>(N) * 2 * kDampDim * kShaftSize, 0.0);
+  const std::size_t nr = static_cast<std::size_t>(N) * m.cfg.rocker.stations, np = static_cast<std::size_t>(N) * ContactStatus::kPulleyPerJoint;
+  rocker_fresh.resize(nr);
+  pulley_fresh.resize(np);
+  pulley_shaft_cols.assign(np * 2 * kShaftSize, 0.0);
+  chain_slots.resize(N);
+  pulley_slots.resize(N);
+  inertia_slots.resize(N);
+  for (auto* s : {&chain_slots, &pulley_slots, &inertia_slots})
+    for (auto& x : *s) x.clear();
+  capacitance_inv.assign(N, 0.0);
+  switch_slot.assign(N, 0.0);
+  force = Eigen::VectorXd::Zero(m.ndof);
+  accel = Eigen::VectorXd::Zero(m.ndof);
+  accel_free = Eigen::VectorXd::Zero(m.ndof);
+  link_tau.assign(N, 0.0);
+}
+
+}  // namespace cvt

@@ -1,0 +1,161 @@
+// Mutable data of a run (MuJoCo's mjData): sized once from the Model, nothing is
+// allocated inside a step. Kernels read the stage input (t, q, v) and the link
+// kinematics, and write only the per-pin slots of their own module.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "engine/model/model.hpp"
+
+namespace cvt {
+
+// Generalized forces a kernel produced for joint j (docs/model.md 4.0, ordered gather):
+// coordinates of joint j, those of half a_{j+1}, torques on links j-1 and j (to be
+// multiplied by g_i), the two shafts, and the dissipated power.
+struct alignas(64) JointSlot {
+  std::array<double, kJointSize> f;   // a_j, b_j, s_j
+  std::array<double, half::kSize> f_next_a;  // a_{j+1}
+  double tau_prev, tau_own;           // on link j-1 and link j
+  std::array<double, 2 * kShaftSize> shaft;
+  double p_diss;                      // dissipated power [W], >= 0
+  void clear() {
+    f.fill(0.0);
+    f_next_a.fill(0.0);
+    tau_prev = tau_own = 0.0;
+    shaft.fill(0.0);
+    p_diss = 0.0;
+  }
+};
+
+// Per-link kinematics of the current stage (docs/model.md 3.1), structure of arrays.
+struct LinkKinematics {
+  std::vector<double> ex, ey;     // unit link direction e_i
+  std::vector<double> inv_len;    // 1/|Delta_i|
+  std::vector<double> psi_dot;    // link angular velocity
+  std::vector<double> dx, dy, ddx, ddy;  // Delta_i and its rate
+};
+
+// Contact statuses, frozen during a step (docs/model.md 4.4).
+struct ContactStatus {
+  std::vector<std::uint8_t> rocker;  // [joint][station]
+  std::vector<std::uint8_t> pulley;  // [joint][half 2][end 2][pulley 2]
+  static constexpr int kPulleyPerJoint = 8;  // pin-sheave contacts per joint: 2 halves x 2 ends x 2 pulleys
+  static int pulley_index(int j, int h, int e, int k) { return ((j * 2 + h) * 2 + e) * 2 + k; }
+};
+
+// Output of other_forces (shafts, drive, load, clamping): small, one slot.
+struct OtherForces {
+  std::array<double, 2 * kShaftSize + 1> f;  // shafts 0, 1, then the load angle
+  double p_in = 0, p_out = 0, p_diss = 0, p_clamp = 0, ctrl_rate = 0;
+  double input_torque = 0, output_torque = 0, load_torque = 0;
+  double clamp[2] = {0, 0};
+  double support_force[2][2] = {{0, 0}, {0, 0}};  // [shaft][bearing] magnitude [N]
+};
+
+struct Workspace {
+  explicit Workspace(const Model& m);
+
+  // Stage input.
+  double t = 0;
+  const double* q = nullptr;
+  const double* v = nullptr;
+  const double* aux = nullptr;
+
+  LinkKinematics kin;
+  ContactStatus status;
+  std::vector<JointSlot> chain_slots, pulley_slots, inertia_slots;
+  OtherForces other;
+  std::vector<double> capacitance_inv;  // 1/C_i of the Woodbury solve (3.2)
+
+  // Gather and solve.
+  Eigen::VectorXd force;       // generalized forces F (n)
+  std::vector<double> link_tau;  // summed torques per link
+  Eigen::VectorXd accel;       // q'' (n)
+  Eigen::VectorXd accel_free;  // A0^-1 F, between the two passes of the solve (3.2)
+  double p_diss = 0;           // total dissipated power of the stage
+  // Contact energy added by the status updates since the last read (docs/model.md 4.4):
+  // a pair switched on while penetrating brings its Hertz energy in, one switched off
+  // takes it out.
+  double switch_work = 0;
+  std::vector<double> switch_slot;  // per joint, summed in pin order into switch_work
+
+  // Frozen friction branch (docs/integrators.md 11; implicit methods only, off in the
+  // production RK4 path): with the nonsmooth law, one evaluation records each contact's
+  // branch, stick (|u| < v0: R = -f0 N u / v0, linear) or slide (R = -f0 N d with the
+  // direction d = u / |u| of that evaluation, projected on the current tangent plane), and
+  // the following evaluations keep it. f is then smooth within a macro step and Newton
+  // does not meet the kink at v0 nor the turning of the sliding direction. Indexed like the
+  // statuses (directions: 3 per contact).
+  enum class FrictionBranch : std::uint8_t { off, record, frozen };
+  FrictionBranch friction_branch = FrictionBranch::off;
+  std::vector<std::uint8_t> rocker_stick, pulley_stick;
+  std::vector<double> rocker_dir, pulley_dir;
+
+  // Friction damping blocks for the W-method (docs/integrators.md 12; off in the production
+  // path). With record_damping set, chain_forces adds for each active rocker station of
+  // joint j, and pulley_contact for each active pin end of joint j,
+  //   K_j += G^T D G,   D = mu (P - t t^T) + mu_t t t^T on the contact's tangent plane,
+  // where u = G v is the contact's slip velocity as a function of the four halves that it
+  // moves: b_{j-1}, a_j, b_j, a_{j+1} in this order (the two halves of joint j directly, and
+  // through the link spins psi_{j-1} and psi_j also the other half of each of the two links
+  // that hold them; the shafts are left out). In link order that is link j-1 (b_{j-1}, a_j)
+  // then link j (b_j, a_{j+1}), so the sum over joints is block-tridiagonal (cyclic) over
+  // the links. Row-major 40 x 40 per joint, lower triangle only (the blocks are symmetric);
+  // each kernel zeroes and fills only its own joints' blocks.
+  static constexpr int kDampDim = 40;
+  bool record_damping = false;
+  // true: the secant slope N f(v)/v also along the sliding direction (over-damps sliding
+  // contacts in W, but keeps a contact about to stick stiff in W); false: the exact N f'(v).
+  bool damping_secant = false;
+  std::vector<double> rocker_damping, pulley_damping;
+  // The pulley contacts' cross damping between those 40 half coordinates and the 7
+  // coordinates of each shaft (the slip velocity's sheave part), per joint [j][shaft][40][7]
+  // row-major: K_ps with the pins' friction force -K_ps v_shaft.
+  std::vector<double> pulley_shaft_damping;
+
+  // Fresh friction for the W-method (ModelOdeOptions::w_fresh, docs/integrators.md 12.4). With
+  // the secant slope a contact's block is mu U U^T, U = G^T [t s] (its slip velocity's
+  // columns projected on the tangent plane), so between two rebuilds a contact whose mu
+  // moved adds a rank-2 term to W. With record_mu set (the first evaluation of every
+  // step), the kernels write each contact's mu (0 when inactive or without friction), and
+  // its columns U when it is not yet recorded and |mu - mu_w| > mu_tol; with record_damping
+  // also, mu_w = mu and the columns of every active contact (the state the factorized W
+  // holds). Indexed like the statuses; columns [idx][2][40] (G^T t, G^T s over the four
+  // halves), for the pulley contacts also the sheave's [idx][2][7] (u's shaft part).
+  struct FreshMu {
+    std::vector<double> mu, mu_w, cols;
+    std::vector<std::uint8_t> cols_set;
+    std::vector<std::uint8_t> in_correction;  // ModelOde's: the contact is in its correction
+    void resize(std::size_t contacts) {
+      mu.assign(contacts, 0.0), mu_w.assign(contacts, 0.0), cols.assign(contacts * 2 * kDampDim, 0.0);
+      cols_set.assign(contacts, 0), in_correction.assign(contacts, 0);
+    }
+    // A joint's contacts [first, first + count) before its kernel: no mu until found active;
+    // at a rebuild none holds the factorized matrix's mu or columns.
+    void clear(int first, int count, bool rebuild) {
+      std::fill_n(mu.begin() + first, count, 0.0);
+      if (rebuild) std::fill_n(mu_w.begin() + first, count, 0.0), std::fill_n(cols_set.begin() + first, count, 0);
+    }
+    // An active contact's mu (and at a rebuild mu_w); true when its columns are to be written.
+    bool note(int idx, double m, bool rebuild, double tol) {
+      mu[idx] = m;
+      if (rebuild) mu_w[idx] = m;
+      return rebuild || (!cols_set[idx] && std::abs(m - mu_w[idx]) > tol);
+    }
+    // Where contact idx's two columns go (and they are then recorded).
+    double* columns(int idx) {
+      cols_set[idx] = 1;
+      return cols.data() + static_cast<std::size_t>(idx) * 2 * kDampDim;
+    }
+  };
+  bool record_mu = false;
+  double mu_tol = 0;
+  FreshMu rocker_fresh, pulley_fresh;
+  std::vector<double> pulley_shaft_cols;
+};
+
+}  // namespace cvt

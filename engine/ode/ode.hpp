@@ -1,0 +1,216 @@
+// Generic integrators for any first-order system y' = f(t, y) (docs/integrators.md).
+//
+// The engine's production path keeps the fixed-step Rk4 of engine/ode/rk4.hpp, whose
+// fused stage update the parallel runtime relies on bit for bit. This library sits beside
+// it: explicit (RK4, DOPRI5(4), RKC) and implicit (trapezoid, TR-BDF2, ESDIRK3) methods
+// behind one driver, with error control, Newton with a reused Jacobian and factorization,
+// and a finite-difference Jacobian that needs one right-hand side per column colour when
+// the sparsity pattern is known.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <Eigen/Sparse>
+
+namespace cvt {
+
+// y' = f(t, y). `rhs` writes dy (size `size`) and must not allocate: it is called once per
+// stage. Raw pointers so that any storage (Eigen, State buffers) can be handed in.
+struct OdeSystem {
+  using Rhs = std::function<void(double t, const double* y, double* dy)>;
+  // Analytic Jacobians (optional). The dense one fills an n x n matrix; the sparse one
+  // overwrites the values of a matrix that already has the pattern `sparsity`.
+  using DenseJacobian = std::function<void(double t, const double* y, Eigen::MatrixXd& jac)>;
+  using SparseJacobian = std::function<void(double t, const double* y, Eigen::SparseMatrix<double>& jac)>;
+
+  int size = 0;
+  Rhs rhs;
+  DenseJacobian dense_jacobian;
+  SparseJacobian sparse_jacobian;
+  // Nonzero pattern of df/dy (values ignored). Non-empty: the implicit methods work with a
+  // sparse Jacobian (coloured finite differences unless sparse_jacobian is given) and
+  // Eigen::SparseLU; empty: dense Jacobian and dense LU.
+  Eigen::SparseMatrix<double> sparsity;
+
+  bool is_sparse() const { return sparsity.nonZeros() > 0; }
+
+  // W-methods (is_w_method: Ros2, Ros34pw2) with a system-supplied approximate Jacobian J~ (optional;
+  // without them a W-method takes the Jacobian above and an LU, fresh at every step):
+  // w_factor(t, y, gh) prepares W = I - gh J~ at (t, y), and is always called right after
+  // rhs(t, y), so a system may take J~ from what that evaluation recorded; w_solve(x)
+  // overwrites x with W^-1 x. A W-method keeps its order for any J~; J~ only has to capture
+  // the stiff part for the step to be stable.
+  using WFactor = std::function<void(double t, const double* y, double gh)>;
+  using WSolve = std::function<void(double* x)>;
+  WFactor w_factor;
+  WSolve w_solve;
+  // The pattern from a list of (row, column) nonzeros; duplicates are fine.
+  void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
+};
+
+enum class OdeMethod {
+  Rk4,        // classical RK4, fixed step only (the same arithmetic as cvt::Rk4)
+  Dopri5,     // Dormand-Prince 5(4), Hairer's error norm and PI controller
+  Rkc,        // Runge-Kutta-Chebyshev, 2nd order, stabilized explicit (Sommeijer et al. 1997)
+  Trapezoid,  // implicit trapezoidal rule, A-stable but not L-stable, order 2
+  TrBdf2,     // TR-BDF2, gamma = 2 - sqrt 2, L-stable, order 2 (Hosea & Shampine 1996)
+  Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
+  Ros2,       // Verwer et al.'s ROS2 W-method, 2 stages, order 2 for any J~, L-stable for J~ = J
+  Ros34pw2,   // Rang & Angermann's ROS34PW2 W-method, 4 stages, order 3 for any J~, stiffly accurate
+};
+
+// The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
+// no Newton iteration; both take a system's w_factor / w_solve.
+inline bool is_w_method(OdeMethod m) { return m == OdeMethod::Ros2 || m == OdeMethod::Ros34pw2; }
+
+const char* to_string(OdeMethod method);
+
+struct OdeOptions {
+  double rtol = 1e-6;
+  double atol = 1e-9;
+  double h0 = 0;  // first step; 0: chosen from f (Hairer's starting step algorithm)
+  double h_max = std::numeric_limits<double>::infinity();
+  double h_min = 0;  // 0: 16 ulps of t; a step size below it throws OdeError
+  std::int64_t max_steps = 10'000'000;
+  // Fixed step h0 (required > 0), shortened uniformly so that the steps end on t1; no error
+  // control. Rk4 always runs this way.
+  bool fixed_step = false;
+
+  // RKC: re-estimate the spectral radius after this many accepted steps (and after a
+  // rejection); 0 never again after the first.
+  int rkc_rho_every = 25;
+  // A user-supplied bound on the spectral radius of df/dy replaces the power iteration.
+  std::function<double(double t, const double* y)> spectral_radius;
+
+  // Newton (implicit methods). max iterations per stage; recompute the Jacobian at the next
+  // step when the observed contraction rate theta exceeds jac_theta; keep h (RADAU5's
+  // quot1/quot2 rule) when the controller proposes a ratio in [1, keep_h_ratio] (1: off,
+  // since lu_rel_change below already saves the LU and free steps are cheaper).
+  int newton_max_iter = 7;
+  double jac_theta = 0.3;
+  double keep_h_ratio = 1.0;
+  // Keep the LU of I - dh' J while |dh / dh' - 1| <= lu_rel_change (0: refactorize at
+  // every change of h).
+  double lu_rel_change = 0.2;
+  // Keep the Jacobian (and LU) of the previous integrate() call instead of taking a fresh
+  // one at the start of each call: for callers that integrate one system in short pieces
+  // (engine/wmethod/model_ode.hpp). Newton's convergence monitor still asks for a new one when it is
+  // stale.
+  bool keep_jacobian_across_calls = false;
+  // Error test and Newton's convergence test in the max norm instead of the RMS norm: for
+  // systems (the CVT) whose error concentrates in a few of many components, which an RMS over
+  // all of them dilutes by sqrt(n).
+  bool max_norm = false;
+  // W-methods without a system W (finite-difference or analytic Jacobian): keep the Jacobian and
+  // the LU of W for this many steps (a W-method keeps its order with a stale matrix);
+  // rebuilt earlier when gamma h changes.
+  int w_reuse_steps = 1;
+};
+
+struct OdeStats {
+  std::int64_t steps = 0;  // accepted
+  std::int64_t rejected = 0;
+  std::int64_t rhs_evals = 0;  // including those of finite-difference Jacobians and rho estimates
+  std::int64_t jac_evals = 0;
+  std::int64_t lu_factorizations = 0;
+  std::int64_t newton_iterations = 0;
+  std::int64_t newton_failures = 0;
+  std::int64_t rho_estimates = 0;  // RKC
+  int max_stages = 0;              // RKC: most stages used in one step
+  int colors = 0;                  // colours of the finite-difference Jacobian (0: dense or analytic)
+  double h_last = 0;
+  // Adaptive mode: the step the controller proposed for after the last accepted one (a
+  // caller that integrates in short pieces passes it on as the next call's h0).
+  double h_next = 0;
+  double rho_last = 0;  // RKC: last spectral radius used
+  // Wall time of the implicit methods' linear algebra [s]: Jacobians (with their f
+  // evaluations), LU factorizations, and the Newton iterations' solves.
+  double jac_seconds = 0, lu_seconds = 0, solve_seconds = 0;
+};
+
+// Thrown when the integration cannot go on: what() names the time, the step and the reason.
+class OdeError : public std::runtime_error {
+ public:
+  OdeError(double t, double h, const std::string& reason);
+  double t, h;
+};
+
+// Called at t0 and after every accepted step with the new (t, y).
+using OdeObserver = std::function<void(double t, const Eigen::VectorXd& y)>;
+
+// Greedy column colouring: columns of one colour share no row, so one RHS evaluation with
+// all of them perturbed gives all their Jacobian columns. colors[j] in [0, n_colors).
+std::vector<int> color_columns(const Eigen::SparseMatrix<double>& pattern, int* n_colors);
+
+// Estimates the spectral radius of df/dy at (t, y) by the nonlinear power method of RKC's
+// rkcrho (Sommeijer, Shampine & Verwer 1997): returns the unsafe estimate sigma (RKC itself
+// uses 1.2 sigma). The direction found is kept and starts the next estimate, which then
+// converges in a few evaluations. Buffers are sized once.
+class SpectralRadius {
+ public:
+  explicit SpectralRadius(int size);
+  // f_y = f(t, y). At most max_iter evaluations of sys.rhs; *rhs_evals counts them.
+  double estimate(const OdeSystem& sys, double t, const Eigen::VectorXd& y, const Eigen::VectorXd& f_y,
+                  int* rhs_evals, int max_iter = 50);
+  bool converged() const { return converged_; }
+
+ private:
+  Eigen::VectorXd direction_, y_pert_, f_pert_;
+  bool converged_ = false;
+};
+
+// Finite-difference Jacobian at (t, y) with f_y = f(t, y): dense (n evaluations) or, with a
+// sparsity pattern, coloured (n_colors evaluations). Buffers are sized once.
+class FdJacobian {
+ public:
+  explicit FdJacobian(const OdeSystem& sys);
+  int colors() const { return n_colors_; }
+  void dense(double t, const Eigen::VectorXd& y, const Eigen::VectorXd& f_y, Eigen::MatrixXd& jac);
+  // jac must have the pattern of sys.sparsity (compressed); its values are overwritten.
+  void sparse(double t, const Eigen::VectorXd& y, const Eigen::VectorXd& f_y, Eigen::SparseMatrix<double>& jac);
+  int rhs_evals() const { return rhs_evals_; }
+
+ private:
+  const OdeSystem& sys_;
+  std::vector<int> color_;
+  std::vector<std::vector<int>> columns_of_color_;
+  int n_colors_ = 0;
+  int rhs_evals_ = 0;
+  Eigen::VectorXd y_pert_, f_pert_, delta_;
+};
+
+class OdeSolverImpl;
+
+// Owns the workspace of one method for one system: construct once, integrate many times.
+// Keeps a reference to sys, which must outlive it.
+class OdeSolver {
+ public:
+  OdeSolver(const OdeSystem& sys, OdeMethod method, const OdeOptions& options = {});
+  ~OdeSolver();
+  OdeSolver(const OdeSolver&) = delete;
+  OdeSolver& operator=(const OdeSolver&) = delete;
+
+  // Advances y from t0 to t1 (t1 > t0). Statistics accumulate over calls.
+  void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer = {});
+  const OdeStats& stats() const;
+  OdeStats& stats();
+  // The options in use; changes (e.g. h0 between calls) apply from the next integrate().
+  OdeOptions& options();
+
+ private:
+  std::unique_ptr<OdeSolverImpl> impl_;
+};
+
+// One-shot driver: returns the statistics of the run.
+OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1, Eigen::VectorXd& y,
+                   const OdeOptions& options = {}, const OdeObserver& observer = {});
+
+}  // namespace cvt

@@ -1,0 +1,162 @@
+// The W-methods of the generic integrators (docs/integrators.md 12): ROS2 and ROS34PW2.
+//
+// Verwer, Spee, Blom & Hundsdorfer, "A second-order Rosenbrock method applied to
+// photochemical dispersion problems", SIAM J. Sci. Comput. 20 (1999) 1456-1480:
+//
+//   W = I - gamma h J~,   gamma = 1 + 1/sqrt 2,
+//   W k1 = f(t, y),
+//   W k2 = f(t + h, y + h k1) - 2 k1,
+//   y_1 = y + (3/2) h k1 + (1/2) h k2.
+//
+// Second order for ANY matrix J~ (a W-method: the order conditions do not involve J~), and
+// L-stable when J~ = J. Two evaluations per step and two solves with one matrix, no Newton
+// iteration. The non-autonomous case is the autonomous one with t as a state whose column
+// of J~ is zero, which a W-method allows. Error estimate: y_1 minus the first-order
+// solution y + h k1, i.e. (h/2)(k1 + k2). Each step evaluates f(t, y) itself (so the
+// drivers do not evaluate f at the start of a call for ROS2).
+#include <chrono>
+#include <cmath>
+
+#include "engine/base/timing.hpp"
+#include "engine/ode/ode_impl.hpp"
+
+namespace cvt {
+
+namespace {
+const double kRos2Gamma = 1.0 + 1.0 / std::sqrt(2.0);
+}  // namespace
+
+// W = I - gh J~ at (t, y), right after f0_ = f(t, y): the system's own (w_factor), or the
+// Jacobian above and its LU, kept for w_reuse_steps steps while gh stays the same.
+void OdeSolverImpl::prepare_w(double t, double h, const Eigen::VectorXd& y, double gh) {
+  auto t0 = std::chrono::steady_clock::now();
+  if (sys_.w_factor) {
+    sys_.w_factor(t, y.data(), gh);
+    ++stats.jac_evals;
+    ++stats.lu_factorizations;
+    stats.lu_seconds += seconds_since(t0);
+  } else if (!newton_->factored() || ++w_age_ >= opt_.w_reuse_steps ||
+             std::abs(newton_->factored_dh() / gh - 1) > 1e-9) {
+    // A fresh Jacobian (every step by default: Rosenbrock proper) and its LU.
+    w_age_ = 0;
+    newton_->evaluate_jacobian(t, y, f0_, stats);
+    stats.jac_seconds += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    newton_->factorize(gh, stats);
+    stats.lu_seconds += seconds_since(t0);
+    if (!newton_->ok())
+      throw OdeError(t, h, std::string(to_string(method_)) + ": the matrix I - gamma h J is singular");
+  }
+}
+
+void OdeSolverImpl::solve_w(Eigen::VectorXd& x) {
+  const auto s0 = std::chrono::steady_clock::now();
+  if (sys_.w_solve)
+    sys_.w_solve(x.data());
+  else
+    newton_->solve_in_place(x);
+  stats.solve_seconds += seconds_since(s0);
+}
+
+void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, double* err) {
+  // f(t, y) afresh at every step: callers such as OdeDriver change the system between
+  // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
+  eval(t, y, f0_);
+  prepare_w(t, h, y, kRos2Gamma * h);
+  // k1 in z_, k2 in k2_.
+  z_ = f0_;
+  solve_w(z_);
+  y_new_ = y + h * z_;
+  eval(t + h, y_new_, k2_);
+  k2_ -= 2.0 * z_;
+  solve_w(k2_);
+  y_new_ = y + (1.5 * h) * z_ + (0.5 * h) * k2_;
+  err_vec_ = (0.5 * h) * (z_ + k2_);
+  *err = fixed_ ? 0.0 : error_norm(err_vec_, y, y_new_);
+}
+
+// ROS34PW2 in the form that needs no products with J~ (Hairer & Wanner II, IV.7, (7.25)):
+// with u_i = sum_j gamma_ij k_j,
+//   W u_i = gamma h f(t + alpha_i h, y + sum_{j<i} a_ij u_j) + gamma sum_{j<i} c_ij u_j,
+//   y_1 = y + sum_i m_i u_i,
+// where a = alpha Gamma^-1, C = diag(1/gamma) - Gamma^-1 and m = b Gamma^-1 are computed once
+// from the published tableau (alpha, Gamma, b, b^) below. The t-column of J~ is zero, as a
+// W-method allows (no df/dt terms).
+namespace {
+struct Ros34pw2Tableau {
+  static constexpr int s = 4;
+  double gamma = 4.3586652150845900e-01;
+  double alpha_c[s] = {};  // stage times
+  double a[s][s] = {}, c[s][s] = {};
+  double m[s] = {}, e[s] = {};  // solution weights and those of the error (m - m^)
+  Ros34pw2Tableau() {
+    double alpha[s][s] = {};
+    alpha[1][0] = 8.7173304301691801e-01;
+    alpha[2][0] = 8.4457060015369423e-01, alpha[2][1] = -1.1299064236397981e-01;
+    alpha[3][2] = 1.0;
+    double g[s][s] = {};
+    g[1][0] = -8.7173304301691801e-01;
+    g[2][0] = -9.0338057013044082e-01, g[2][1] = 5.4180672388095326e-02;
+    g[3][0] = 2.4212380706095346e-01, g[3][1] = -1.2232505839045147e+00, g[3][2] = 5.4526025533510214e-01;
+    for (int i = 0; i < s; ++i) g[i][i] = gamma;
+    const double b[s] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
+                         4.3586652150845900e-01};
+    const double bh[s] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
+                          2.1793326075422950e-01};
+    // Gamma^-1 by forward substitution (lower triangular).
+    double gi[s][s] = {};
+    for (int j = 0; j < s; ++j) {
+      gi[j][j] = 1.0 / g[j][j];
+      for (int i = j + 1; i < s; ++i) {
+        double sum = 0;
+        for (int k = j; k < i; ++k) sum += g[i][k] * gi[k][j];
+        gi[i][j] = -sum / g[i][i];
+      }
+    }
+    for (int i = 0; i < s; ++i) {
+      for (int j = 0; j < i; ++j) {
+        alpha_c[i] += alpha[i][j];
+        for (int k = j; k < i; ++k) a[i][j] += alpha[i][k] * gi[k][j];
+        c[i][j] = -gi[i][j];
+      }
+      for (int k = i; k < s; ++k) m[i] += b[k] * gi[k][i], e[i] += (b[k] - bh[k]) * gi[k][i];
+    }
+  }
+};
+const Ros34pw2Tableau kRos34pw2;
+}  // namespace
+
+void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
+  const Ros34pw2Tableau& tb = kRos34pw2;
+  const double gh = tb.gamma * h;
+  eval(t, y, f0_);
+  prepare_w(t, h, y, gh);
+  // Each stage's sums in one pass over the vectors (the same operations in the same order as
+  // one pass per term, so the same bits).
+  static_assert(Ros34pw2Tableau::s == 4);
+  const Eigen::VectorXd &u0 = stages_[0], &u1 = stages_[1], &u2 = stages_[2], &u3 = stages_[3];
+  const double g = tb.gamma;
+  stages_[0] = gh * f0_;
+  solve_w(stages_[0]);
+  y_new_ = y + tb.a[1][0] * u0;
+  eval(t + tb.alpha_c[1] * h, y_new_, stages_[1]);
+  stages_[1] = gh * stages_[1] + (g * tb.c[1][0]) * u0;
+  solve_w(stages_[1]);
+  y_new_ = y + tb.a[2][0] * u0 + tb.a[2][1] * u1;
+  eval(t + tb.alpha_c[2] * h, y_new_, stages_[2]);
+  stages_[2] = gh * stages_[2] + (g * tb.c[2][0]) * u0 + (g * tb.c[2][1]) * u1;
+  solve_w(stages_[2]);
+  y_new_ = y + tb.a[3][0] * u0 + tb.a[3][1] * u1 + tb.a[3][2] * u2;
+  eval(t + tb.alpha_c[3] * h, y_new_, stages_[3]);
+  stages_[3] = gh * stages_[3] + (g * tb.c[3][0]) * u0 + (g * tb.c[3][1]) * u1 + (g * tb.c[3][2]) * u2;
+  solve_w(stages_[3]);
+  y_new_ = y + tb.m[0] * u0 + tb.m[1] * u1 + tb.m[2] * u2 + tb.m[3] * u3;
+  if (fixed_) {  // no error estimate needed
+    *err = 0.0;
+    return;
+  }
+  err_vec_ = tb.e[0] * u0 + tb.e[1] * u1 + tb.e[2] * u2 + tb.e[3] * u3;
+  *err = error_norm(err_vec_, y, y_new_);
+}
+
+}  // namespace cvt

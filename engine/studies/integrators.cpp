@@ -1,0 +1,597 @@
+#include "engine/base/timing.hpp"
+#include "engine/studies/integrators.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <memory>
+
+#include "engine/io/checkpoint.hpp"
+#include "engine/wmethod/model_ode.hpp"
+#include "engine/rhs/rhs.hpp"
+#include "engine/simulation.hpp"
+#include "modules/chain_forces.hpp"
+
+namespace cvt {
+namespace {
+
+using Clock = WallClock;
+const double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Axial forces of both halves of every pin [2N], and whether any end of each half touches
+// a sheave in the current statuses [2N].
+void pin_forces(const Model& m, const Eigen::VectorXd& y, const ContactStatus& st, std::vector<double>& f,
+                std::vector<int>& touching) {
+  const int N = m.links;
+  f.resize(2 * N), touching.resize(2 * N);
+  const double* q = y.data();
+  const double* v = q + m.ndof;
+  for (int j = 0; j < N; ++j)
+    for (int h = 0; h < 2; ++h) {
+      f[2 * j + h] = half_axial_force(m, q, v, h == 0 ? m.half_a(j) : m.half_b(j));
+      int any = 0;
+      for (int e = 0; e < 2; ++e)
+        for (int k = 0; k < 2; ++k) any |= st.pulley[ContactStatus::pulley_index(j, h, e, k)];
+      touching[2 * j + h] = any;
+    }
+}
+
+struct CurveRun {
+  std::string method, param_kind;  // "h" or "tol"
+  double param = 0;
+  std::string status = "ok";       // ok | blow-up | timeout | error: ...
+  double deviation = kNaN;         // max |F - F_ref| / range(F_ref)
+  double wall_s = 0;
+  long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
+  double jac_s = 0, lu_s = 0, solve_s = 0;
+  long long status_rebuilds = 0;  // ROS2: matrix rebuilds forced by contact status changes
+  long long fresh_contacts = 0, fresh_rebuilds = 0;  // W-methods: ModelOde::w_fresh_contacts / _rebuilds
+  int w_every = 0, w_k_every = 0;  // ROS2: its matrix intervals
+  std::vector<double> walls;       // each repeat's wall time
+  double reached = kNaN;  // model time covered when stopped by the timeout [s]
+  double h_mean = 0;
+  bool chosen = false;
+  std::vector<double> curve;  // the tracked half's axial force at the sample times
+};
+
+struct OneStep {
+  std::string method;
+  double h = 0, err_pos = kNaN, err_vel = kNaN;
+};
+
+// IntegratorStudyOptions::perturb: q_i += eps |q_i| u_i, u_i uniform in [-1, 1) from splitmix64 (the
+// same numbers on every platform, unlike the standard distributions).
+void perturb_positions(const Model& m, Eigen::VectorXd& y, double eps, std::uint64_t seed) {
+  std::uint64_t x = seed;
+  for (int i = 0; i < m.ndof; ++i) {
+    std::uint64_t z = (x += 0x9e3779b97f4a7c15ULL);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    z ^= z >> 31;
+    const double u = static_cast<double>(z >> 11) * 0x1.0p-53 * 2.0 - 1.0;
+    y[i] += eps * std::abs(y[i]) * u;
+  }
+}
+
+// Largest |difference| over pin positions [m] and pin velocities [m/s].
+void state_errors(const Model& m, const Eigen::VectorXd& a, const Eigen::VectorXd& b, double& ep, double& ev) {
+  const int pins = kJointSize * m.links, n = m.ndof;
+  ep = (a.head(pins) - b.head(pins)).cwiseAbs().maxCoeff();
+  ev = (a.segment(n, pins) - b.segment(n, pins)).cwiseAbs().maxCoeff();
+  if (!a.allFinite()) ep = ev = kNaN;
+}
+
+// The driver's counts and times into r; ROS2's stiffness differences run inside its
+// w_factor: reported as the Jacobian's, not the factorization's.
+void take_stats(const OdeDriver& drv, CurveRun& r) {
+  const OdeStats& st = drv.stats();
+  r.rhs = drv.rhs_evals(), r.jac = drv.model_ode().jacobian_evals(), r.lu = st.lu_factorizations;
+  r.steps = st.steps, r.rejected = st.rejected, r.newton_failures = st.newton_failures;
+  r.newton_iterations = st.newton_iterations;
+  r.jac_s = st.jac_seconds + drv.model_ode().w_stiffness_seconds();
+  r.lu_s = st.lu_seconds - drv.model_ode().w_stiffness_seconds();
+  r.solve_s = st.solve_seconds;
+  r.status_rebuilds = drv.model_ode().w_status_rebuilds();
+  r.fresh_contacts = drv.model_ode().w_fresh_contacts();
+  r.fresh_rebuilds = drv.model_ode().w_fresh_rebuilds();
+}
+
+// FNV-1a over the text: a stable key for the cache files (the same on every build).
+std::uint64_t fnv1a(const std::string& s) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
+  return h;
+}
+
+// The study's cache (--cache DIR): the running state and the reference curve depend only on
+// the resolved configuration, t_warm, t_sample, sample_dt and ref_step (the bits are the
+// same on any thread count), so they are kept under a key of those and reused.
+struct StudyCache {
+  std::string ckpt, ref;  // empty: no cache
+  StudyCache(const Model& m, const IntegratorStudyOptions& opt) {
+    if (opt.cache_dir.empty()) return;
+    char warm[64], curve[128], key[32];
+    std::snprintf(warm, sizeof warm, "|%.17g", opt.t_warm);
+    std::snprintf(curve, sizeof curve, "|%.17g|%.17g|%.17g", opt.t_sample, opt.sample_dt, opt.ref_step);
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm)));
+    ckpt = opt.cache_dir + "/study-" + key + ".ckpt";
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm + curve)));
+    ref = opt.cache_dir + "/study-" + key + "-reference.txt";
+  }
+  static bool exists(const std::string& p) { return !p.empty() && std::ifstream(p).good(); }
+};
+
+struct Reference {
+  int tracked = -1;
+  double wall = 0;
+  std::vector<double> curve;
+  std::vector<int> touch;  // the tracked half touches a sheave at each sample
+};
+
+void write_reference(const std::string& path, const Reference& r) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp);
+    f << "# cvt-engine study integrators: reference curve (tracked half, wall s, then sample force touch)\n";
+    char buf[64];
+    f << r.tracked << " " << r.curve.size() << "\n";
+    std::snprintf(buf, sizeof buf, "%.17g", r.wall);
+    f << buf << "\n";
+    for (size_t k = 0; k < r.curve.size(); ++k) {
+      std::snprintf(buf, sizeof buf, "%.17g", r.curve[k]);
+      f << buf << " " << r.touch[k] << "\n";
+    }
+    if (!f) throw std::runtime_error("cannot write the study cache " + tmp);
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error("cannot rename " + tmp + " to " + path);
+}
+
+Reference read_reference(const std::string& path, size_t samples) {
+  std::ifstream f(path);
+  std::string comment;
+  std::getline(f, comment);
+  Reference r;
+  size_t n = 0;
+  f >> r.tracked >> n >> r.wall;
+  r.curve.resize(n), r.touch.resize(n);
+  for (size_t k = 0; k < n; ++k) f >> r.curve[k] >> r.touch[k];
+  if (!f || n != samples || r.tracked < 0)
+    throw std::runtime_error("the study cache " + path + " is damaged (delete it to recompute)");
+  return r;
+}
+
+}  // namespace
+
+std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::vector<std::string>& items) {
+  std::vector<IntegratorStudyOptions::WCandidate> out;
+  for (const std::string& entry : items) {
+    IntegratorStudyOptions::WCandidate c;
+    const size_t at = entry.find('@');
+    const std::string item = at == std::string::npos ? entry : entry.substr(at + 1);
+    if (at != std::string::npos) {
+      c.method = entry.substr(0, at);
+      bool w = false;
+      try {
+        w = is_w_method(parse_ode_method(c.method));
+      } catch (const std::invalid_argument&) {
+      }
+      if (!w)
+        throw std::invalid_argument("--w-steps: '" + entry + "' names no W-method (ros2, ros34pw2) before '@'");
+    }
+    char tail = 0;
+    const int n = std::sscanf(item.c_str(), "%lf:%d:%d%c", &c.h, &c.w_every, &c.w_k_every, &tail);
+    const bool plain = n == 1 && item.find(':') == std::string::npos;
+    if (!(plain || n == 3) || !(c.h > 0) ||
+        (n == 3 && (c.w_every < 1 || c.w_k_every < 1 || c.w_k_every % c.w_every != 0)))
+      throw std::invalid_argument("--w-steps: '" + entry +
+                                  "' is not [METHOD@]H or [METHOD@]H:W:K (a step > 0 s; K a positive multiple of W > 0)");
+    if (plain) c.w_every = c.w_k_every = 0;
+    out.push_back(c);
+  }
+  return out;
+}
+
+int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) {
+  // The running state, the reference and the RK4 candidates are RK4 whatever the
+  // configuration's method (the W candidates name theirs); the running state at RK4's
+  // production step, 1e-8 s. The cache stays keyed on the configuration as given.
+  Config rk4_cfg = model.cfg;
+  rk4_cfg.integrator.method = "rk4";
+  rk4_cfg.integrator.step = opt.warm_step;
+  const Model m = build_model(rk4_cfg);
+  const double h_prod = m.cfg.integrator.step;
+  // The running state.
+  const StudyCache cache(m, opt);
+  Simulation warm(m, opt.schedule);
+  const long warm_steps = std::lround(opt.t_warm / h_prod);
+  std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m.links,
+              m.nstate, h_prod, warm_steps * h_prod);
+  std::fflush(stdout);
+  if (!cache.ckpt.empty()) std::printf("  (cache: running state %s, reference %s)\n", cache.ckpt.c_str(), cache.ref.c_str());
+  if (StudyCache::exists(cache.ckpt)) {
+    const Checkpoint c = read_checkpoint(cache.ckpt);
+    if (c.config_toml != m.cfg.resolved_toml) throw std::runtime_error("the study cache " + cache.ckpt + " is of another configuration");
+    warm.restore(c);
+    std::printf("  (running state from the cache %s)\n", cache.ckpt.c_str());
+  } else {
+    for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
+    if (!cache.ckpt.empty()) write_checkpoint(cache.ckpt, warm.checkpoint());
+  }
+  const Checkpoint start = warm.checkpoint();
+  const double t0 = warm.time();
+  {
+    Workspace ws(m);
+    auto sched = make_schedule(m, ws, ScheduleOptions{});
+    ModelOde probe(m, ws, *sched, ModelOdeOptions{2, opt.exact_dense_rows});
+    const double rho = warm.spectral_radius(start.state, t0, warm.workspace().status);
+    std::printf("spectral radius of df/dy at the running state: about %.3g 1/s (RK4 stable for h up to about "
+                "%.3g s)\n", rho, 2.8 / rho);
+    std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
+                static_cast<long>(probe.system().sparsity.nonZeros()), opt.exact_dense_rows ? "exact" : "approximate",
+                probe.colors(), probe.colors() + 1);
+  }
+
+  OdeOptions base;
+  base.newton_max_iter = opt.newton_max_iter;
+  base.jac_theta = opt.jac_theta;
+  base.max_norm = opt.max_norm;
+  // Scaled, shifted system (ModelOdeOptions::scaled): tolerances in units of 1 um, 1 mm/s, 1 mJ.
+  ModelOdeOptions jac_opt;
+  jac_opt.exact_dense_rows = opt.exact_dense_rows;
+  jac_opt.scaled = true;
+  jac_opt.freeze_friction = opt.freeze_friction;
+  if (opt.w_every < 1 || opt.w_k_every < 1 || opt.w_k_every % opt.w_every != 0)
+    throw std::invalid_argument("--w-k-every must be a multiple of --w-every");
+  jac_opt.w_every = opt.w_every;
+  jac_opt.w_k_every = opt.w_k_every;
+  jac_opt.w_stiffness = !opt.w_no_stiffness;
+  jac_opt.w_secant = opt.w_secant;
+  jac_opt.w_fresh = opt.w_fresh < 0 ? m.cfg.integrator.w_fresh : opt.w_fresh;
+  jac_opt.w_fresh_max = opt.w_fresh_max > 0 ? opt.w_fresh_max : m.cfg.integrator.w_fresh_max;
+  jac_opt.w_status_rebuild = opt.w_status_rebuild;
+  jac_opt.w_blocks = !opt.ros2_full_jacobian;
+
+  // ---- (a) one-step error -------------------------------------------------------------
+  std::vector<OneStep> one;
+  if (opt.one_step) {
+    std::vector<double> hs = opt.one_step_h;
+    std::sort(hs.begin(), hs.end());
+    // Reference: RK4 with the small step, statuses frozen, states kept at every h.
+    std::vector<Eigen::VectorXd> ref(hs.size());
+    {
+      Simulation s(m, ScheduleOptions{});
+      s.restore(start);
+      long done = 0;
+      for (size_t i = 0; i < hs.size(); ++i) {
+        const long want = std::lround(hs[i] / opt.one_step_ref);
+        for (; done < want; ++done) s.step(opt.one_step_ref, false);
+        ref[i] = s.state();
+      }
+    }
+    std::printf("\n(a) error after one step from t = %.4g s against RK4 with h = %.3g s (statuses frozen)\n", t0,
+                opt.one_step_ref);
+    std::printf("%-10s %10s %14s %14s\n", "method", "h [s]", "pos err [m]", "vel err [m/s]");
+    for (const std::string& name : opt.methods) {
+      const OdeMethod method = parse_ode_method(name);
+      for (size_t i = 0; i < hs.size(); ++i) {
+        Workspace ws(m);
+        ws.status.rocker = start.rocker;
+        ws.status.pulley = start.pulley;
+        auto sched = make_schedule(m, ws, ScheduleOptions{});
+        ModelOde ode(m, ws, *sched, jac_opt);
+        OdeOptions o = base;
+        o.atol = o.rtol = 1e-3;
+        o.fixed_step = true;
+        o.h0 = hs[i];
+        OneStep r{name, hs[i]};
+        const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
+        if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
+          ws.friction_branch = Workspace::FrictionBranch::record;
+        ws.record_damping = is_w_method(method) && !opt.ros2_full_jacobian;  // the W-method's matrix
+        ws.damping_secant = opt.w_secant;
+        ode.offset() = start.state;
+        Eigen::VectorXd z;
+        ode.to_z(start.state, z);
+        try {
+          OdeSolver solver(ode.system(), method, o);
+          solver.integrate(t0, t0 + hs[i], z);
+          Eigen::VectorXd y;
+          ode.to_y(z, y);
+          state_errors(m, y, ref[i], r.err_pos, r.err_vel);
+        } catch (const std::exception&) {
+        }
+        std::printf("%-10s %10.3g %14.4g %14.4g\n", name.c_str(), r.h, r.err_pos, r.err_vel);
+        one.push_back(r);
+      }
+    }
+    std::fflush(stdout);
+  }
+
+  // ---- (b) the sample curve -------------------------------------------------------------
+  std::vector<CurveRun> runs;
+  std::vector<double> times, ref_curve;
+  int tracked = -1;
+  double ref_wall = 0;
+  bool ref_from_cache = false;
+  if (opt.curve) {
+    const long n_samples = std::max(1L, std::lround(opt.t_sample / opt.sample_dt));
+    for (long k = 0; k <= n_samples; ++k) times.push_back(t0 + k * opt.sample_dt);
+    Reference ref;
+    ref_from_cache = StudyCache::exists(cache.ref);
+    if (ref_from_cache) {
+      ref = read_reference(cache.ref, times.size());
+      std::printf("  (reference curve from the cache %s)\n", cache.ref.c_str());
+    } else {
+      // Reference: production RK4 at ref_step, all pins' axial forces.
+      std::vector<std::vector<double>> all_f;
+      std::vector<std::vector<int>> all_touch;
+      Simulation s(m, opt.schedule);
+      s.restore(start);
+      s.set_clock(t0, 0);
+      std::vector<double> f;
+      std::vector<int> touch;
+      const auto w0 = Clock::now();
+      pin_forces(m, s.state(), s.workspace().status, f, touch);
+      all_f.push_back(f), all_touch.push_back(touch);
+      const long per = std::lround(opt.sample_dt / opt.ref_step);
+      for (long k = 1; k <= n_samples; ++k) {
+        for (long i = 0; i < per; ++i) s.step(opt.ref_step);
+        pin_forces(m, s.state(), s.workspace().status, f, touch);
+        all_f.push_back(f), all_touch.push_back(touch);
+      }
+      ref.wall = seconds_since(w0);
+      // The tracked half: one that starts off the sheaves and touches them from 10 % .. 60 % of
+      // the window on; among those the one with the largest range of axial force.
+      double best_range = -1;
+      for (int i = 0; i < 2 * m.links; ++i) {
+        if (all_touch[0][i]) continue;
+        long first = -1;
+        for (long k = 0; k <= n_samples; ++k)
+          if (all_touch[k][i]) {
+            first = k;
+            break;
+          }
+        if (first < 0) continue;
+        const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
+        double lo = 1e300, hi = -1e300;
+        for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
+        const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
+        if (score > best_range) best_range = score, ref.tracked = i;
+      }
+      if (ref.tracked < 0) ref.tracked = 0;  // nothing enters in this window: take pin 0, half a
+      for (long k = 0; k <= n_samples; ++k) ref.curve.push_back(all_f[k][ref.tracked]), ref.touch.push_back(all_touch[k][ref.tracked]);
+      if (!cache.ref.empty()) write_reference(cache.ref, ref);
+    }
+    tracked = ref.tracked;
+    ref_wall = ref.wall;
+    ref_curve = ref.curve;
+    const double lo = *std::min_element(ref_curve.begin(), ref_curve.end());
+    const double hi = *std::max_element(ref_curve.begin(), ref_curve.end());
+    const double range = std::max(hi - lo, 1e-12);
+    long enters = -1;
+    for (long k = 0; k <= n_samples; ++k)
+      if (ref.touch[k]) {
+        enters = k;
+        break;
+      }
+    std::printf("\n(b) sample curve: axial force of pin %d, half %c over %.4g .. %.4g s (enters a pulley at %.4g s); "
+                "reference RK4 h = %.3g s: range %.1f .. %.1f N, %.2f s wall\n",
+                tracked / 2, tracked % 2 ? 'b' : 'a', t0, times.back(), enters >= 0 ? times[enters] : kNaN,
+                opt.ref_step, lo, hi, ref_wall);
+    if (opt.perturb > 0)
+      std::printf("  every run starts from the running state with its positions moved by %.3g |q| u (seed %llu)\n",
+                  opt.perturb, static_cast<unsigned long long>(opt.seed));
+    std::fflush(stdout);
+
+    auto deviation = [&](const std::vector<double>& c) {
+      double d = 0;
+      for (size_t k = 0; k < c.size(); ++k) d = std::max(d, std::abs(c[k] - ref_curve[k]));
+      return c.size() == ref_curve.size() ? d / range : kNaN;
+    };
+    // One run of a candidate of a method (step or tolerance p; W-methods: their matrix intervals).
+    auto run_once = [&](const std::string& name, double p, int w_every, int w_k_every) {
+      const OdeMethod method = parse_ode_method(name);
+      const bool fixed = method == OdeMethod::Rk4;
+      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
+      CurveRun r;
+      r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
+      r.w_every = w_every, r.w_k_every = w_k_every;
+      Simulation s(m, opt.schedule);
+      s.restore(start);
+      s.set_clock(t0, 0);
+      if (opt.perturb > 0) perturb_positions(m, s.mutable_state(), opt.perturb, opt.seed);
+      std::vector<double> f;
+      std::vector<int> touch;
+      pin_forces(m, s.state(), s.workspace().status, f, touch);
+      r.curve.push_back(f[tracked]);
+      const auto w0 = Clock::now();
+      try {
+        if (fixed) {
+          // The production path (Simulation::step, fused stage update).
+          const long per = std::lround(opt.sample_dt / p);
+          if (std::abs(per * p - opt.sample_dt) > 1e-6 * opt.sample_dt)
+            throw std::invalid_argument("the RK4 step must divide sample_dt");
+          for (size_t k = 1; k < times.size(); ++k) {
+            for (long i = 0; i < per; ++i) s.step(p);
+            r.steps += per, r.rhs += 4 * per;
+            pin_forces(m, s.state(), s.workspace().status, f, touch);
+            r.curve.push_back(f[tracked]);
+            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+            if (seconds_since(w0) > opt.max_wall) throw std::runtime_error("timeout");
+          }
+        } else {
+          OdeRunOptions ro;
+          ro.method = method;
+          ro.ode = base;
+          ro.ode.atol = ro.ode.rtol = p;
+          ro.ode.h0 = 1e-8;
+          if (w_fixed) {
+            ro.ode.fixed_step = true;
+            ro.ode.h0 = p;
+          }
+          ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
+          ro.jac = jac_opt;
+          if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
+          // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
+          // serve error norms, which fixed steps do not use).
+          if (w_fixed) ro.jac.scaled = false;
+          ro.status_interval = opt.status_interval;
+          OdeDriver drv(s, ro);
+          for (size_t k = 1; k < times.size(); ++k) {
+            drv.advance(times[k]);
+            pin_forces(m, s.state(), s.workspace().status, f, touch);
+            r.curve.push_back(f[tracked]);
+            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
+            if (seconds_since(w0) > opt.max_wall) {
+              take_stats(drv, r);
+              r.reached = times[k] - t0;
+              throw std::runtime_error("timeout");
+            }
+          }
+          take_stats(drv, r);
+        }
+      } catch (const BlowUpError&) {
+        r.status = "blow-up";
+      } catch (const OdeError& e) {
+        r.status = "error";
+      } catch (const std::exception& e) {
+        r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
+      }
+      r.wall_s = seconds_since(w0);
+      return r;
+    };
+    for (const std::string& name : opt.methods) {
+      const OdeMethod method = parse_ode_method(name);
+      const bool fixed = method == OdeMethod::Rk4;
+      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
+      std::vector<IntegratorStudyOptions::WCandidate> cands;
+      if (w_fixed) {
+        for (const auto& c : opt.w_steps)
+          if (c.method.empty() || c.method == name) cands.push_back(c);
+      } else {
+        for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
+      }
+      bool found = false;
+      for (const auto& cand : cands) {
+        const double p = cand.h;
+        const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
+        const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt.w_every;
+        const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt.w_k_every;
+        // The first round; --repeat adds rounds over all runs below.
+        CurveRun r = run_once(name, p, we, wk);
+        r.walls = {r.wall_s};
+        r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
+        if (r.status == "timeout")
+          std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
+        if (r.status == "ok") r.deviation = deviation(r.curve);
+        const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
+        if (good && !found) r.chosen = found = true;
+        if (r.w_every > 0) std::printf("  (W matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
+        std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
+                    "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
+                    name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
+                    r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
+        if (is_w_method(method) && !opt.ros2_full_jacobian)
+          std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes; fresh friction: "
+                      "%lld contacts corrected, %lld rebuilds forced)\n",
+                      name.c_str(), r.status_rebuilds, r.fresh_contacts, r.fresh_rebuilds);
+        std::fflush(stdout);
+        runs.push_back(std::move(r));
+        if (found && !opt.all) break;
+      }
+    }
+    // The repeats (--repeat N): N - 1 more rounds over every finished run, in the study's order,
+    // so that RK4 and the others meet the machine's drifting load alike (the ratios are what
+    // counts); the same bits every time; each run's wall time is its median.
+    for (int rep = 1; rep < opt.repeat; ++rep)
+      for (CurveRun& r : runs) {
+        if (r.status != "ok") continue;
+        CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every);
+        if (again.status != r.status || again.curve != r.curve)
+          throw std::runtime_error("study: a repeated run of " + r.method + " gave other bits (not reproducible)");
+        r.walls.push_back(again.wall_s);
+      }
+    if (opt.repeat > 1) {
+      std::printf("\nrepeats, in %d rounds over the runs (wall s, round by round; the median counts):\n", opt.repeat);
+      for (CurveRun& r : runs) {
+        if (r.walls.size() < 2) continue;
+        std::printf("  %-10s %s %-8.3g", r.method.c_str(), r.param_kind.c_str(), r.param);
+        if (r.w_every > 0) std::printf(" W%d/%d", r.w_every, r.w_k_every);
+        std::printf(":");
+        for (double w : r.walls) std::printf(" %.2f", w);
+        std::vector<double> sorted = r.walls;
+        std::sort(sorted.begin(), sorted.end());
+        const size_t mid = sorted.size() / 2;
+        r.wall_s = sorted.size() % 2 ? sorted[mid] : 0.5 * (sorted[mid - 1] + sorted[mid]);
+        std::printf("  -> %.2f\n", r.wall_s);
+      }
+    }
+    // Summary table: every run that finished, against the chosen RK4 run of this study (*: each
+    // method's chosen run, its largest accurate step or loosest accurate tolerance).
+    double rk4_wall = kNaN;
+    for (const CurveRun& r : runs)
+      if (r.chosen && r.method == "rk4") rk4_wall = r.wall_s;
+    std::printf("\n%-10s %-22s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
+                "jac", "lu", "steps", "mean h s", "vs rk4");
+    for (const CurveRun& r : runs) {
+      if (r.status != "ok") continue;
+      char p[48];
+      if (r.w_every > 0)
+        std::snprintf(p, sizeof p, "%s=%.3g W%d/%d%s", r.param_kind.c_str(), r.param, r.w_every, r.w_k_every, r.chosen ? "*" : "");
+      else
+        std::snprintf(p, sizeof p, "%s=%.3g%s", r.param_kind.c_str(), r.param, r.chosen ? "*" : "");
+      char vs[32] = "-";  // without an RK4 candidate in this study
+      if (std::isfinite(rk4_wall) && rk4_wall > 0) std::snprintf(vs, sizeof vs, "%.2fx", rk4_wall / r.wall_s);
+      std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %12s\n", r.method.c_str(), p,
+                  100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, vs);
+    }
+    if (opt.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt.repeat);
+    std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,
+                ref_from_cache ? ", from the cache: an earlier run's time" : "");
+    for (const CurveRun& r : runs)
+      if (r.chosen)
+        std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),
+                    r.wall_s / (times.back() - t0), r.wall_s / (times.back() - t0) / 60);
+  }
+
+  if (!opt.out_csv.empty()) {
+    std::ofstream f(opt.out_csv);
+    f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
+         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen,"
+         "w_every,w_k_every,repeats\n";
+    f.precision(10);
+    for (const OneStep& r : one)
+      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,,,,\n";
+    for (const CurveRun& r : runs)
+      f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
+        << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
+        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << ","
+        << r.w_every << "," << r.w_k_every << "," << std::max<size_t>(1, r.walls.size()) << "\n";
+    if (!f) throw std::runtime_error("cannot write '" + opt.out_csv + "'");
+    if (!times.empty()) {
+      std::string cpath = opt.out_csv;
+      if (cpath.size() > 4 && cpath.substr(cpath.size() - 4) == ".csv") cpath.resize(cpath.size() - 4);
+      cpath += "-curves.csv";
+      std::ofstream c(cpath);
+      c.precision(10);
+      c << "t_s,reference";
+      for (const CurveRun& r : runs)
+        if (r.chosen) c << "," << r.method;
+      c << "\n";
+      for (size_t k = 0; k < times.size(); ++k) {
+        c << times[k] << "," << ref_curve[k];
+        for (const CurveRun& r : runs)
+          if (r.chosen) c << "," << r.curve[k];
+        c << "\n";
+      }
+      std::printf("wrote %s and %s (pin %d, half %c)\n", opt.out_csv.c_str(), cpath.c_str(), tracked / 2,
+                  tracked % 2 ? 'b' : 'a');
+    }
+  }
+  return 0;
+}
+
+}  // namespace cvt

@@ -1,0 +1,311 @@
+// The CVT model as a first-order system y' = f(t, y) for the generic integrators of
+// engine/ode/ode.hpp (docs/integrators.md 11): the right-hand side is Schedule::rhs with the
+// contact statuses frozen, the Jacobian is coloured finite differences over a sparsity
+// pattern built from the model's structure, and OdeDriver advances a Simulation with any
+// OdeMethod, updating the statuses between short integrate() calls.
+#pragma once
+
+#include <cstdint>
+#include <utility>
+#include <array>
+#include <vector>
+
+#include "engine/ode/block_cyclic.hpp"
+#include "engine/ode/ode.hpp"
+#include "engine/simulation.hpp"
+
+namespace cvt {
+
+struct ModelOdeOptions {
+  // Joints on each side whose coordinates a joint's acceleration may depend on (pattern
+  // half-width; 2 covers the rocker faces turning with the neighbouring links and the
+  // Woodbury correction, verified by tests/engine/wmethod/model_ode_test.cpp).
+  int band = 2;
+  // true: the pins -> shaft accelerations and pins -> dissipated power entries (the dense
+  // rows) are in the Jacobian, computed from the per-pin force slots of the same coloured
+  // evaluations (no extra RHS); false: they are left out (an approximate Jacobian, which
+  // only slows Newton's convergence).
+  bool exact_dense_rows = true;
+  // Integrate z = (y - c) / s instead of y, with s the unit vector below and c the state at
+  // the start of each OdeDriver macro step (s_i = 1, c = 0 when off): the solvers have a
+  // scalar atol, and the CVT's state mixes absolute positions (0.05 m, to be known to
+  // 1e-8 m), slopes, velocities and energies. With the shift, |z| is the motion within the
+  // macro step, so rtol = atol = tol is meaningful (and so is Newton's tolerance, which
+  // RADAU5-style is a fraction of rtol: a tiny rtol made Newton chase 1e-10 m).
+  bool scaled = false;
+  // Freeze each contact's friction branch (stick / slide) within a macro step: the first
+  // evaluation of each OdeDriver macro step records it (Workspace::friction_branch). Only
+  // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
+  // nonsmooth law at v0 (docs/integrators.md 11).
+  bool freeze_friction = true;
+  // W-method (Ros2): rebuild the friction blocks and refactorize at every step whose index
+  // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
+  // part must be captured).
+  int w_every = 1;  // (Config's integrator.w_every defaults to 8 for cvt-engine run, w_k_every to 64)
+  // Workspace::damping_secant: true (the secant slope N f(v)/v along the sliding direction
+  // too, never below the exact one) keeps a sliding contact that is about to stick stiff in
+  // W; with the exact slope (0 above v0 for the nonsmooth law) a stale W meets such a
+  // contact explicitly, and its friction chatters (docs/integrators.md 12.2).
+  bool w_secant = true;
+  // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
+  // and a sparse LU at every step (slow: for checking what the blocks leave out).
+  bool w_blocks = true;
+  // true: W carries the chain's stiffness K = -dF/dq (finite differences over link colours,
+  // 21 evaluations per colour: 63 for 3 colours), taken at every w_k_every-th step's rebuild
+  // (the elastic forces change slowly; the friction blocks, every w_every steps).
+  bool w_stiffness = true;
+  int w_k_every = 16;
+  // true: a change of the contact statuses (after a step) makes the next step rebuild the
+  // whole matrix. Off: measured worse (8-10 % against 0.8 % over the 5 ms window at 2.5e-7,
+  // and 5x further from RK4 in the mini model's load ramp), as the stiffness differences
+  // taken right where a contact switches step across its boundary (docs/integrators.md 15).
+  bool w_status_rebuild = false;
+  // The block LU of W drops the fill of its cyclic corners below this fraction of the next
+  // pivot block (CyclicBlockLU::set_drop_tolerance): W is then factored exactly as W + E,
+  // |E| <= 1e-12 |W|, the same for every stage, far below the approximation a W-method
+  // works with anyway (a matrix up to w_every steps old). On the reference model at 1e-6
+  // the fill rows fall from 58 to 21 of 83 per factorization (docs/integrators.md 12.2).
+  double w_fill_drop = 1e-12;
+  // Fresh friction between rebuilds (docs/integrators.md 12.4): > 0 keeps W's friction part
+  // current at every step, as a low-rank (Woodbury) correction of the factorized W for the
+  // contacts whose friction coefficient mu (the secant N f(v)/v) moved since the rebuild by
+  // more than w_fresh * m_pin / (gamma h), i.e. whose stiffness gamma h mu / m_pin changed by
+  // more than w_fresh. Each such contact costs two solves with the factorized W when it
+  // joins, and a rank-2 term in every solve after. More than w_fresh_max of them make the
+  // next step rebuild the friction blocks. 0: off (the stale blocks of docs/integrators.md 12.3); off too
+  // without w_secant.
+  double w_fresh = 0;
+  int w_fresh_max = 12;
+  double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
+  double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
+  double energy_unit = 1e-3;    // [J] for the work integrals
+};
+
+// The unit vector s of ModelOdeOptions::scaled.
+Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt);
+
+// Nonzero pattern of df/dy for model m. With pin_to_tail the dense rows (shaft
+// accelerations, dissipated power) carry every pin column; without, only the tail columns.
+std::vector<std::pair<int, int>> model_jacobian_pattern(const Model& m, int band, bool pin_to_tail);
+
+// The adapter. Holds references: model, workspace and schedule must outlive it. The
+// workspace must be the schedule's (its statuses are the frozen ones, its slots are read
+// by the Jacobian).
+class ModelOde {
+ public:
+  ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt = {});
+  const OdeSystem& system() const { return sys_; }
+  // State units (all ones unless scaled): the system integrates z = y / units().
+  const Eigen::VectorXd& units() const { return unit_; }
+  // The shift c (scaled mode): y = c + units() * z.
+  Eigen::VectorXd& offset() { return offset_; }
+  void to_z(const Eigen::VectorXd& y, Eigen::VectorXd& z) const { z = (y - offset_).cwiseQuotient(unit_); }
+  void to_y(const Eigen::VectorXd& z, Eigen::VectorXd& y) const { y = offset_ + z.cwiseProduct(unit_); }
+  // Every evaluation of f, including the Jacobian's (OdeStats does not see the latter:
+  // to the solver the Jacobian is "analytic").
+  std::int64_t rhs_evals() const { return rhs_evals_; }
+  std::int64_t jacobian_evals() const { return jac_evals_; }
+  int colors() const {
+    ensure_colors();
+    return n_colors_;
+  }
+  // Wall seconds spent in the W-method's stiffness differences (part of its w_factor time).
+  double w_stiffness_seconds() const { return w_k_seconds_; }
+  // The coloured finite-difference Jacobian at (t, y) into jac (which has sys.sparsity).
+  void jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac);
+  // The W-method's matrix (OdeSystem::w_factor / w_solve, docs/integrators.md 12):
+  // W = I - gh J~ with J~ = [0, I; -A^-1 K, -A^-1 C] on the chain's coordinates, C the
+  // friction damping blocks that the last evaluation recorded (Workspace::record_damping,
+  // which the adapter turns on while a W-method runs), K = -dF/dq the chain's stiffness
+  // (finite differences), A the chain's mass matrix (A0, plus the link inertia); on the
+  // shafts' velocities the identity (their increments drag the pins through the pulley
+  // friction). Solved as (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, x_q = b_q + gh x_v:
+  // block-tridiagonal over the links with cyclic corners (CyclicBlockLU, 21 x 21 blocks).
+  // ModelOdeOptions::w_stiffness = false leaves K out.
+  void w_factor(double t, const double* y, double gh);
+  void w_solve(double* x) const;
+  void w_solve_untimed(double* x) const;
+  // The index of the next step (OdeDriver sets it from the simulation's step count), and
+  // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
+  void set_step_index(long i) { w_index_ = i; }
+  bool w_due() const {
+    return w_gh_ == 0 || w_invalid_ || wf_force_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0;
+  }
+  // The contact statuses changed (OdeDriver): the next step rebuilds the whole matrix, its
+  // stiffness included (a contact that turned on is stiff in J but absent from a stale W).
+  void w_invalidate() { w_invalid_ = true; }
+  std::int64_t w_status_rebuilds() const { return w_status_rebuilds_; }
+  // w_fresh: the contacts that joined a correction, and the rebuilds that w_fresh_max forced.
+  std::int64_t w_fresh_contacts() const { return wf_joined_; }
+  std::int64_t w_fresh_rebuilds() const { return wf_rebuilds_; }
+  // Whether the next step's first evaluation must record each contact's mu (w_fresh).
+  // Off without the secant slope (a contact's block is then not mu U U^T).
+  bool w_fresh_on() const { return opt_.w_fresh > 0 && opt_.w_blocks && opt_.w_secant; }
+
+ private:
+  void eval(double t, const double* y, double* dy) {
+    Profiler* prof = schedule_.profiler();
+    const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
+    schedule_.rhs(t, y, dy, nullptr);
+    if (prof) prof->add_rhs_wall(Profiler::ticks() - t0);
+    ++rhs_evals_;
+    // The W-method's blocks come from the first evaluation of a rebuilding step only.
+    ws_.record_damping = false;
+    wf_recorded_ = ws_.record_mu;
+    ws_.record_mu = false;
+    if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
+  }
+  void eval_scaled(double t, const double* z, double* dz);
+  template <class F>
+  void for_joints(const F& f) const;  // f(j) for every joint, over the schedule's threads
+  void w_assemble_link(int l, double gh);
+  // The per-pin parts of the dense rows after an evaluation: shaft forces [N][14] and
+  // dissipated power [N] of the chain and pulley slots.
+  void read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const;
+  bool is_pin(int col) const { return col < 2 * m_.ndof && col % m_.ndof < kJointSize * m_.links; }
+  int joint_of(int col) const { return (col % m_.ndof) / kJointSize; }
+
+  const Model& m_;
+  Workspace& ws_;
+  Schedule& schedule_;
+  ModelOdeOptions opt_;
+  OdeSystem sys_;
+  std::int64_t rhs_evals_ = 0, jac_evals_ = 0;
+  // Column colours (the pins by the pattern without pin -> tail entries).
+  void ensure_colors() const;  // the colouring below, made at the first Jacobian
+  mutable bool colored_ = false;
+  mutable std::vector<std::vector<int>> columns_of_color_;
+  mutable std::vector<int> owner_;  // [colour * N + joint]: index in columns_of_color_ of the column near the joint, or -1
+  mutable int n_colors_ = 0;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> a0_shaft_inv_;  // (2 shafts + load) x 14
+  Eigen::VectorXd f0_, f1_, yp_, delta_, unit_, ys_, offset_;
+  std::vector<double> shaft0_, pdiss0_, shaft1_, pdiss1_;
+  mutable Eigen::MatrixXd acc_shaft_;  // [14][columns in the colour] (sized by ensure_colors)
+  mutable Eigen::VectorXd acc_p_;
+  // W-method: the matrix over the chain's velocities in link order (link l: b_l, a_{l+1},
+  // then the pack s_l), block-tridiagonal with cyclic corners.
+  static constexpr int kLinkDim = 2 * half::kSize + 1;
+  using LinkBlock = CyclicBlockLU<kLinkDim>::Mat;
+  using LinkVector = CyclicBlockLU<kLinkDim>::Vec;
+  using LinkBlocks = std::vector<LinkBlock, Eigen::aligned_allocator<LinkBlock>>;
+  using LinkVectors = std::vector<LinkVector, Eigen::aligned_allocator<LinkVector>>;
+  int link_coord(int l, int i) const {  // coordinate index of entry i of link l
+    return i < half::kSize ? m_.half_b(l) + i : i < 2 * half::kSize ? m_.half_a(l + 1) + i - half::kSize : m_.pack(l);
+  }
+  void w_stiffness(double t, const double* y);
+  // ws.force of the chain at (t, y); with a colour, the differences' evaluation that
+  // perturbs that colour's links (only the joints next to them are computed).
+  void chain_forces_at(double t, const double* y, int color = -1);
+  std::vector<JointSlot> w_chain0_, w_pulley0_;  // the slots at the unperturbed state
+  template <class F>
+  void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads
+  void link_gradient(int l, LinkVector& g) const;
+  LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
+  struct A0Entry {
+    int c;
+    double v;
+  };
+  std::vector<A0Entry> a0_entries_;  // its nonzeros by rows (row r: a0_row_[r] .. a0_row_[r + 1])
+  std::vector<int> a0_row_;
+  // Per link: the pulley friction's K_ps on its rows (21 x 14, both shafts) at the last
+  // rebuild, and whether it is nonzero (the link touches a sheave).
+  std::vector<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>,
+              Eigen::aligned_allocator<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>>>
+      w_cps_;
+  std::vector<std::uint8_t> w_cps_on_;
+  CyclicBlockLU<kLinkDim> w_lu_;
+  std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
+  int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }
+  std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
+  std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
+  mutable LinkVectors w_rhs_;
+  std::vector<int> w_other_coord_;            // the coordinates outside the chain's links (shafts, load)
+  LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
+  // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).
+  LinkBlocks w_k_diag_, w_k_sub_, w_k_super_;
+  // The coupling blocks by their nonzero columns (a coupling between links reaches about 12
+  // of a link's 21 coordinates: the halves at the joint and the link spins), for the solve's
+  // K b_q: per link, [0] sub, [1] super.
+  struct PackedColumns {
+    int n = 0;
+    std::array<int, kLinkDim> index{};
+    LinkBlock cols;
+  };
+  std::vector<std::array<PackedColumns, 2>> w_k_packed_;
+  static void pack_columns(const LinkBlock& b, PackedColumns& p);
+  std::vector<double> w_force0_, w_delta_;
+  std::vector<int> w_color_;
+  int w_colors_ = 0;
+  double w_k_seconds_ = 0;
+  bool w_invalid_ = false;
+  std::int64_t w_status_rebuilds_ = 0;
+  double w_gh_ = 0;                       // gh of the factorization (0: none yet)
+  long w_index_ = 0;                      // index of the next step
+  // w_fresh: the correction W' = W + U D U^T, U the columns of the contacts in it (two
+  // each), D = gh (mu - mu_w) on both; Z = W^-1 U (chain velocities in link order, physical
+  // units), G = U^T Z, the capacitance I + D G factorized once per step.
+  struct FreshContact {
+    Workspace::FreshMu* kind;  // ws_.rocker_fresh or ws_.pulley_fresh
+    int idx, joint, shaft;     // shaft: the sheave of a pin end, -1 for a rocker station
+    const double* columns() const;  // its U, 2 x 40 (a pin end's sheave part: ws_.pulley_shaft_cols)
+  };
+  struct FreshCandidate {
+    double dmu;
+    int rank, kind, idx;  // rank: the order of ties (rocker stations, then pin ends)
+  };
+  std::vector<FreshCandidate> wf_cand_;
+  void wf_clear();
+  void wf_update(double gh);
+  void wf_join(const FreshContact& c);
+  double wf_dot(const FreshContact& c, int col, const double* z) const;  // U(:, col)^T z
+  void wf_correct(double* x) const;
+  std::vector<FreshContact> wf_set_;
+  Eigen::MatrixXd wf_z_, wf_g_;
+  Eigen::VectorXd wf_d_;
+  Eigen::PartialPivLU<Eigen::MatrixXd> wf_cap_;
+  mutable Eigen::VectorXd wf_s_, wf_t_, wf_p_, wf_corr_;  // wf_correct's scratch
+  bool wf_recorded_ = false, wf_force_ = false;
+  std::int64_t wf_joined_ = 0, wf_rebuilds_ = 0;
+};
+
+// How OdeDriver runs a method on the model.
+struct OdeRunOptions {
+  OdeMethod method = OdeMethod::TrBdf2;
+  OdeOptions ode;        // rtol, atol, h0 (fixed step for Rk4), ...
+  ModelOdeOptions jac;
+  // Contact statuses are frozen within each integrate() call and updated after it. 0: one
+  // accepted step per call (the statuses follow every step, like the RK4 driver); > 0: calls
+  // of this length (several steps each).
+  double status_interval = 0;
+};
+
+// Advances a Simulation with any OdeMethod. Each macro step: integrate() from t to
+// t + H with the statuses frozen, where H is the controller's proposed step (status_interval
+// 0) or status_interval; then update the statuses and add the switching work to
+// y[2n + kWorkSwitch] (docs/model.md 4.4), as Simulation::step does.
+class OdeDriver {
+ public:
+  OdeDriver(Simulation& sim, const OdeRunOptions& opt);
+  // Advances the simulation's state and clock to exactly t1.
+  void advance(double t1);
+  const OdeStats& stats() const { return solver_.stats(); }
+  const ModelOde& model_ode() const { return ode_; }
+  std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
+  std::int64_t macro_steps() const { return macro_; }
+
+ private:
+  Simulation& sim_;
+  OdeRunOptions opt_;
+  ModelOde ode_;
+  OdeSolver solver_;
+  double h_next_ = 0;
+  std::int64_t macro_ = 0;
+  Eigen::VectorXd z_;
+  std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
+};
+
+// Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws
+// std::invalid_argument otherwise.
+OdeMethod parse_ode_method(const std::string& name);
+
+}  // namespace cvt

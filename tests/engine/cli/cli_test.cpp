@@ -1,0 +1,495 @@
+// The cvt-engine command line, run as a real process: bad input exits with status 78
+// (EX_CONFIG), names the key, the value and the reason on stderr, and leaves no output file
+// behind; a good run exits 0, prints its summary and renames FILE.partial to FILE.
+#include <gtest/gtest.h>
+#include <hdf5.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <chrono>
+#include <thread>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "engine/io/h5_writer.hpp"
+#include "tests/test_util.hpp"
+
+namespace cvt {
+namespace {
+
+namespace fs = std::filesystem;
+
+using test::shell_quote;
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string source_config(const std::string& name) {
+  return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
+}
+
+// Rows of a 1-D dataset of an HDF5 file (with SWMR read access if asked); -1 when the file
+// or the dataset does not open.
+long h5_rows(const fs::path& file, const char* dataset, bool swmr = false) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY | (swmr ? H5F_ACC_SWMR_READ : 0), H5P_DEFAULT);
+  if (f < 0) return -1;
+  long n = -1;
+  const hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+  if (d >= 0) {
+    const hid_t sp = H5Dget_space(d);
+    hsize_t dims = 0;
+    H5Sget_simple_extent_dims(sp, &dims, nullptr);
+    n = static_cast<long>(dims);
+    H5Sclose(sp);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return n;
+}
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    std::random_device rd;
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("cvt_cli_test_" + std::string(info->name()) + "_" + std::to_string(::getpid()) + "_" +
+            std::to_string(counter++) + "_" + std::to_string(rd()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  // Runs `cvt-engine ARGS` with the temp directory as working directory; stdout and stderr
+  // go to files there.
+  RunResult run(const std::vector<std::string>& args) {
+    std::string cmd = "cd ";
+    cmd += shell_quote(dir_.string());
+    cmd += " && exec ";
+    cmd += shell_quote(CVT_ENGINE_EXE);
+    for (const auto& a : args) {
+      cmd += ' ';
+      cmd += shell_quote(a);
+    }
+    cmd += " >";
+    cmd += shell_quote((dir_ / "stdout.txt").string());
+    cmd += " 2>";
+    cmd += shell_quote((dir_ / "stderr.txt").string());
+    const int status = std::system(cmd.c_str());
+    RunResult r;
+    if (status != -1 && WIFEXITED(status)) r.exit_code = WEXITSTATUS(status);
+    r.out = read_text(dir_ / "stdout.txt");
+    r.err = read_text(dir_ / "stderr.txt");
+    return r;
+  }
+
+  // Starts `cvt-engine ARGS` in the temp directory without waiting (stdout and stderr to
+  // files there); returns its pid.
+  pid_t start(const std::vector<std::string>& args) {
+    const pid_t pid = fork();
+    if (pid != 0) return pid;
+    std::vector<char*> argv = {const_cast<char*>(CVT_ENGINE_EXE)};
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    if (chdir(dir_.c_str()) != 0) _exit(127);
+    if (!freopen("stdout.txt", "w", stdout) || !freopen("stderr.txt", "w", stderr)) _exit(127);
+    execv(CVT_ENGINE_EXE, argv.data());
+    _exit(127);
+  }
+
+  // Bad input: status 78, stderr names key, value and reason, no FILE nor FILE.partial.
+  void expect_config_error(std::vector<std::string> args, const std::string& key, const std::string& value,
+                           const std::string& reason) {
+    const std::string out = "out.h5";
+    args.push_back("--quiet");
+    args.push_back("--out");
+    args.push_back(out);
+    std::string shown;
+    for (const auto& a : args) shown += " " + a;
+    SCOPED_TRACE("cvt-engine" + shown);
+    const RunResult r = run(args);
+    EXPECT_EQ(r.exit_code, 78) << "stderr: " << r.err << "\nstdout: " << r.out;
+    EXPECT_NE(r.err.find("configuration error"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(key), std::string::npos) << "key '" << key << "' not named: " << r.err;
+    if (!value.empty()) {
+      EXPECT_NE(r.err.find(value), std::string::npos) << "value '" << value << "' not named: " << r.err;
+    }
+    EXPECT_NE(r.err.find(reason), std::string::npos) << "reason '" << reason << "' not given: " << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / out)) << "output file left behind";
+    EXPECT_FALSE(fs::exists(dir_ / (out + ".partial"))) << "partial output file left behind";
+    EXPECT_FALSE(fs::exists(dir_ / "results.h5")) << "default output file written";
+  }
+
+  fs::path dir_;
+};
+
+const std::string kMini = source_config("mini");
+const std::string kReference = source_config("reference");
+
+TEST_F(CliTest, UnknownKey) {
+  expect_config_error({"run", kMini, "--set", "chain.linkz=3"}, "chain.linkz", "3", "unknown key");
+}
+
+TEST_F(CliTest, UnknownKeySuggestsKnownKey) {
+  const RunResult r = run({"run", kMini, "--quiet", "--out", "out.h5", "--set", "chain.linkz=3"});
+  EXPECT_EQ(r.exit_code, 78);
+  EXPECT_NE(r.err.find("chain.links"), std::string::npos) << r.err;
+}
+
+TEST_F(CliTest, WrongTypeFromSet) {
+  expect_config_error({"run", kMini, "--set", "chain.links=abc"}, "chain.links", "abc", "wrong type");
+}
+
+TEST_F(CliTest, WrongTypeInFile) {
+  const fs::path cfg = dir_ / "bad_links.toml";
+  {
+    std::ofstream f(cfg);
+    f << "[chain]\nlinks = 3.5\n";
+  }
+  expect_config_error({"run", cfg.string()}, "chain.links", "3.5", "wrong type");
+  const std::string err = read_text(dir_ / "stderr.txt");
+  EXPECT_NE(err.find("integer"), std::string::npos) << err;
+  EXPECT_NE(err.find("line 2"), std::string::npos) << err;
+}
+
+TEST_F(CliTest, NegativePitch) {
+  expect_config_error({"run", kMini, "--set", "chain.pitch=-0.008"}, "chain.pitch", "-0.008", "must be positive");
+}
+
+TEST_F(CliTest, ZeroAxialRigidity) {
+  expect_config_error({"run", kMini, "--set", "pin.ea=0"}, "pin.ea", "0", "must be positive");
+}
+
+TEST_F(CliTest, ChainTooShort) {
+  expect_config_error({"run", kReference, "--set", "chain.links=40"}, "chain.links", "40", "too short");
+}
+
+TEST_F(CliTest, ChainTooLong) {
+  expect_config_error({"run", kReference, "--set", "chain.links=200"}, "chain.links", "200", "too long");
+}
+
+TEST_F(CliTest, ImpossibleRatio) {
+  expect_config_error({"run", kMini, "--set", "geometry.ratio=10"}, "geometry.ratio", "10", "impossible ratio");
+}
+
+TEST_F(CliTest, BadFrictionLaw) {
+  expect_config_error({"run", kMini, "--set", "friction.law=dry"}, "friction.law", "dry", "unknown friction law");
+}
+
+TEST_F(CliTest, ZeroStep) {
+  // --t-end keeps the run short should --step 0 be ignored instead of rejected.
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--step", "0"}, "integrator.step", "0", "must be positive");
+}
+
+TEST_F(CliTest, NegativeStep) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--step", "-1e-8"}, "integrator.step", "-1e-",
+                      "must be positive");
+}
+
+TEST_F(CliTest, UnknownMethod) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--method", "euler"}, "integrator.method", "euler",
+                      "unknown integrator method");
+}
+
+TEST_F(CliTest, ZeroWEvery) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--set", "integrator.w_every=0"}, "integrator.w_every", "0",
+                      "");
+}
+
+TEST_F(CliTest, StiffnessIntervalNotAMultipleOfWEvery) {
+  expect_config_error({"run", kMini, "--t-end", "2e-6", "--set", "integrator.w_every=4", "--set",
+                       "integrator.w_k_every=6"},
+                      "integrator.w_k_every", "6", "must be a multiple of integrator.w_every = 4");
+}
+
+TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "1e-7", "--method", "ros2", "--set",
+                           "integrator.w_every=4", "--out", "ros2.h5"});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  EXPECT_NE(r.out.find("ros2 step = 1e-07 s (matrix every 4 steps, its stiffness every 16; 2 ros2 sub-steps per "
+                       "step before t = 0.0001 s)"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("throughput: 20 steps"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(dir_ / "ros2.h5"));
+}
+
+TEST_F(CliTest, Ros34pw2RunNamesTheMethod) {
+  const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "2e-7", "--method", "ros34pw2", "--out",
+                           "ros34.h5"});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  EXPECT_NE(r.out.find("ros34pw2 step = 2e-07 s (matrix every 8 steps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("throughput: 10 steps"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(dir_ / "ros34.h5"));
+}
+
+TEST_F(CliTest, MissingConfigFile) {
+  const std::string missing = (dir_ / "no_such_config.toml").string();
+  expect_config_error({"run", missing}, "cannot read the configuration file", missing, "no such file");
+}
+
+TEST_F(CliTest, MalformedSet) {
+  expect_config_error({"run", kMini, "--set", "chain.links40"}, "chain.links40", "", "malformed override");
+}
+
+// A step that does not divide the sample interval or t_end is refused before the run, with
+// both keys named and a step that fits.
+TEST_F(CliTest, StepThatDoesNotDivideTheSampleIntervalIsRefused) {
+  const RunResult r = run({"run", kMini, "--method", "ros34pw2", "--step", "3e-7", "--t-end", "1e-4", "-o", "g.h5"});
+  EXPECT_EQ(r.exit_code, 78) << r.err;
+  for (const char* what : {"integrator.step = 3e-07", "does not divide run.sample_interval = 1e-05 s",
+                           "e.g. --step 2.94117647"})
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "g.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "g.h5.partial"));
+  const RunResult t = run({"run", kMini, "--t-end", "1.0000001e-4", "-o", "g.h5"});
+  EXPECT_EQ(t.exit_code, 78) << t.err;
+  EXPECT_NE(t.err.find("does not divide run.t_end = 0.00010000001 s"), std::string::npos) << t.err;
+  EXPECT_NE(t.err.find("run.t_end a multiple of run.sample_interval"), std::string::npos) << t.err;
+}
+
+// Samples fall on exact multiples of the step, and the run ends at t_end.
+TEST_F(CliTest, SampleTimesAreExactMultiplesOfTheStep) {
+  const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "3e-8", "--t-end", "3e-6", "--set",
+                           "run.sample_interval=3e-7", "--set", "run.snapshot_interval=0", "-q", "-o", "t.h5"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<double> t = H5File::open((dir_ / "t.h5").string()).read_doubles("/observables/input_speed/time");
+  ASSERT_EQ(t.size(), 11u);
+  for (std::size_t i = 0; i < t.size(); ++i) EXPECT_EQ(t[i], static_cast<double>(10 * i) * 3e-8) << i;
+}
+
+// An output folder that does not exist is refused before the run is set up: exit 73, in
+// plain words, and nothing written.
+TEST_F(CliTest, OutputFolderThatDoesNotExistIsRefusedFirst) {
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "-o", "no/such/dir/r.h5"});
+  EXPECT_EQ(r.exit_code, 73) << r.err;
+  EXPECT_NE(r.err.find("cannot write the output file 'no/such/dir/r.h5': the folder 'no/such/dir' does not exist"),
+            std::string::npos)
+      << r.err;
+  EXPECT_EQ(r.err.find("H5F"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out.find("schedule"), std::string::npos) << "the run was set up first:\n" << r.out;
+}
+
+// RK4 with a step past its stability estimate warns with the estimated stable step (on
+// stderr and in the file's /summary), before it blows up or not.
+TEST_F(CliTest, Rk4StepPastItsStabilityLimitWarns) {
+  const RunResult r = run({"run", kMini, "--method", "rk4", "--step", "1e-7", "--t-end", "2e-6", "--set",
+                           "run.sample_interval=1e-6", "--set", "ramp.time=0", "-q", "-o", "w.h5", "--summary-json",
+                           "w.json"});
+  EXPECT_TRUE(r.exit_code == 0 || r.exit_code == 70) << r.err;
+  EXPECT_NE(r.err.find("cvt-engine: warning: RK4's step 1e-07 s is above its stability limit"), std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("--step "), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "") << "--quiet printed on stdout";
+  if (r.exit_code == 0) {
+    const std::string json = read_text(dir_ / "w.json");
+    EXPECT_NE(json.find("above its stability limit"), std::string::npos) << json;
+  }
+}
+
+// --quiet prints nothing on stdout; the run still writes its file.
+TEST_F(CliTest, QuietIsQuiet) {
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "--quiet", "-o", "q.h5"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(r.err, "");
+  EXPECT_TRUE(fs::exists(dir_ / "q.h5"));
+}
+
+// --profile prints the profile table; without it there is one throughput line.
+TEST_F(CliTest, ProfileTableOnlyWithProfile) {
+  const RunResult plain = run({"run", kMini, "--t-end", "2.5e-5", "-o", "p.h5"});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  EXPECT_EQ(plain.out.find("W factorization"), std::string::npos) << plain.out;
+  EXPECT_NE(plain.out.find("throughput: "), std::string::npos) << plain.out;
+  const RunResult prof = run({"run", kMini, "--t-end", "2.5e-5", "-o", "p.h5", "--profile"});
+  ASSERT_EQ(prof.exit_code, 0) << prof.err;
+  for (const char* row : {"W stiffness (FD)", "W assembly", "W factorization", "W solves", "chain forces", "total"})
+    EXPECT_NE(prof.out.find(row), std::string::npos) << row << " missing:\n" << prof.out;
+}
+
+TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
+  // The config's own method and step (ROS34PW2), 30 steps.
+  const std::string out = "good.h5";
+  const RunResult r = run({"run", kMini, "--t-end", "2.5e-5", "-o", out, "--summary-json", "s.json"});
+  ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
+  for (const char* word : {"run complete", "operating point", "ros34pw2, step 8.333e-07 s", "status: ",
+                           "means over t = ", "speed ratio", "efficiency", "energy balance residual",
+                           "throughput: 30 steps", "per model second"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << "'" << word << "' missing from stdout:\n" << r.out;
+  EXPECT_EQ(r.out.find("scheduling"), std::string::npos) << "the profile table without --profile:\n" << r.out;
+  const std::string json = read_text(dir_ / "s.json");
+  for (const char* key : {"\"status\": ", "\"reasons\": [", "\"efficiency_meaningful\": false", "\"speed_ratio\": "})
+    EXPECT_NE(json.find(key), std::string::npos) << key << " missing from --summary-json:\n" << json;
+  EXPECT_TRUE(fs::exists(dir_ / out));
+  EXPECT_GT(fs::file_size(dir_ / out), 0u);
+  EXPECT_FALSE(fs::exists(dir_ / (out + ".partial")));
+}
+
+}  // namespace
+}  // namespace cvt
+
+namespace cvt {
+namespace {
+
+// Usage errors (an option's value outside its set or range) exit with 64 and write nothing.
+TEST_F(CliTest, BadSchedulerIsAUsageError) {
+  for (const std::vector<std::string>& extra :
+       {std::vector<std::string>{"--scheduler", "openmp"}, {"--threads", "0"}, {"--grain", "-1"}}) {
+    std::vector<std::string> args = {"run", kMini, "--quiet", "--out", "out.h5"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const RunResult r = run(args);
+    EXPECT_EQ(r.exit_code, 64) << extra[0] << ": " << r.err;
+    EXPECT_NE(r.err.find(extra[0]), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / "out.h5"));
+  }
+}
+
+TEST_F(CliTest, GraphPrintsTheStageAsGraphViz) {
+  const RunResult r = run({"graph", kReference, "--threads", "2"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* node : {"digraph", "chain_forces", "pulley_contact", "other_forces", "inertia_decomposition",
+                           "gather", "accelerations"})
+    EXPECT_NE(r.out.find(node), std::string::npos) << node << " missing:\n" << r.out;
+}
+
+TEST_F(CliTest, TopologyReportsNodesPinsAndBinding) {
+  const RunResult r = run({"topology", kReference, "--threads", "2"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* what : {"NUMA nodes", "[0, 84)", "thread binding", "memory binding"})
+    EXPECT_NE(r.out.find(what), std::string::npos) << what << " missing:\n" << r.out;
+}
+
+// SIGINT or SIGTERM during a run: the step finishes, the file is closed and kept under
+// its final name with every sample so far, the summary says so, and the exit code is 130.
+class CliSignalTest : public CliTest, public ::testing::WithParamInterface<int> {};
+
+TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
+  const int sig = GetParam();
+  const pid_t pid = start({"run", kMini, "--method", "rk4", "--step", "1e-8", "--t-end", "1.0", "--out", "sig.h5",
+                           "--quiet"});
+  ASSERT_NE(pid, -1);
+  // Let it run: the file exists from the start; wait a little longer for some samples.
+  for (int i = 0; i < 200 && !fs::exists(dir_ / "sig.h5.partial"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  ASSERT_EQ(kill(pid, sig), 0);
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "killed instead of stopping";
+  EXPECT_EQ(WEXITSTATUS(status), 130);
+  const std::string err = read_text(dir_ / "stderr.txt");
+  EXPECT_NE(err.find("run interrupted by signal " + std::to_string(sig)), std::string::npos) << err;
+  EXPECT_NE(err.find("--resume sig.h5.ckpt"), std::string::npos) << err;
+  EXPECT_EQ(read_text(dir_ / "stdout.txt"), "") << "--quiet printed on stdout";
+  EXPECT_FALSE(fs::exists(dir_ / "sig.h5.partial"));
+  EXPECT_TRUE(fs::exists(dir_ / "sig.h5.ckpt")) << "no checkpoint written at the stop";
+  ASSERT_TRUE(fs::exists(dir_ / "sig.h5"));
+  const long n = h5_rows(dir_ / "sig.h5", "/observables/input_speed/time");
+  std::printf("signal %d: exit %d, %ld samples kept\n", sig, WEXITSTATUS(status), n);
+  EXPECT_GT(n, 1) << "the kept file does not open, or holds no samples";
+}
+
+INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTERM));
+
+// The output file can be read while the run writes it (SWMR), and after kill -9 it still
+// opens and holds every sample up to the last flush.
+TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
+  const pid_t pid = start({"run", kMini, "--method", "rk4", "--step", "1e-8", "--t-end", "1.0", "--out", "live.h5",
+                           "--quiet", "--flush-every", "0.2"});
+  ASSERT_NE(pid, -1);
+  const auto rows = [&] { return h5_rows(dir_ / "live.h5.partial", "/observables/input_speed/time", true); };
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  const long first = rows();
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+  const long second = rows();
+  ASSERT_EQ(kill(pid, SIGKILL), 0);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  const long after = rows();
+  std::printf("rows while running: %ld then %ld; after kill -9: %ld\n", first, second, after);
+  EXPECT_GT(first, 0) << "not readable while the run writes it";
+  EXPECT_GT(second, first) << "a reader does not see the file grow";
+  EXPECT_GE(after, second) << "kill -9 lost flushed samples or the file no longer opens";
+}
+
+// A step far above the stable RK4 step blows the run up: exit 70, a message naming time,
+// step, the coordinate and the stable step estimated from the Jacobian's spectral radius
+// (below the step that failed), and a file with every good sample.
+TEST_F(CliTest, BlowUpIsExplainedAndKeepsTheGoodSamples) {
+  const RunResult r =
+      run({"run", kMini, "--method", "rk4", "--step", "1e-5", "--t-end", "1e-3", "--out", "bu.h5", "--quiet"});
+  EXPECT_EQ(r.exit_code, 70) << r.err;
+  for (const char* what : {"numerical blow-up at t = ", "(step ", "joint", "replayed from t = ", "first bad state",
+                           "largest acceleration", "pin ", "dominate", "spectral radius", "stable for h up to about",
+                           "reduce integrator.step", "bu.h5"})
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  EXPECT_TRUE(r.err.find("is not finite") != std::string::npos || r.err.find("absurd penetration") != std::string::npos)
+      << r.err;
+  double h_stable = 0;
+  const auto at = r.err.find("stable for h up to about ");
+  ASSERT_NE(at, std::string::npos);
+  h_stable = std::atof(r.err.c_str() + at + std::strlen("stable for h up to about "));
+  EXPECT_GT(h_stable, 0.0);
+  EXPECT_LT(h_stable, 1e-5);
+  ASSERT_TRUE(fs::exists(dir_ / "bu.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "bu.h5.partial"));
+  const hid_t f = H5Fopen((dir_ / "bu.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const hid_t d = H5Dopen2(f, "/observables/input_speed/value", H5P_DEFAULT);
+  const hid_t sp = H5Dget_space(d);
+  hsize_t n = 0;
+  H5Sget_simple_extent_dims(sp, &n, nullptr);
+  std::vector<double> v(n);
+  H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data());
+  EXPECT_GE(n, 1u);
+  for (double x : v) EXPECT_TRUE(std::isfinite(x)) << "a bad sample was kept";
+  std::printf("blow-up: %llu good samples kept; estimated stable step %.3g s\n", static_cast<unsigned long long>(n), h_stable);
+  H5Sclose(sp);
+  H5Dclose(d);
+  H5Fclose(f);
+}
+
+// `scale` refuses a bad layout or an unwritable output before it runs anything, and
+// writes its CSV and JSON otherwise.
+TEST_F(CliTest, ScaleChecksItsInputsFirstAndWritesItsFiles) {
+  const RunResult bad_layout = run({"scale", kMini, "--layouts", "garbage", "--steps", "2", "--repeat", "1"});
+  EXPECT_EQ(bad_layout.exit_code, 1) << bad_layout.err;
+  EXPECT_NE(bad_layout.err.find("hwloc rejects this synthetic description"), std::string::npos) << bad_layout.err;
+  EXPECT_EQ(bad_layout.err.find("warmed up"), std::string::npos) << "ran before checking the layout";
+  const RunResult bad_out = run({"scale", kMini, "--steps", "2", "--repeat", "1", "--out", "no/such/dir/s.csv"});
+  EXPECT_EQ(bad_out.exit_code, 1) << bad_out.err;
+  EXPECT_NE(bad_out.err.find("cannot write"), std::string::npos) << bad_out.err;
+  const RunResult usage = run({"scale", kMini, "--schedulers", "foo"});
+  EXPECT_EQ(usage.exit_code, 64) << usage.err;
+  const RunResult ok = run({"scale", kMini, "--threads", "1,2", "--steps", "3", "--repeat", "1", "--warmup", "1e-6",
+                            "--out", "s.csv", "--json", "s.json"});
+  EXPECT_EQ(ok.exit_code, 0) << ok.err;
+  EXPECT_TRUE(fs::exists(dir_ / "s.csv"));
+  EXPECT_TRUE(fs::exists(dir_ / "s.json"));
+}
+
+}  // namespace
+}  // namespace cvt

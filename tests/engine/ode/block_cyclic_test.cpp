@@ -1,0 +1,146 @@
+// CyclicBlockLU against a dense LU of the same matrix.
+#include "engine/ode/block_cyclic.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+namespace cvt {
+namespace {
+
+// Returns the factorization's fill_blocks().
+template <int B>
+int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double drop = CyclicBlockLU<B>::kNegligible) {
+  using C = CyclicBlockLU<B>;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const int N = n * B;
+  // A random matrix with the structure: M = D + sum over l of G_l^T H_l, each G_l, H_l over
+  // blocks l-1 and l (so block-tridiagonal with cyclic corners, not symmetric), D diagonal
+  // and positive.
+  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(N, N);
+  for (int i = 0; i < N; ++i) M(i, i) = diagonal + std::abs(u(rng));
+  for (int l = 0; l < n; ++l) {
+    Eigen::MatrixXd G(3, 2 * B), H(3, 2 * B);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 2 * B; ++c) G(r, c) = coupling * u(rng), H(r, c) = G(r, c) + 0.2 * coupling * u(rng);
+    const Eigen::MatrixXd K = G.transpose() * H;
+    const int o[2] = {((l - 1 + n) % n) * B, l * B};
+    for (int a = 0; a < 2; ++a)
+      for (int b = 0; b < 2; ++b) M.block(o[a], o[b], B, B) += K.block(a * B, b * B, B, B);
+  }
+  C lu;
+  lu.resize(n);
+  lu.set_drop_tolerance(drop);
+  for (int l = 0; l < n; ++l) {
+    lu.diag(l) = M.block(l * B, l * B, B, B);
+    lu.sub(l) = M.block(l * B, ((l - 1 + n) % n) * B, B, B);
+    lu.super(l) = M.block(((l - 1 + n) % n) * B, l * B, B, B);
+  }
+  if (!lu.factor()) {
+    ADD_FAILURE() << "singular pivot";
+    return -1;
+  }
+  const Eigen::VectorXd b = Eigen::VectorXd::Random(N);
+  std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>> x(n);
+  for (int l = 0; l < n; ++l) x[l] = b.segment(l * B, B);
+  lu.solve(x.data());
+  Eigen::VectorXd xs(N);
+  for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l];
+  const Eigen::VectorXd xd = M.partialPivLu().solve(b);
+  // Backward error at rounding level (no pivoting between blocks: the growth is that of the
+  // matrix, compared with a dense partial-pivoting LU of it).
+  // A coarser drop tolerance factors M + E, |E| ~ drop |M|: backward error of that order.
+  const double scale = M.norm() * xs.norm();
+  EXPECT_LT((M * xs - b).norm(), std::max(1e-12, 10 * drop) * scale) << "n " << n << " coupling " << coupling;
+  EXPECT_LT((M * xd - b).norm(), 1e-12 * scale);
+  EXPECT_LT((xs - xd).norm(), 1e-6 * xd.norm());
+  return lu.fill_blocks();
+}
+
+TEST(CyclicBlockLU, SolvesLikeDenseLU) {
+  for (int n : {3, 4, 5, 12, 84}) {
+    check<2>(n, 1u + n, 1.0);
+    check<5>(n, 2u + n, 10.0);
+    check<21>(n, 3u + n, 30.0);  // the chain's link blocks, strongly coupled
+  }
+}
+
+TEST(CyclicBlockLU, DropsTheCornersFillOnlyWhereItHasDecayed) {
+  // Strong diagonal: the fill decays geometrically along the ring and is dropped past the
+  // first links (it comes back where the band meets the last block row), still solving to
+  // rounding. Weak diagonal with the same couplings: little decay, more (or all) fill kept.
+  const int strong = check<21>(84, 7u, 1.0, 100.0);
+  EXPECT_LT(strong, 40);
+  EXPECT_GT(strong, 2);
+  const int weak = check<21>(84, 7u, 1.0, 0.01);
+  std::printf("fill blocks of 83: strong diagonal %d, weak %d\n", strong, weak);
+  EXPECT_GT(weak, strong);
+  EXPECT_LE(weak, 83);
+}
+
+TEST(CyclicBlockLU, ACoarserDropToleranceDropsMoreFillAndStillSolves) {
+  // The W-method's setting (ModelOdeOptions::w_fill_drop): the backward error stays at the
+  // tolerance's level (checked in check()), with fewer fill rows than the default keeps.
+  for (double diagonal : {100.0, 1.0, 0.01}) {
+    const int exact = check<21>(84, 7u, 1.0, diagonal);
+    const int coarse = check<21>(84, 7u, 1.0, diagonal, 1e-12);
+    std::printf("diagonal %g: fill blocks of 83, drop 1e-30 %d, drop 1e-12 %d\n", diagonal, exact, coarse);
+    EXPECT_LE(coarse, exact);
+    if (exact > 10) {
+      EXPECT_LT(coarse, exact);
+    }
+  }
+}
+
+TEST(CyclicBlockLU, RejectsASingularPivot) {
+  CyclicBlockLU<2> lu;
+  lu.resize(3);
+  for (int l = 0; l < 3; ++l) {
+    lu.diag(l) = Eigen::Matrix2d::Identity();
+    lu.sub(l) = lu.super(l) = Eigen::Matrix2d::Zero();
+  }
+  lu.diag(1)(1, 1) = 0;  // a zero row
+  EXPECT_FALSE(lu.factor());
+}
+
+}  // namespace
+}  // namespace cvt
+
+namespace cvt {
+namespace {
+
+// block_times (the solves' inline kernel) against Eigen's product, for every remainder of
+// the rows modulo the 4-row registers, including the chain's 21.
+template <int B>
+void check_block_times(unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Eigen::Matrix<double, B, B> A;
+  Eigen::Matrix<double, B, 1> x, t;
+  for (int c = 0; c < B; ++c) {
+    x[c] = u(rng);
+    for (int r = 0; r < B; ++r) A(r, c) = u(rng) * std::pow(10.0, 3 * u(rng));
+  }
+  t.setConstant(1e300);  // every entry must be overwritten
+  block_times(A, x, t);
+  const Eigen::Matrix<double, B, 1> e = A * x;
+  const double scale = (A.cwiseAbs() * x.cwiseAbs()).maxCoeff();
+  EXPECT_LT((t - e).cwiseAbs().maxCoeff(), 1e-14 * scale) << "B = " << B;
+}
+
+TEST(CyclicBlockLU, BlockTimesIsTheMatrixProduct) {
+  check_block_times<1>(1u);
+  check_block_times<2>(2u);
+  check_block_times<3>(3u);
+  check_block_times<4>(4u);
+  check_block_times<5>(5u);
+  check_block_times<8>(8u);
+  check_block_times<21>(21u);
+}
+
+}  // namespace
+}  // namespace cvt

@@ -1,0 +1,62 @@
+// No heap allocation inside the generic integrators' steps (the house rule: nothing is
+// allocated inside a step). Counts calls of the global operator new while a solver whose
+// workspace is already built integrates. The replacement operators below serve the whole
+// test binary; they only count while `counting` is set.
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <new>
+
+#include <gtest/gtest.h>
+
+#include "engine/ode/ode.hpp"
+#include "tests/engine/ode/ode_problems.hpp"
+
+namespace {
+std::atomic<bool> counting{false};
+std::atomic<long> allocations{0};
+}  // namespace
+
+void* operator new(std::size_t n) {
+  if (counting.load(std::memory_order_relaxed)) allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) { return operator new(n); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+
+namespace cvt {
+namespace {
+
+using namespace ode_test;
+
+TEST(OdeAlloc, NoAllocationWhileIntegrating) {
+  const Heat heat(50);
+  const OdeSystem sys = heat.system();  // no pattern: dense Jacobian and LU
+  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
+                      OdeMethod::Esdirk3}) {
+    OdeOptions opt;
+    opt.rtol = opt.atol = 1e-6;
+    if (m == OdeMethod::Rk4) opt.fixed_step = true, opt.h0 = 1e-5;
+    OdeSolver solver(sys, m, opt);
+    Eigen::VectorXd y = heat.exact(0);
+    for (int i = 0; i < heat.n; ++i) y[i] += 1e-3 * std::sin(40.0 * i);  // wake the fast modes
+    long steps = 0;
+    const OdeObserver observer = [&](double, const Eigen::VectorXd&) { ++steps; };
+    allocations = 0;
+    counting = true;
+    solver.integrate(0, 0.01, y, observer);
+    counting = false;
+    std::printf("[ode] %-10s %ld observed steps, %ld heap allocations while integrating\n", to_string(m), steps,
+                allocations.load());
+    EXPECT_EQ(allocations.load(), 0) << to_string(m);
+    EXPECT_GT(steps, 1);
+  }
+}
+
+}  // namespace
+}  // namespace cvt

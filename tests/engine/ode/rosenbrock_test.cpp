@@ -1,0 +1,217 @@
+// The ROS2 W-method (engine/ode/rosenbrock.cpp, docs/integrators.md 12): second order with
+// the exact Jacobian and with any other matrix J~, L-stable with the exact one, and a
+// stiff component that an explicit step could not take.
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "engine/ode/ode.hpp"
+#include "tests/engine/ode/ode_problems.hpp"
+
+namespace cvt {
+namespace {
+
+using namespace ode_test;
+
+// Installs W = I - gh J~ with a constant dense J~ as the system's w_factor / w_solve.
+struct ConstantW {
+  Eigen::MatrixXd jt;
+  Eigen::PartialPivLU<Eigen::MatrixXd> lu;
+  void install(OdeSystem& sys) {
+    sys.w_factor = [this](double, const double*, double gh) {
+      lu.compute(Eigen::MatrixXd::Identity(jt.rows(), jt.cols()) - gh * jt);
+    };
+    sys.w_solve = [this](double* x) {
+      Eigen::Map<Eigen::VectorXd> v(x, jt.rows());
+      const Eigen::VectorXd r = lu.solve(v);
+      v = r;
+    };
+  }
+};
+
+// A stiff component tracking a slow one: y1' = -1e8 (y1 - y2), y2' = -y2; from y(0) = (0, 1),
+// y2 = exp(-t) and y1 = y2 after a layer of 1e-8. (The caller installs its W.)
+OdeSystem stiff_pair() {
+  OdeSystem sys;
+  sys.size = 2;
+  sys.rhs = [](double, const double* y, double* dy) {
+    dy[0] = -1e8 * (y[0] - y[1]);
+    dy[1] = -y[1];
+  };
+  return sys;
+}
+
+double observed_order(const OdeSystem& sys, const char* label) { return smooth_order(sys, OdeMethod::Ros2, 40, label); }
+
+TEST(OdeRos2, SecondOrderWithTheFiniteDifferenceJacobian) {
+  EXPECT_NEAR(observed_order(smooth_system(), "ros2 (J~ = J by differences)"), 2.0, 0.1);
+}
+
+// The W-method property: the order conditions do not involve J~, so a zero matrix (ROS2
+// becomes Heun's explicit method) and a wrong one both keep second order (the wrong one
+// once h |J~| is small).
+TEST(OdeRos2, SecondOrderForAnyMatrix) {
+  for (int variant = 0; variant < 2; ++variant) {
+    OdeSystem sys = smooth_system();
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(3, 3);
+    if (variant == 1) w.jt << -3.0, 0.5, 0.0, 0.2, -1.0, 0.7, 0.0, -0.4, -2.0;
+    w.install(sys);
+    // The wrong matrix approaches 2 from below as h |J~| shrinks (1.73, 1.85 at n = 80, 160).
+    EXPECT_NEAR(observed_order(sys, variant == 0 ? "ros2 (J~ = 0)" : "ros2 (J~ wrong)"), 2.0, variant == 0 ? 0.1 : 0.2) << variant;
+  }
+}
+
+// OdeOptions::w_reuse_steps: the finite-difference Jacobian and its LU kept for 5 steps.
+// Still second order (the W-method property), with a fifth of the Jacobians.
+TEST(OdeRos2, StaleJacobianKeepsSecondOrder) {
+  auto error = [](int n, std::int64_t* jacs) {
+    Eigen::VectorXd y = smooth_exact(0);
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = 2.0 / n;
+    opt.w_reuse_steps = 5;
+    const OdeStats st = integrate(smooth_system(), OdeMethod::Ros2, 0, 2, y, opt);
+    *jacs = st.jac_evals;
+    return (y - smooth_exact(2)).lpNorm<Eigen::Infinity>();
+  };
+  std::int64_t j1 = 0, j2 = 0, j3 = 0;
+  const double e1 = error(40, &j1), e2 = error(80, &j2), e3 = error(160, &j3);
+  std::printf("[ode] order ros2 (Jacobian every 5 steps) n = 40 80 160  errors %.3e %.3e %.3e  orders %.2f %.2f  "
+              "Jacobians %lld %lld %lld\n", e1, e2, e3, std::log2(e1 / e2), std::log2(e2 / e3),
+              static_cast<long long>(j1), static_cast<long long>(j2), static_cast<long long>(j3));
+  EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.1);
+  EXPECT_EQ(j3, 32);
+}
+
+// A stiff component tracking a slow one: y1' = -1e8 (y1 - y2), y2' = -y2, y(0) = (0, 1);
+// y2 = exp(-t) and y1 = y2 after a layer of 1e-8. At h = 0.05 (h lambda = -5e6) ROS2 with
+// J~ = J is L-stable and lands on the slow solution at once; J~ = 0 (explicit) explodes. A
+// J~ with only the stiff diagonal entry, exact or off by a factor 3 either way (as the
+// CVT's friction blocks capture the friction stiffness per joint only), stays stable, but
+// the stiff component then lags its slow manifold by O(h): 12x the error of J~ = J with
+// the exact diagonal, 50x with 3x it, and 500x with a third of it. That is the price of a
+// partial J~, and what limits ROS2's accuracy on the CVT (docs/integrators.md 12).
+TEST(OdeRos2, StiffComponentNeedsTheMatrixOnlyRoughly) {
+  auto run = [](bool full, double factor) -> double {
+    OdeSystem sys = stiff_pair();
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(2, 2);
+    w.jt(0, 0) = -1e8 * factor;
+    if (full) w.jt(0, 1) = 1e8, w.jt(1, 1) = -1;
+    w.install(sys);
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = 0.05;
+    Eigen::VectorXd y(2);
+    y << 0.0, 1.0;
+    try {
+      integrate(sys, OdeMethod::Ros2, 0, 1, y, opt);
+    } catch (const OdeError&) {
+      return std::numeric_limits<double>::infinity();
+    }
+    return std::max(std::abs(y[0] - std::exp(-1.0)), std::abs(y[1] - std::exp(-1.0)));
+  };
+  const double exact = run(true, 1.0), diag = run(false, 1.0), third = run(false, 1.0 / 3.0),
+               thrice = run(false, 3.0), none = run(false, 0.0);
+  std::printf("[ode] ros2 h = 0.05, lambda = -1e8: |error| J~ = J %.3e, diagonal %.3e, diagonal / 3 %.3e, "
+              "diagonal x 3 %.3e, 0 %.3e\n", exact, diag, third, thrice, none);
+  EXPECT_LT(exact, 2e-3);
+  EXPECT_LT(diag, 0.03);
+  EXPECT_LT(thrice, 0.1);
+  EXPECT_LT(third, 1.0);  // stable, but far off
+  EXPECT_LT(exact, diag);
+  EXPECT_FALSE(none < 1.0);
+}
+
+// Adaptive mode on the smooth problem: the estimate is that of the embedded first-order
+// solution, so the steps go like tol^(1/2) and the global error stays near tol (at many
+// more steps than TR-BDF2's; ROS2 is here for fixed steps with a cheap matrix).
+TEST(OdeRos2, AdaptiveSmoothProblem) {
+  for (double tol : {1e-4, 1e-7}) {
+    Eigen::VectorXd y = smooth_exact(0);
+    OdeOptions opt;
+    opt.rtol = opt.atol = tol;
+    OdeSystem sys = smooth_system();
+    ConstantW w;  // the exact Jacobian of the autonomous part
+    w.jt = Eigen::MatrixXd::Zero(3, 3);
+    w.jt(0, 1) = 1, w.jt(1, 0) = -1;
+    w.install(sys);
+    const OdeStats st = integrate(sys, OdeMethod::Ros2, 0, 10, y, opt);
+    const double err = (y - smooth_exact(10)).lpNorm<Eigen::Infinity>();
+    print_stats(tol > 1e-5 ? "ros2 smooth tol 1e-04" : "ros2 smooth tol 1e-07", st);
+    std::printf("[ode]   ros2 smooth tol %.0e: error %.3e\n", tol, err);
+    EXPECT_LT(err, 30 * tol);
+    EXPECT_EQ(st.rhs_evals, 2 * (st.steps + st.rejected) + 2) << "two evaluations per attempt, two for HINIT";
+  }
+}
+
+}  // namespace
+}  // namespace cvt
+
+namespace cvt {
+namespace {
+
+using namespace ode_test;
+
+// ROS34PW2 (Rang & Angermann 2005): third order with the exact Jacobian and, being a
+// W-method of order 3, with any other matrix, including zero (then it is an explicit
+// 4-stage Runge-Kutta method of order 3); the non-autonomous term enters through the
+// zero t-column of J~ that a W-method allows.
+TEST(OdeRos34pw2, ThirdOrderForAnyMatrix) {
+  EXPECT_NEAR(smooth_order(smooth_system(), OdeMethod::Ros34pw2, 40, "ros34pw2 (J~ = J by differences)"), 3.0, 0.15);
+  for (int variant = 0; variant < 2; ++variant) {
+    OdeSystem sys = smooth_system();
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(3, 3);
+    if (variant == 1) w.jt << -3.0, 0.5, 0.0, 0.2, -1.0, 0.7, 0.0, -0.4, -2.0;
+    w.install(sys);
+    EXPECT_NEAR(smooth_order(sys, OdeMethod::Ros34pw2, 40, variant == 0 ? "ros34pw2 (J~ = 0)" : "ros34pw2 (J~ wrong)"),
+                3.0, 0.2)
+        << variant;
+  }
+}
+
+// Stiffly accurate and L-stable: on the stiff pair of OdeRos2.StiffComponentNeedsTheMatrixOnlyRoughly
+// the stiff component sits on its slow manifold after each step, to third order in h.
+TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
+  auto run = [](double h) {
+    OdeSystem sys = stiff_pair();
+    ConstantW w;
+    w.jt = Eigen::MatrixXd::Zero(2, 2);
+    w.jt(0, 0) = -1e8, w.jt(0, 1) = 1e8, w.jt(1, 1) = -1;
+    w.install(sys);
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = h;
+    Eigen::VectorXd y(2);
+    y << 0.0, 1.0;
+    integrate(sys, OdeMethod::Ros34pw2, 0, 1, y, opt);
+    return std::max(std::abs(y[0] - std::exp(-1.0)), std::abs(y[1] - std::exp(-1.0)));
+  };
+  const double e1 = run(0.05), e2 = run(0.025), e3 = run(0.0125);
+  std::printf("[ode] ros34pw2 lambda = -1e8, h = 0.05 0.025 0.0125: |error| %.3e %.3e %.3e  orders %.2f %.2f\n", e1, e2,
+              e3, std::log2(e1 / e2), std::log2(e2 / e3));
+  EXPECT_LT(e1, 1e-4);
+  EXPECT_NEAR(std::log2(e2 / e3), 3.0, 0.3);
+}
+
+// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)).
+TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
+  for (double tol : {1e-4, 1e-7}) {
+    Eigen::VectorXd y = smooth_exact(0);
+    OdeOptions opt;
+    opt.rtol = opt.atol = tol;
+    const OdeStats st = integrate(smooth_system(), OdeMethod::Ros34pw2, 0, 10, y, opt);
+    const double err = (y - smooth_exact(10)).lpNorm<Eigen::Infinity>();
+    print_stats(tol > 1e-5 ? "ros34pw2 smooth tol 1e-04" : "ros34pw2 smooth tol 1e-07", st);
+    std::printf("[ode]   ros34pw2 smooth tol %.0e: error %.3e\n", tol, err);
+    EXPECT_LT(err, 30 * tol);
+    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 4 * (st.steps + st.rejected) + 2);
+  }
+}
+
+}  // namespace
+}  // namespace cvt
