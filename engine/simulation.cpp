@@ -26,8 +26,8 @@ namespace cvt {
 
 Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
     : m_(m), ws_(m), diag_(m), schedule_(make_schedule(m, ws_, schedule)), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
-  update_contact_status(m_, ws_, t_, y_.data());
-  const Energies e = energies(m_, t_, y_.data(), &ws_.status);
+  update_contact_status(m_, ws_, clock_.t, y_.data());
+  const Energies e = energies(m_, clock_.t, y_.data(), &ws_.status);
   energy0_ = e.kinetic + e.elastic;
   std::vector<double*> state = rk_.buffers();
   state.push_back(y_.data());
@@ -46,82 +46,71 @@ Simulation::~Simulation() = default;
 
 void Simulation::step(double h, bool update_status) {
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
-  // t = t0 + (steps - steps0) h keeps t free of accumulated rounding while h stays the
-  // same; a caller that changes h (a run warmed at one step and continued at another) gets
-  // the clock re-anchored here instead of a time jump. Unchanged h: no effect on the bits.
-  if (std::abs(t0_ + static_cast<double>(steps_ - steps0_) * h - t_) > 1e-6 * h) t0_ = t_, steps0_ = steps_;
-  if (update_status && m_.cfg.integrator.method != "rk4") {  // a W-method: ros2, ros34pw2
-    // The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and
-    // the rocker faces load up, with contact stiffnesses that the matrix (taken at the start)
-    // does not yet hold; ROS2 (gamma = 1.71) damps that mismatch, ROS34PW2 (gamma = 0.44)
-    // blows up on it within microseconds (docs/integrators.md 12.3).
-    auto make = [this](double hh, bool startup) {
-      OdeRunOptions ro;
-      ro.method = startup ? OdeMethod::Ros2 : parse_ode_method(m_.cfg.integrator.method);
-      ro.ode.fixed_step = true;
-      ro.ode.h0 = hh;
-      ro.jac.scaled = false;
-      ro.jac.w_every = m_.cfg.integrator.w_every;
-      ro.jac.w_k_every = m_.cfg.integrator.w_k_every;
-      ro.jac.w_secant = m_.cfg.integrator.w_secant;
-      ro.jac.w_fresh = m_.cfg.integrator.w_fresh;  // ModelOde leaves it off without the secant
-      ro.jac.w_fresh_max = m_.cfg.integrator.w_fresh_max;
-      return std::make_unique<OdeDriver>(*this, ro);
-    };
-    // Before integrator.startup_time a step is taken as the fewest equal sub-steps no longer
-    // than integrator.startup_step (ROS2, its own driver and matrix); the grid of the steps,
-    // and so the clock, is the same.
-    const int sub = startup_substeps(m_.cfg.integrator, h);
-    const bool startup = t_ < m_.cfg.integrator.startup_time && sub > 1;
-    OdeDriver* drv;
-    if (startup) {
-      if (!w_startup_ || w_startup_h_ != h / sub) w_startup_ = make(h / sub, true), w_startup_h_ = h / sub;
-      drv = w_startup_.get();
-    } else {
-      if (!w_driver_ || w_h_ != h) w_driver_ = make(h, false), w_h_ = h;
-      w_startup_.reset();
-      drv = w_driver_.get();
-    }
-    // The driver takes one step (or the sub-steps) to exactly t0 + (n + 1) h and counts it;
-    // the clock keeps its origin, so that t has no accumulated rounding, as with RK4.
-    const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
-    const double t0 = t0_, t1 = t0_ + static_cast<double>(steps_ + 1 - steps0_) * h;
-    const long s0 = steps0_, n1 = steps_ + 1;
-    // A state gone non-finite is reported as RK4's is, by check_finite() at the next sample
-    // (with the replay and the diagnosis): the driver's own error ("solution is not
-    // finite", or a singular matrix built from such a state) only ends this step, and the
-    // steps up to that sample are not taken.
-    if (y_.allFinite()) {
-      try {
-        drv->advance(t1);
-      } catch (const std::exception&) {
-        if (y_.allFinite()) throw;
-        w_driver_.reset(), w_startup_.reset();
-      }
-    }
-    t0_ = t0, steps0_ = s0, steps_ = n1, t_ = t1;
-    if (prof_) {
-      // The step's rest on the master, outside the evaluations and the W rows: the
-      // method's vector sums and error norms, its "integrator update".
-      const std::uint64_t dt = Profiler::ticks() - tick0;
-      const std::uint64_t inside = (prof_->rhs_wall() - rhs0) + (prof_->master_total() - master0);
-      prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
-      prof_->call(Section::update);
-      prof_->add_step(dt);
-    }
-    return;
-  }
+  clock_.keep_origin(h);
+  if (update_status && m_.cfg.integrator.method != IntegratorMethod::rk4)
+    w_step(h);
+  else
+    rk4_step(h, update_status);
+  if (prof_) prof_->add_step(Profiler::ticks() - tick0);
+}
+
+// RK4 (docs/model.md 7): the four stages through the schedule, each with its stage update
+// inside the graph, then (unless frozen) the contact statuses for the next step.
+void Simulation::rk4_step(double h, bool update_status) {
   schedule_->within([&] {
     rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
-             t_, h, y_);
-    ++steps_;
-    t_ = t0_ + (steps_ - steps0_) * h;  // fixed step: no accumulated rounding in t
-    if (update_status) {
-      schedule_->update_status(t_, y_.data());
-      y_[2 * m_.ndof + kWorkSwitch] += ws_.switch_work;
-    }
+             clock_.t, h, y_);
+    clock_.tick(h);
+    if (update_status) update_statuses_after_step(m_, *schedule_, ws_, clock_.t, y_);
   });
-  if (prof_) prof_->add_step(Profiler::ticks() - tick0);
+}
+
+// A W-method step (docs/integrators.md 12): the driver takes the step (or, before
+// integrator.startup_time, its ROS2 sub-steps) to exactly the clock's next time and updates
+// the statuses after it. A state gone non-finite is reported as RK4's is, by check_finite()
+// at the next sample (with the replay and the diagnosis): the driver's own error ("solution
+// is not finite", or a singular matrix built from such a state) only ends this step.
+void Simulation::w_step(double h) {
+  const int sub = startup_substeps(m_.cfg.integrator, h);
+  const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
+  OdeDriver& drv = w_driver(startup ? h / sub : h, startup);
+  const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
+  const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
+  if (y_.allFinite()) {
+    try {
+      drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), clock_.steps);
+    } catch (const std::exception&) {
+      if (y_.allFinite()) throw;
+      w_driver_.reset(), w_startup_.reset();
+    }
+  }
+  clock_.tick(h);
+  if (prof_) {
+    // The step's rest on the master, outside the evaluations and the W rows: the method's
+    // vector sums and error norms, its "integrator update".
+    const std::uint64_t dt = Profiler::ticks() - tick0;
+    const std::uint64_t inside = (prof_->rhs_wall() - rhs0) + (prof_->master_total() - master0);
+    prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
+    prof_->call(Section::update);
+  }
+}
+
+// The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and the
+// rocker faces load up, with contact stiffnesses that the matrix (taken at the start) does
+// not yet hold; ROS2 (gamma = 1.71) damps that mismatch, ROS34PW2 (gamma = 0.44) blows up
+// on it within microseconds (docs/integrators.md 12.3).
+OdeDriver& Simulation::w_driver(double h, bool startup) {
+  std::unique_ptr<OdeDriver>& drv = startup ? w_startup_ : w_driver_;
+  double& made_for = startup ? w_startup_h_ : w_h_;
+  if (!drv || made_for != h)
+    drv = std::make_unique<OdeDriver>(m_, ws_, *schedule_, w_run_options(m_.cfg, h, startup)), made_for = h;
+  if (!startup) w_startup_.reset();
+  return *drv;
+}
+
+void Simulation::advance(OdeDriver& driver, double t1) {
+  const long n = driver.advance(clock_.t, y_, t1, clock_.steps);
+  clock_ = StepClock::at(t1, clock_.steps + n);
 }
 
 Checkpoint Simulation::checkpoint() const {
@@ -130,7 +119,7 @@ Checkpoint Simulation::checkpoint() const {
   c.state = y_;
   c.rocker = ws_.status.rocker;
   c.pulley = ws_.status.pulley;
-  c.t = t_, c.t0 = t0_, c.steps = steps_, c.steps0 = steps0_;
+  c.t = clock_.t, c.t0 = clock_.t0, c.steps = clock_.steps, c.steps0 = clock_.steps0;
   c.energy0 = energy0_;
   return c;
 }
@@ -144,7 +133,7 @@ void Simulation::restore(const Checkpoint& c) {
   y_ = c.state;
   ws_.status.rocker = c.rocker;
   ws_.status.pulley = c.pulley;
-  t_ = c.t, t0_ = c.t0, steps_ = c.steps, steps0_ = c.steps0;
+  clock_.t = c.t, clock_.t0 = c.t0, clock_.steps = c.steps, clock_.steps0 = c.steps0;
   energy0_ = c.energy0;
 }
 
@@ -238,17 +227,17 @@ std::string Simulation::state_problem(const Eigen::VectorXd& y) const {
 // names what drove it: the coordinate with the largest acceleration in the step before,
 // its pin, and the module whose force on that pin is largest.
 std::string Simulation::replay_diagnosis(double h) {
-  if (good_y_.size() != m_.nstate || steps_ <= good_steps_) return {};
+  if (good_y_.size() != m_.nstate || clock_.steps <= good_steps_) return {};
   const Eigen::VectorXd bad_y = y_;
   const ContactStatus bad_status = ws_.status;
-  const long bad_steps = steps_;
-  y_ = good_y_, ws_.status = good_status_, steps_ = good_steps_, t_ = good_t_;
+  const long bad_steps = clock_.steps;
+  y_ = good_y_, ws_.status = good_status_, clock_.steps = good_steps_, clock_.t = good_t_;
   std::string out;
   char buf[768];
-  while (steps_ < bad_steps) {
+  while (clock_.steps < bad_steps) {
     const Eigen::VectorXd prev = y_;
     const ContactStatus prev_status = ws_.status;
-    const double prev_t = t_;
+    const double prev_t = clock_.t;
     step(h);
     const std::string first = state_problem(y_);
     if (first.empty()) continue;
@@ -271,28 +260,28 @@ std::string Simulation::replay_diagnosis(double h) {
                   "replayed from t = %.9g s: the first bad state follows step %ld (t = %.9g s): %s; in the step "
                   "before, the largest acceleration is %.3g on %s, pin %d, where %s dominate (|F| chain %.3g, "
                   "pulley %.3g, inertia %.3g N)",
-                  good_t_, steps_, t_, first.c_str(), dy_[n + worst], describe_state_index(m_, n + worst).c_str(), joint, module, fc,
+                  good_t_, clock_.steps, clock_.t, first.c_str(), dy_[n + worst], describe_state_index(m_, n + worst).c_str(), joint, module, fc,
                   fp, fi);
     out = buf;
     break;
   }
-  y_ = bad_y, ws_.status = bad_status, steps_ = bad_steps, t_ = t0_ + (steps_ - steps0_) * h;
+  y_ = bad_y, ws_.status = bad_status, clock_.steps = bad_steps, clock_.t = clock_.time_after(clock_.steps, h);
   return out;
 }
 
 void Simulation::check_finite() {
   const std::string problem = state_problem(y_);
   if (problem.empty()) {
-    if (first_y_.size() == 0) first_y_ = y_, first_t_ = t_, first_status_ = ws_.status;
+    if (first_y_.size() == 0) first_y_ = y_, first_t_ = clock_.t, first_status_ = ws_.status;
     good_y_ = y_;
-    good_t_ = t_;
-    good_steps_ = steps_;
+    good_t_ = clock_.t;
+    good_steps_ = clock_.steps;
     good_status_ = ws_.status;
     return;
   }
   const double h = m_.cfg.integrator.step;
-  const double t_bad = t_;
-  const long steps_bad = steps_;
+  const double t_bad = clock_.t;
+  const long steps_bad = clock_.steps;
   const std::string replay = replay_diagnosis(h);
   std::string cause;
   char buf[1024];
@@ -308,17 +297,17 @@ void Simulation::check_finite() {
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
     const Config::Integrator& in = m_.cfg.integrator;
-    if (in.method != "rk4" && t_bad <= std::max(in.startup_time, m_.cfg.ramp.time) * (1 + 1e-9)) {
+    if (in.method != IntegratorMethod::rk4 && t_bad <= std::max(in.startup_time, m_.cfg.ramp.time) * (1 + 1e-9)) {
       const int k1 = std::max(1, in.w_k_every / 4), k2 = std::max(1, in.w_k_every / 8);
-      cause += in.method + " could not start from rest at h = " + std::string(buf) +
+      cause += std::string(to_string(in.method)) + " could not start from rest at h = " + std::string(buf) +
                " s: while the pins settle onto the sheaves and the loads ramp up, its matrix (the stiffness "
                "rebuilt every integrator.w_k_every = " + std::to_string(in.w_k_every) +
                " steps) falls behind the contacts loading up. Rebuild the stiffness more often (--set "
                "integrator.w_k_every=" + std::to_string(k1) + (k2 < k1 ? ", or " + std::to_string(k2) : "") +
                "), or take a smaller integrator.step; RK4 (--method rk4 --step 1e-8) always starts";
     }
-    else if (in.method != "rk4")
-      cause += "the run uses " + in.method + " with h = " + std::string(buf) +
+    else if (in.method != IntegratorMethod::rk4)
+      cause += "the run uses " + std::string(to_string(in.method)) + " with h = " + std::string(buf) +
                " s, stable past that limit only while its matrix holds the stiff terms: reduce integrator.step, or "
                "rebuild the matrix more often (integrator.w_every, integrator.w_k_every)";
     else
@@ -334,9 +323,9 @@ void Simulation::check_finite() {
 
 Sample Simulation::sample() {
   Sample s;
-  s.t = t_;
+  s.t = clock_.t;
   diag_.status = ws_.status;
-  rhs_serial(m_, diag_, t_, y_.data(), dy_.data());
+  rhs_serial(m_, diag_, clock_.t, y_.data(), dy_.data());
   const double* q = y_.data();
   const double* v = q + m_.ndof;
   const double* aux = q + 2 * m_.ndof;
@@ -379,7 +368,7 @@ Sample Simulation::sample() {
   s.power_input = s.input_torque * s.input_speed;
   s.power_output = s.output_torque * s.output_speed;
   s.power_dissipated = dy_[2 * m_.ndof + kWorkDiss];
-  const Energies e = energies(m_, t_, q, &ws_.status);
+  const Energies e = energies(m_, clock_.t, q, &ws_.status);
   s.energy_kinetic = e.kinetic;
   s.energy_elastic = e.elastic;
   s.work_input = aux[kWorkIn];
@@ -396,7 +385,7 @@ void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& t
   const int N = m_.links;
   positions.resize(3 * N);
   tensions.resize(N);
-  set_stage_input(m_, diag_, t_, y_.data());
+  set_stage_input(m_, diag_, clock_.t, y_.data());
   const double* q = y_.data();
   for (int j = 0; j < N; ++j) {
     const double* a = q + m_.half_a(j);
@@ -845,7 +834,7 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
   // A W-method's matrix is not in a checkpoint: a continuation repeats the bits only from a
   // step that rebuilds all of it, a multiple of integrator.w_k_every. Periodic checkpoints
   // and stops on a signal fall on such steps (docs/cli.md).
-  const long rebuild_every = c.integrator.method == "rk4" ? 1 : std::max(1, c.integrator.w_k_every);
+  const long rebuild_every = c.integrator.method == IntegratorMethod::rk4 ? 1 : std::max(1, c.integrator.w_k_every);
   const long checkpoint_every =
       opt.checkpoint_every > 0 ? (opt.checkpoint_every + rebuild_every - 1) / rebuild_every * rebuild_every : 0;
 
@@ -893,7 +882,7 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
   RunResult r;
   if (opt.resume && start % rebuild_every != 0) {
     const std::string w = "the checkpoint is at step " + std::to_string(start) + ", not a multiple of "
-                          "integrator.w_k_every = " + std::to_string(rebuild_every) + ": " + c.integrator.method +
+                          "integrator.w_k_every = " + std::to_string(rebuild_every) + ": " + to_string(c.integrator.method) +
                           "'s matrix is rebuilt here, so the continuation is close to, not bit-identical with, an "
                           "uninterrupted run";
     r.warnings.push_back(w);
@@ -920,7 +909,7 @@ RunResult run_simulation(const Model& m, const RunOptions& opt) {
   double next_stability_check = std::max(sim.time(), c.ramp.time);
   const auto watch = [&](const Sample& s) {
     if (std::string w = energy.check(s); !w.empty()) r.warnings.push_back(w), warn(w);
-    if (c.integrator.method == "rk4" && !warned_stability && s.t >= next_stability_check) {
+    if (c.integrator.method == IntegratorMethod::rk4 && !warned_stability && s.t >= next_stability_check) {
       next_stability_check = s.t + 1e-3;
       const double rho = sim.spectral_radius(sim.state(), sim.time(), sim.workspace().status);
       if (std::string w = rk4_stability_warning(h, rho, s.t); !w.empty())

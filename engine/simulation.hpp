@@ -55,12 +55,13 @@ class Simulation {
   ~Simulation();
 
   const Model& model() const { return m_; }
-  double time() const { return t_; }
-  long steps() const { return steps_; }
+  double time() const { return clock_.t; }
+  long steps() const { return clock_.steps; }
+  const StepClock& clock() const { return clock_; }
   const Eigen::VectorXd& state() const { return y_; }
   Eigen::VectorXd& mutable_state() { return y_; }
   // Continues from (t, steps): for restarts from a saved state.
-  void set_clock(double t, long steps) { t_ = t0_ = t; steps_ = steps0_ = steps; }
+  void set_clock(double t, long steps) { clock_ = StepClock::at(t, steps); }
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
   Schedule& schedule() { return *schedule_; }
@@ -75,6 +76,9 @@ class Simulation {
   // docs/integrators.md 12 through an OdeDriver), then (unless frozen) the contact statuses
   // for the next step. Frozen steps (update_status false) are always RK4.
   void step(double h, bool update_status = true);
+  // Advances to exactly t1 with a driver of another method or setting (studies, tests): its
+  // steps count as the run's, and the clock's origin moves to t1.
+  void advance(OdeDriver& driver, double t1);
   // Channels of the current state.
   Sample sample();
   // Joint centres [N][3] and link tensions [N] of the current state.
@@ -97,6 +101,11 @@ class Simulation {
   // "" if y is fine; else what is wrong (non-finite coordinate, absurd penetration).
   std::string state_problem(const Eigen::VectorXd& y) const;
   std::string replay_diagnosis(double h);
+  // The two kinds of step (step() above).
+  void rk4_step(double h, bool update_status);
+  void w_step(double h);
+  // The W-method's driver for steps of size h (startup: ROS2 sub-steps), made when h changes.
+  OdeDriver& w_driver(double h, bool startup);
 
   const Model& m_;
   Workspace ws_;     // the integrator's
@@ -109,8 +118,7 @@ class Simulation {
   std::unique_ptr<OdeDriver> w_startup_;  // its ROS2 sub-steps before integrator.startup_time
   double w_startup_h_ = 0;
   Eigen::VectorXd y_, dy_;
-  double t_ = 0, t0_ = 0;
-  long steps_ = 0, steps0_ = 0;
+  StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;
   Eigen::VectorXd good_y_;  // last state that passed check_finite, with its time and statuses
   double good_t_ = 0;

@@ -61,7 +61,7 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.clamp_driving_nominal = cfg.clamping.driving;
   s.clamp_driven_nominal = cfg.clamping.driven;
   s.ratio_target = cfg.geometry.ratio;
-  s.method = cfg.integrator.method;
+  s.method = to_string(cfg.integrator.method);
   s.step = cfg.integrator.step;
   s.controller = cfg.controller.enabled ? fmt("PI on F1, target speed ratio %.4g", cfg.controller.target_ratio) : "off";
   s.reasons.clear();

@@ -60,7 +60,7 @@ class FlowGraphSchedule final : public Schedule {
     if (nodes > 1) place_slots();
   }
 
-  void rhs(double t, const double* y, double* dy, const StageOp* op) override {
+  void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac) override {
     set_stage_input(m_, ws_, t, y);
     // With one node the graph computes the link kinematics itself, in parallel: done here by
     // the master it would pull the whole state across to one core every stage. With
@@ -72,6 +72,7 @@ class FlowGraphSchedule final : public Schedule {
     }
     dy_ = dy;
     op_ = op;
+    jac_ = jac;
     if (prof_) prof_->call_rhs(op != nullptr);
     const int nodes = arenas_->nodes();
     if (nodes == 1) {
@@ -342,10 +343,10 @@ class FlowGraphSchedule final : public Schedule {
       source = kin;
     }
     auto* chain = module(0, [this, n] {
-      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e); });
+      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e, jac_); });
     });
     auto* pulley = module(1, [this, n] {
-      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e); }, coarse(n));
+      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e, jac_); }, coarse(n));
     });
     auto* inertia = module(2, [this, n] {
       pins(n, kInertia, Section::inertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n));
@@ -385,6 +386,7 @@ class FlowGraphSchedule final : public Schedule {
   std::vector<Part> parts_;
   double* dy_ = nullptr;
   const StageOp* op_ = nullptr;
+  FrictionJacobian* jac_ = nullptr;  // what the evaluation in progress is asked to fill besides f
   bool empty_ = false, tracing_ = false;
   bool inside_ = false;  // the master is in arena 0 (within())
   std::vector<NodeSpan> spans_;

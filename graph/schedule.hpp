@@ -43,8 +43,9 @@ class Schedule {
  public:
   virtual ~Schedule() = default;
   // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
-  // the schedule was built with.
-  virtual void rhs(double t, const double* y, double* dy, const StageOp* op) = 0;
+  // the schedule was built with. With jac, the kernels also fill what it asks for (the
+  // W-method's friction part, FrictionJacobian).
+  virtual void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac = nullptr) = 0;
   // Contact statuses for the next step (engine/rhs/rhs.hpp update_contact_status), scheduled
   // like the RHS; the same bits for every schedule.
   virtual void update_status(double t, const double* y) = 0;
@@ -81,6 +82,15 @@ class Schedule {
  protected:
   Profiler* prof_ = nullptr;
 };
+
+// After a step of any method: the contact statuses for the next step at (t, y), scheduled
+// like the RHS, and the contact energy they switched in or out added to y's work integral
+// (docs/model.md 4.4).
+inline void update_statuses_after_step(const Model& m, Schedule& s, const Workspace& ws, double t,
+                                       Eigen::VectorXd& y) {
+  s.update_status(t, y.data());
+  y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
+}
 
 // Builds the schedule for model m over workspace ws (both must outlive it).
 std::unique_ptr<Schedule> make_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);

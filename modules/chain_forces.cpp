@@ -181,7 +181,7 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
   return r;
 }
 
-// Workspace::record_damping / record_mu: G (u = G v, zeroed by the caller) of the slip
+// FrictionJacobian blocks / mu: G (u = G v, zeroed by the caller) of the slip
 // velocity u = v_a - v_b at a rocker station as a function of the four halves it moves (b_{j-1}: 0..9, a_j: 10..19, b_j: 20..29, a_{j+1}:
 // 30..39): the centre lines' velocities at the station, their axial rates, and the link
 // spins psi_dot_{j-1} (a_j turns with link j-1: +n/(2|Delta|) through a_j's mid-point,
@@ -211,7 +211,7 @@ void rocker_slip_columns(const LinkKinematics& kin, const RockerEval& r, int lp,
 
 }  // namespace
 
-void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
+void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
   const Config& c = m.cfg;
   const LinkKinematics& kin = ws.kin;
   const double kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
@@ -251,11 +251,11 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
 
     // 4.3 rocker joint j: a_j turns with link j-1, b_j with link j.
     const int lp = m.wrap(j - 1), lc = j;
-    constexpr int kD = Workspace::kDampDim;
-    double* Kd = ws.record_damping ? ws.rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
+    constexpr int kD = FrictionJacobian::kDim;
+    double* Kd = jac && jac->blocks ? jac->rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
     if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
-    const bool rec_mu = ws.record_mu;
-    if (rec_mu) ws.rocker_fresh.clear(j * nst, nst, Kd != nullptr);
+    const bool rec_mu = jac && jac->mu;
+    if (rec_mu) jac->rocker_fresh.clear(j * nst, nst, Kd != nullptr);
     for (int st = 0; st < nst; ++st) {
       if (!ws.status.rocker[j * nst + st]) continue;
       const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
@@ -293,15 +293,15 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end) {
         const double Rz = Rv[2];
         if (Kd || rec_mu) {
           const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-          const bool cols = rec_mu && ws.rocker_fresh.note(idx, mu, Kd != nullptr, ws.mu_tol);
+          const bool cols = rec_mu && jac->rocker_fresh.note(idx, mu, Kd != nullptr, jac->mu_tol);
           if (Kd || cols) {
             double G[kD][3] = {};
             rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
             if (Kd)
               add_friction_damping(Kd, kD, G, nrm, u, speed, mu,
-                                   ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed));
+                                   jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed));
             if (cols) {
-              double* U = ws.rocker_fresh.columns(idx);
+              double* U = jac->rocker_fresh.columns(idx);
               friction_columns(kD, G, nrm, u, speed, U, U + kD);
             }
           }

@@ -7,7 +7,9 @@
 
 namespace cvt {
 
-void chain_forces(const Model& m, Workspace& ws, int begin, int end);
+// Joints [begin, end). With jac, also what it asks for (the W-method's friction part,
+// FrictionJacobian) of those joints' rocker stations.
+void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac = nullptr);
 
 // 4.1: adds the elastic and damping forces of one pin-half beam (q, v, f: its 10
 // coordinates) to f; returns the dissipated power. Public for the modal tests, which take

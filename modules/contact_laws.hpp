@@ -115,11 +115,11 @@ struct FrictionAxes {
 
 // Adds G^T D G (FrictionAxes) to the lower triangle (row >= column) of the row-major
 // dim x dim block K (symmetric; the upper triangle is left alone) for a contact whose slip
-// velocity is u = G v. Workspace::record_damping.
+// velocity is u = G v (FrictionJacobian::blocks).
 inline void add_friction_damping(double* K, int dim, const double (*Gc)[3], const double n[3],
                                  const double u[3], double speed, double mu, double mu_t) {
   const FrictionAxes ax(n, u, speed);
-  double gt[Workspace::kDampDim], gs[Workspace::kDampDim];
+  double gt[FrictionJacobian::kDim], gs[FrictionJacobian::kDim];
   ax.project(dim, Gc, gt, gs);
   for (int a = 0; a < dim; ++a) {
     const double ta = mu_t * gt[a], sa = mu * gs[a];
@@ -129,7 +129,7 @@ inline void add_friction_damping(double* K, int dim, const double (*Gc)[3], cons
   }
 }
 
-// Workspace::record_mu: a contact's columns G^T t and G^T s (the tangent plane's basis), so
+// FrictionJacobian::mu: a contact's columns G^T t and G^T s (the tangent plane's basis), so
 // that with the secant slope (mu_t = mu) its damping block is mu (gt gt^T + gs gs^T).
 inline void friction_columns(int dim, const double (*Gc)[3], const double n[3], const double u[3], double speed,
                              double* gt, double* gs) {
@@ -141,7 +141,7 @@ inline void friction_columns(int dim, const double (*Gc)[3], const double n[3], 
 inline void add_friction_cross(double* X, int rows, const double (*Gr)[3], int cols, const double (*Gc)[3],
                                const double n[3], const double u[3], double speed, double mu, double mu_t) {
   const FrictionAxes ax(n, u, speed);
-  double rt[Workspace::kDampDim], rs[Workspace::kDampDim], ct[Workspace::kDampDim], cs[Workspace::kDampDim];
+  double rt[FrictionJacobian::kDim], rs[FrictionJacobian::kDim], ct[FrictionJacobian::kDim], cs[FrictionJacobian::kDim];
   ax.project(rows, Gr, rt, rs);
   ax.project(cols, Gc, ct, cs);
   for (int a = 0; a < rows; ++a) {

@@ -68,20 +68,22 @@ inline bool near_pulley(const Model& m, const double* hq, int k) {
 
 }  // namespace
 
-void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report) {
+void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
+                          FrictionJacobian* jac) {
   const Config& c = m.cfg;
   const double cn = c.pulley_contact.stiffness, bn = c.pulley_contact.damping * m.damp;
   const double R = c.pulley_contact.end_radius;
   const FrictionLaw law = c.friction.law;
   const double f0 = c.friction.f0, v0 = c.friction.v0;
   s.clear();
-  constexpr int kD = Workspace::kDampDim;
-  double* Kd = ws.record_damping ? ws.pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
+  constexpr int kD = FrictionJacobian::kDim;
+  const bool blocks = jac && jac->blocks;
+  double* Kd = blocks ? jac->pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
   constexpr int kX = 2 * kD * kShaftSize;
-  double* Xd = ws.record_damping ? ws.pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
+  double* Xd = blocks ? jac->pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
   if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
-  const bool rec_mu = ws.record_mu;
-  if (rec_mu) ws.pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), ContactStatus::kPulleyPerJoint, Kd != nullptr);
+  const bool rec_mu = jac && jac->mu;
+  if (rec_mu) jac->pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), ContactStatus::kPulleyPerJoint, Kd != nullptr);
   for (int h = 0; h < 2; ++h) {
     const int o = h == 0 ? m.half_a(j) : m.half_b(j);
     const double* hq = ws.q + o;
@@ -141,14 +143,14 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
           const double mu = (Kd || rec_mu) ? Nel * friction_over_speed(law, f0, v0, speed) : 0.0;
-          const bool cols = rec_mu && ws.pulley_fresh.note(idx, mu, Kd != nullptr, ws.mu_tol);
+          const bool cols = rec_mu && jac->pulley_fresh.note(idx, mu, Kd != nullptr, jac->mu_tol);
           if (Kd || cols) {
-            // Workspace::record_damping / record_mu: u as a function of the two halves of the link that
+            // FrictionJacobian blocks / mu: u as a function of the two halves of the link that
             // this half turns with (the sheave's velocity left out): c_dot, the cap's tilt, and
             // the link spin through this half's mid-point (a_j: +n/(2|Delta|), b_j:
             // -n/(2|Delta|)) and through the link's other half (the opposite sign). Columns:
             // b_{j-1} 0..9, a_j 10..19 (link j-1); b_j 20..29, a_{j+1} 30..39 (link j).
-            double G[Workspace::kDampDim][3] = {};
+            double G[FrictionJacobian::kDim][3] = {};
             double(*Gh)[3] = G + (h == 0 ? 10 : 20);
             const int b = e * half::kEnd;
             Gh[b + half::kX][0] += 1;
@@ -160,7 +162,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
             add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
             add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
-            const double mu_t = ws.damping_secant ? mu : Nel * friction_slope(law, f0, v0, speed);
+            const double mu_t = jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed);
             if (Kd) add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
             // The sheave point's velocity enters u with the sign -.
             double Gs[kShaftSize][3] = {};
@@ -171,8 +173,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
             if (g.gw != 0) Gs[kW][2] = -1;
             if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
             if (cols) {
-              double* U = ws.pulley_fresh.columns(idx);
-              double* V = ws.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
+              double* U = jac->pulley_fresh.columns(idx);
+              double* V = jac->pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
               friction_columns(kD, G, nrm, u, speed, U, U + kD);
               friction_columns(kShaftSize, Gs, nrm, u, speed, V, V + kShaftSize);
             }
@@ -204,8 +206,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   }
 }
 
-void pulley_contact(const Model& m, Workspace& ws, int begin, int end) {
-  for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr);
+void pulley_contact(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
+  for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr, jac);
 }
 
 namespace {

@@ -18,9 +18,12 @@ struct PinContactReport {
   EndContact end[2][2];  // [half a/b][end -z/+z]
 };
 
-void pulley_contact(const Model& m, Workspace& ws, int begin, int end);
+// Joints [begin, end). With jac, also what it asks for (the W-method's friction part,
+// FrictionJacobian) of those joints' pin ends.
+void pulley_contact(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac = nullptr);
 // One joint; fills `report` when given.
-void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report);
+void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
+                          FrictionJacobian* jac = nullptr);
 
 // Hertz energy of the pin ends (with `status`, only the active pairs).
 double pulley_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);

@@ -194,7 +194,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
                 1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
     const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
     std::string w;
-    if (cfg.integrator.method != "rk4") {
+    if (cfg.integrator.method != IntegratorMethod::rk4) {
       w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
           std::to_string(cfg.integrator.w_k_every);
       if (startup_sub > 1)
@@ -202,7 +202,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
              fmt_g(cfg.integrator.startup_time) + " s";
       w += ")";
     }
-    std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, cfg.integrator.method.c_str(),
+    std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, to_string(cfg.integrator.method),
                 cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
     std::fflush(stdout);
   }

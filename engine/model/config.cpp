@@ -33,11 +33,20 @@ const char* to_string(FrictionLaw law) {
   return "?";
 }
 
+const char* to_string(IntegratorMethod method) {
+  switch (method) {
+    case IntegratorMethod::rk4: return "rk4";
+    case IntegratorMethod::ros2: return "ros2";
+    case IntegratorMethod::ros34pw2: return "ros34pw2";
+  }
+  return "?";
+}
+
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-enum class Kind { real, integer, boolean, string, law };
+enum class Kind { real, integer, boolean, method, law };
 
 // Bounds of a numeric key: lo <(=) value <(=) hi.
 struct Range {
@@ -141,7 +150,7 @@ const std::vector<KeyDef>& schema() {
 
       CVT_KEY(damping, scale, real, "1", nonneg),
 
-      CVT_KEY(integrator, method, string, "", Range{}),
+      CVT_KEY(integrator, method, method, "", Range{}),
       CVT_KEY(integrator, step, real, "s", positive),
       CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
@@ -495,12 +504,13 @@ class Validator {
         *static_cast<bool*>(d.ref(cfg)) = b->get();
         break;
       }
-      case Kind::string: {
+      case Kind::method: {
         auto s = n.as_string();
         if (!s) type_error("a string");
         const std::string v = s->get();
-        if (qkey == "integrator.method") check_name(qkey, n, v, method_names(), "integrator method");
-        *static_cast<std::string*>(d.ref(cfg)) = v;
+        check_name(qkey, n, v, method_names(), "integrator method");
+        auto& method = *static_cast<IntegratorMethod*>(d.ref(cfg));
+        method = v == "rk4" ? IntegratorMethod::rk4 : v == "ros2" ? IntegratorMethod::ros2 : IntegratorMethod::ros34pw2;
         break;
       }
       case Kind::law: {
@@ -660,7 +670,7 @@ std::string resolved_toml(Config& cfg) {
       case Kind::real: os << format_double(*static_cast<double*>(d.ref(cfg))); break;
       case Kind::integer: os << *static_cast<int*>(d.ref(cfg)); break;
       case Kind::boolean: os << (*static_cast<bool*>(d.ref(cfg)) ? "true" : "false"); break;
-      case Kind::string: os << quote(*static_cast<std::string*>(d.ref(cfg))); break;
+      case Kind::method: os << quote(to_string(*static_cast<IntegratorMethod*>(d.ref(cfg)))); break;
       case Kind::law: os << quote(to_string(*static_cast<FrictionLaw*>(d.ref(cfg)))); break;
     }
     if (*d.unit) os << "  # [" << d.unit << "]";

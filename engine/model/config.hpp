@@ -45,6 +45,9 @@ class ConfigError : public std::runtime_error {
 };
 
 enum class FrictionLaw { nonsmooth, smooth, none };
+// integrator.method (docs/integrators.md): the W-methods ROS34PW2 (advised) and ROS2, and
+// RK4, the reference.
+enum class IntegratorMethod { rk4, ros2, ros34pw2 };
 
 struct Config {
   struct Geometry {
@@ -139,8 +142,7 @@ struct Config {
     double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
   } damping;
   struct Integrator {
-    // "ros34pw2" (advised) | "ros2" | "rk4" (the reference); docs/integrators.md
-    std::string method = "ros34pw2";
+    IntegratorMethod method = IntegratorMethod::ros34pw2;
     double step = 8.333333333333333e-7;  // [s]: 1e-5 / 12, divides run.sample_interval and run.t_end
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
@@ -187,6 +189,7 @@ Config load_config(const std::string& path, const std::vector<std::string>& over
                    const std::map<std::string, std::string>& shortcuts = {});
 
 const char* to_string(FrictionLaw law);
+const char* to_string(IntegratorMethod method);
 
 // The W-methods' start-up phase: the sub-steps per step of h before integrator.startup_time,
 // the fewest whose length h / n is at most integrator.startup_step; 1 without a phase.

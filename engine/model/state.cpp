@@ -13,13 +13,6 @@ Workspace::Workspace(const Model& m) {
   pulley_stick.assign(N * ContactStatus::kPulleyPerJoint, 0);
   rocker_dir.assign(3 * N * m.cfg.rocker.stations, 0.0);
   pulley_dir.assign(3 * N * ContactStatus::kPulleyPerJoint, 0.0);
-  rocker_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
-  pulley_damping.assign(static_cast<std::size_t>(N) * kDampDim * kDampDim, 0.0);
-  pulley_shaft_damping.assign(static_cast<std::size_t>(N) * 2 * kDampDim * kShaftSize, 0.0);
-  const std::size_t nr = static_cast<std::size_t>(N) * m.cfg.rocker.stations, np = static_cast<std::size_t>(N) * ContactStatus::kPulleyPerJoint;
-  rocker_fresh.resize(nr);
-  pulley_fresh.resize(np);
-  pulley_shaft_cols.assign(np * 2 * kShaftSize, 0.0);
   chain_slots.resize(N);
   pulley_slots.resize(N);
   inertia_slots.resize(N);
@@ -31,6 +24,17 @@ Workspace::Workspace(const Model& m) {
   accel = Eigen::VectorXd::Zero(m.ndof);
   accel_free = Eigen::VectorXd::Zero(m.ndof);
   link_tau.assign(N, 0.0);
+}
+
+FrictionJacobian::FrictionJacobian(const Model& m) {
+  const std::size_t N = static_cast<std::size_t>(m.links);
+  rocker_damping.assign(N * kDim * kDim, 0.0);
+  pulley_damping.assign(N * kDim * kDim, 0.0);
+  pulley_shaft_damping.assign(N * 2 * kDim * kShaftSize, 0.0);
+  const std::size_t nr = N * m.cfg.rocker.stations, np = N * ContactStatus::kPulleyPerJoint;
+  rocker_fresh.resize(nr);
+  pulley_fresh.resize(np);
+  pulley_shaft_cols.assign(np * 2 * kShaftSize, 0.0);
 }
 
 }  // namespace cvt

@@ -56,6 +56,30 @@ struct OtherForces {
   double support_force[2][2] = {{0, 0}, {0, 0}};  // [shaft][bearing] magnitude [N]
 };
 
+// The clock of a run: t = t0 + (steps - steps0) h, so that t carries no rounding
+// accumulated over the steps while h stays the same (docs/integrators.md). Simulation owns
+// the run's clock; a driver that takes sub-steps forms their times the same way from a
+// clock of its own that starts at the step.
+struct StepClock {
+  double t = 0, t0 = 0;        // the time now, and the origin
+  long steps = 0, steps0 = 0;  // steps taken, and the origin
+
+  // A clock at (t, steps) with its origin there (a start, a restart from a saved state).
+  static StepClock at(double t, long steps) { return {t, t, steps, steps}; }
+  // The time after step n of size h.
+  double time_after(long n, double h) const { return t0 + static_cast<double>(n - steps0) * h; }
+  // Before a step of size h: a caller that changed h (a run warmed at one step and continued
+  // at another) gets the origin moved to now instead of a time jump; unchanged h: no effect.
+  void keep_origin(double h) {
+    if (std::abs(time_after(steps, h) - t) > 1e-6 * h) t0 = t, steps0 = steps;
+  }
+  // One step of size h taken.
+  void tick(double h) {
+    ++steps;
+    t = time_after(steps, h);
+  }
+};
+
 struct Workspace {
   explicit Workspace(const Model& m);
 
@@ -95,9 +119,18 @@ struct Workspace {
   std::vector<std::uint8_t> rocker_stick, pulley_stick;
   std::vector<double> rocker_dir, pulley_dir;
 
-  // Friction damping blocks for the W-method (docs/integrators.md 12; off in the production
-  // path). With record_damping set, chain_forces adds for each active rocker station of
-  // joint j, and pulley_contact for each active pin end of joint j,
+};
+
+// What an evaluation may be asked to fill besides f: the friction part of the W-method's
+// matrix (docs/integrators.md 12). The W-method owns it and hands it to the evaluation that
+// starts a step (Schedule::rhs's last argument); the kernels chain_forces and pulley_contact
+// then fill, for their own joints only, what `blocks` and `mu` ask for. The production RK4
+// path never passes one.
+struct FrictionJacobian {
+  explicit FrictionJacobian(const Model& m);
+  // What this evaluation is asked for.
+  // blocks: for each active rocker station of joint j (chain_forces) and each active pin end
+  // of joint j (pulley_contact),
   //   K_j += G^T D G,   D = mu (P - t t^T) + mu_t t t^T on the contact's tangent plane,
   // where u = G v is the contact's slip velocity as a function of the four halves that it
   // moves: b_{j-1}, a_j, b_j, a_{j+1} in this order (the two halves of joint j directly, and
@@ -106,32 +139,38 @@ struct Workspace {
   // then link j (b_j, a_{j+1}), so the sum over joints is block-tridiagonal (cyclic) over
   // the links. Row-major 40 x 40 per joint, lower triangle only (the blocks are symmetric);
   // each kernel zeroes and fills only its own joints' blocks.
-  static constexpr int kDampDim = 40;
-  bool record_damping = false;
-  // true: the secant slope N f(v)/v also along the sliding direction (over-damps sliding
+  // mu: fresh friction (ModelOdeOptions::w_fresh, docs/integrators.md 12.4). With the secant
+  // slope a contact's block is mu U U^T, U = G^T [t s] (its slip velocity's columns projected
+  // on the tangent plane), so between two rebuilds a contact whose mu moved adds a rank-2
+  // term to W. The kernels write each contact's mu (0 when inactive or without friction),
+  // and its columns U when it is not yet recorded and |mu - mu_w| > mu_tol; with `blocks`
+  // also, mu_w = mu and the columns of every active contact (the state the factorized W
+  // holds). Indexed like the statuses; columns [idx][2][40] (G^T t, G^T s over the four
+  // halves), for the pulley contacts also the sheave's [idx][2][7] (u's shaft part).
+  bool blocks = false, mu = false;
+  bool requested() const { return blocks || mu; }
+
+  // Options, set once by the W-method.
+  // secant: the secant slope N f(v)/v also along the sliding direction (over-damps sliding
   // contacts in W, but keeps a contact about to stick stiff in W); false: the exact N f'(v).
-  bool damping_secant = false;
-  std::vector<double> rocker_damping, pulley_damping;
+  bool secant = false;
+  double mu_tol = 0;  // [N s/m]: a contact's columns are recorded when its mu moved by more
+
+  // The blocks.
+  static constexpr int kDim = 40;  // the four halves' coordinates
+  std::vector<double> rocker_damping, pulley_damping;  // [joint][40][40]
   // The pulley contacts' cross damping between those 40 half coordinates and the 7
   // coordinates of each shaft (the slip velocity's sheave part), per joint [j][shaft][40][7]
   // row-major: K_ps with the pins' friction force -K_ps v_shaft.
   std::vector<double> pulley_shaft_damping;
 
-  // Fresh friction for the W-method (ModelOdeOptions::w_fresh, docs/integrators.md 12.4). With
-  // the secant slope a contact's block is mu U U^T, U = G^T [t s] (its slip velocity's
-  // columns projected on the tangent plane), so between two rebuilds a contact whose mu
-  // moved adds a rank-2 term to W. With record_mu set (the first evaluation of every
-  // step), the kernels write each contact's mu (0 when inactive or without friction), and
-  // its columns U when it is not yet recorded and |mu - mu_w| > mu_tol; with record_damping
-  // also, mu_w = mu and the columns of every active contact (the state the factorized W
-  // holds). Indexed like the statuses; columns [idx][2][40] (G^T t, G^T s over the four
-  // halves), for the pulley contacts also the sheave's [idx][2][7] (u's shaft part).
+  // The fresh friction record of one kind of contact.
   struct FreshMu {
     std::vector<double> mu, mu_w, cols;
     std::vector<std::uint8_t> cols_set;
-    std::vector<std::uint8_t> in_correction;  // ModelOde's: the contact is in its correction
+    std::vector<std::uint8_t> in_correction;  // the W-method's: the contact is in its correction
     void resize(std::size_t contacts) {
-      mu.assign(contacts, 0.0), mu_w.assign(contacts, 0.0), cols.assign(contacts * 2 * kDampDim, 0.0);
+      mu.assign(contacts, 0.0), mu_w.assign(contacts, 0.0), cols.assign(contacts * 2 * kDim, 0.0);
       cols_set.assign(contacts, 0), in_correction.assign(contacts, 0);
     }
     // A joint's contacts [first, first + count) before its kernel: no mu until found active;
@@ -149,13 +188,11 @@ struct Workspace {
     // Where contact idx's two columns go (and they are then recorded).
     double* columns(int idx) {
       cols_set[idx] = 1;
-      return cols.data() + static_cast<std::size_t>(idx) * 2 * kDampDim;
+      return cols.data() + static_cast<std::size_t>(idx) * 2 * kDim;
     }
   };
-  bool record_mu = false;
-  double mu_tol = 0;
   FreshMu rocker_fresh, pulley_fresh;
-  std::vector<double> pulley_shaft_cols;
+  std::vector<double> pulley_shaft_cols;  // [idx][2][7]
 };
 
 }  // namespace cvt

@@ -162,7 +162,7 @@ void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, 
 }
 
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op,
-                Profiler* prof) {
+                Profiler* prof, FrictionJacobian* jac) {
   if (prof) prof->call_rhs(op != nullptr);
   set_stage_input(m, ws, t, y);
   const int N = m.links;
@@ -172,11 +172,11 @@ void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double
   }
   {
     ScopedTimer tm(prof, 0, Section::chain);
-    chain_forces(m, ws, 0, N);
+    chain_forces(m, ws, 0, N, jac);
   }
   {
     ScopedTimer tm(prof, 0, Section::pulley);
-    pulley_contact(m, ws, 0, N);
+    pulley_contact(m, ws, 0, N, jac);
   }
   {
     ScopedTimer tm(prof, 0, Section::other);

@@ -199,7 +199,7 @@ int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) 
   // configuration's method (the W candidates name theirs); the running state at RK4's
   // production step, 1e-8 s. The cache stays keyed on the configuration as given.
   Config rk4_cfg = model.cfg;
-  rk4_cfg.integrator.method = "rk4";
+  rk4_cfg.integrator.method = IntegratorMethod::rk4;
   rk4_cfg.integrator.step = opt.warm_step;
   const Model m = build_model(rk4_cfg);
   const double h_prod = m.cfg.integrator.step;
@@ -290,8 +290,7 @@ int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) 
         const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
         if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
           ws.friction_branch = Workspace::FrictionBranch::record;
-        ws.record_damping = is_w_method(method) && !opt.ros2_full_jacobian;  // the W-method's matrix
-        ws.damping_secant = opt.w_secant;
+        if (is_w_method(method) && !opt.ros2_full_jacobian) ode.ask_friction_jacobian(0);  // the W-method's matrix
         ode.offset() = start.state;
         Eigen::VectorXd z;
         ode.to_z(start.state, z);
@@ -439,9 +438,9 @@ int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) 
           // serve error norms, which fixed steps do not use).
           if (w_fixed) ro.jac.scaled = false;
           ro.status_interval = opt.status_interval;
-          OdeDriver drv(s, ro);
+          OdeDriver drv(s.model(), s.workspace(), s.schedule(), ro);
           for (size_t k = 1; k < times.size(); ++k) {
-            drv.advance(times[k]);
+            s.advance(drv, times[k]);
             pin_forces(m, s.state(), s.workspace().status, f, touch);
             r.curve.push_back(f[tracked]);
             if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");

@@ -100,7 +100,8 @@ void ModelOde::eval_scaled(double t, const double* z, double* dz) {
 }
 
 ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt)
-    : m_(m), ws_(ws), schedule_(schedule), opt_(opt) {
+    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), fjac_(m) {
+  fjac_.secant = opt.w_secant;
   const int ns = m.nstate, N = m.links, tail0 = m.shaft(0);
   if (opt.band < 1 || 2 * opt.band + 1 > N) throw std::invalid_argument("ModelOdeOptions::band must be in [1, (links - 1) / 2]");
   sys_.size = ns;
@@ -296,7 +297,8 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   // resumed at such a step repeats the bits), and whenever gh changed or none exists yet
   // (a fixed step taken as t1 - t0 varies in its last bits: that is no change of gh); in
   // between, the stale one is kept. The friction blocks come from the evaluation that starts
-  // a rebuilding step: OdeDriver arms Workspace::record_damping for it and eval() disarms it
+  // a rebuilding step: OdeDriver asks for them (ask_friction_jacobian) and eval() hands the request
+  // to that evaluation only
   // (within an integrate() call of several steps only the first is armed; later rebuilds
   // use the blocks last recorded). The stiffness blocks are dearer (finite differences):
   // they are taken at the rebuilding steps whose index is a multiple of w_k_every.
@@ -328,7 +330,7 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   if (!ok) throw std::runtime_error("W-method: the W matrix is singular");
   if (w_fresh_on()) {
     wf_clear();
-    ws_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
+    fjac_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
   }
 }
 
@@ -348,11 +350,11 @@ void ModelOde::wf_clear() {
 }
 
 const double* ModelOde::FreshContact::columns() const {
-  return kind->cols.data() + static_cast<std::size_t>(idx) * 2 * Workspace::kDampDim;
+  return kind->cols.data() + static_cast<std::size_t>(idx) * 2 * FrictionJacobian::kDim;
 }
 
 double ModelOde::wf_dot(const FreshContact& c, int col, const double* z) const {
-  constexpr int kH = 2 * half::kSize, kD = Workspace::kDampDim;
+  constexpr int kH = 2 * half::kSize, kD = FrictionJacobian::kDim;
   const double* u = c.columns() + col * kD;
   const double* zp = z + static_cast<std::size_t>(m_.wrap(c.joint - 1)) * kLinkDim;
   const double* zc = z + static_cast<std::size_t>(c.joint) * kLinkDim;
@@ -362,7 +364,7 @@ double ModelOde::wf_dot(const FreshContact& c, int col, const double* z) const {
 }
 
 void ModelOde::wf_join(const FreshContact& c) {
-  constexpr int kH = 2 * half::kSize, kD = Workspace::kDampDim;
+  constexpr int kH = 2 * half::kSize, kD = FrictionJacobian::kDim;
   const int col = 2 * static_cast<int>(wf_set_.size());
   const int lp = m_.wrap(c.joint - 1), lc = c.joint;
   LinkVector* v = w_rhs_.data();
@@ -391,14 +393,14 @@ void ModelOde::wf_join(const FreshContact& c) {
 }
 
 void ModelOde::wf_update(double gh) {
-  const double tol = ws_.mu_tol;
+  const double tol = fjac_.mu_tol;
   // The contacts not yet in whose mu moved by more than tol, the largest change first (ties
   // by index): a deterministic order, the same on any number of threads.
   // Rocker stations first, then pin ends (rank: the rocker count plus the pin end's index).
   wf_cand_.clear();
-  Workspace::FreshMu* kinds[2] = {&ws_.rocker_fresh, &ws_.pulley_fresh};
+  FrictionJacobian::FreshMu* kinds[2] = {&fjac_.rocker_fresh, &fjac_.pulley_fresh};
   for (int kind = 0, rank0 = 0; kind < 2; rank0 += static_cast<int>(kinds[kind]->mu.size()), ++kind) {
-    const Workspace::FreshMu& f = *kinds[kind];
+    const FrictionJacobian::FreshMu& f = *kinds[kind];
     for (int i = 0; i < static_cast<int>(f.mu.size()); ++i) {
       const double d = std::abs(f.mu[i] - f.mu_w[i]);
       if (d > tol && !f.in_correction[i] && f.cols_set[i]) wf_cand_.push_back({d, rank0 + i, kind, i});
@@ -445,7 +447,7 @@ void ModelOde::wf_correct(double* x) const {
     const FreshContact& c = wf_set_[i / 2];
     double w = 0;
     if (c.shaft >= 0) {
-      const double* v = ws_.pulley_shaft_cols.data() + (static_cast<std::size_t>(c.idx) * 2 + i % 2) * kShaftSize;
+      const double* v = fjac_.pulley_shaft_cols.data() + (static_cast<std::size_t>(c.idx) * 2 + i % 2) * kShaftSize;
       for (int s = 0; s < kShaftSize; ++s) {
         const int r = n + m_.shaft(c.shaft) + s;
         w += v[s] * (opt_.scaled ? x[r] * unit_[r] : x[r]);
@@ -590,11 +592,11 @@ void ModelOde::w_assemble_link(int l, double gh) {
   // links j-1 (rows 0..19) and j (20..39), lower triangle only: link l's diagonal block is
   // the lower-right of joint l's plus the upper-left of joint l+1's; M(l, l-1) is joint l's
   // lower-left, M(l-1, l) its transpose.
-  constexpr int kD = Workspace::kDampDim, kH = 2 * half::kSize;
-  const double* kr = ws_.rocker_damping.data() + static_cast<std::size_t>(l) * kD * kD;
-  const double* kp = ws_.pulley_damping.data() + static_cast<std::size_t>(l) * kD * kD;
-  const double* nr = ws_.rocker_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
-  const double* np = ws_.pulley_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
+  constexpr int kD = FrictionJacobian::kDim, kH = 2 * half::kSize;
+  const double* kr = fjac_.rocker_damping.data() + static_cast<std::size_t>(l) * kD * kD;
+  const double* kp = fjac_.pulley_damping.data() + static_cast<std::size_t>(l) * kD * kD;
+  const double* nr = fjac_.rocker_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
+  const double* np = fjac_.pulley_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kD * kD;
   LinkBlock& D = w_lu_.diag(l);
   LinkBlock& S = w_lu_.sub(l);
   LinkBlock& P = w_lu_.super(l);
@@ -623,8 +625,8 @@ void ModelOde::w_assemble_link(int l, double gh) {
   D.noalias() += m_.cfg.chain.link_inertia * g * g.transpose();
   // The pins' rows of K_ps for this link: rows 20..39 of joint l's blocks, 0..19 of joint l+1's.
   constexpr int kX = 2 * kD * kShaftSize;
-  const double* here = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
-  const double* next = ws_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
+  const double* here = fjac_.pulley_shaft_damping.data() + static_cast<std::size_t>(l) * kX;
+  const double* next = fjac_.pulley_shaft_damping.data() + static_cast<std::size_t>(m_.wrap(l + 1)) * kX;
   auto& X = w_cps_[l];
   for (int k = 0; k < 2; ++k)
     for (int i = 0; i < kH; ++i)
@@ -727,51 +729,53 @@ OdeMethod parse_ode_method(const std::string& name) {
                               "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
 }
 
-OdeDriver::OdeDriver(Simulation& sim, const OdeRunOptions& opt)
-    : sim_(sim), opt_(opt), ode_(sim.model(), sim.workspace(), sim.schedule(), opt.jac),
+OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
+  const Config::Integrator& in = c.integrator;
+  OdeRunOptions ro;
+  ro.method = startup || in.method == IntegratorMethod::ros2 ? OdeMethod::Ros2 : OdeMethod::Ros34pw2;
+  ro.ode.fixed_step = true;
+  ro.ode.h0 = h;
+  ro.jac.scaled = false;
+  ro.jac.w_every = in.w_every;
+  ro.jac.w_k_every = in.w_k_every;
+  ro.jac.w_secant = in.w_secant;
+  ro.jac.w_fresh = in.w_fresh;  // ModelOde leaves it off without the secant
+  ro.jac.w_fresh_max = in.w_fresh_max;
+  return ro;
+}
+
+OdeDriver::OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const OdeRunOptions& opt)
+    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), ode_(m, ws, schedule, opt.jac),
       solver_(ode_.system(), opt.method, opt.ode) {
   solver_.options().keep_jacobian_across_calls = true;
   if (!(opt.ode.h0 > 0)) throw std::invalid_argument("OdeRunOptions: ode.h0 (first or fixed step) must be > 0");
   h_next_ = opt.ode.h0;
 }
 
-void OdeDriver::advance(double t1) {
-  const Model& m = sim_.model();
-  Eigen::VectorXd& y = sim_.mutable_state();
-  Workspace& ws = sim_.workspace();
-  Schedule& sched = sim_.schedule();
-  double t = sim_.time();
+long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step) {
   const std::int64_t steps0 = solver_.stats().steps;
   const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;
-  // Fixed steps: t_k = t_start + k h, as Simulation::step counts them (no drift).
-  const double t_start = t;
+  // Fixed steps: their times from a clock of the driver's own that starts here.
+  const StepClock grid = StepClock::at(t, 0);
   std::int64_t k = 0;
-  const bool freeze = opt_.jac.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth &&
+  const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
                       (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
                        opt_.method == OdeMethod::Esdirk3);
   // The production RK4 path (Simulation::step) shares this workspace: leave the law plain.
   struct Plain {
     Workspace& ws;
-    ~Plain() {
-      ws.friction_branch = Workspace::FrictionBranch::off;
-      ws.record_damping = false;
-      ws.record_mu = false;
-    }
-  } plain{ws};
-  ws.damping_secant = opt_.jac.w_secant;
-  sched.within([&] {
+    ~Plain() { ws.friction_branch = Workspace::FrictionBranch::off; }
+  } plain{ws_};
+  const bool w_blocks = is_w_method(opt_.method) && opt_.jac.w_blocks;
+  schedule_.within([&] {
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
-      double t_end = fixed ? t_start + static_cast<double>(k + 1) * H : t + H;
+      double t_end = fixed ? grid.time_after(k + 1, H) : t + H;
       // No sliver shorter than 1 % of a macro step before t1.
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
-      if (freeze) ws.friction_branch = Workspace::FrictionBranch::record;
-      if (is_w_method(opt_.method) && opt_.jac.w_blocks) {
-        ode_.set_step_index(sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
-        ws.record_damping = ode_.w_due();
-        ws.record_mu = ode_.w_fresh_on();
-      }
+      if (freeze) ws_.friction_branch = Workspace::FrictionBranch::record;
+      if (w_blocks) ode_.ask_friction_jacobian(first_step + static_cast<long>(solver_.stats().steps - steps0));
       if (opt_.jac.scaled) {
         ode_.offset() = y;
         ode_.to_z(y, z_);
@@ -783,15 +787,14 @@ void OdeDriver::advance(double t1) {
       if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
       t = t_end;
       ++k;
-      const bool watch = is_w_method(opt_.method) && opt_.jac.w_blocks && opt_.jac.w_status_rebuild;
-      if (watch) rocker0_ = ws.status.rocker, pulley0_ = ws.status.pulley;
-      sched.update_status(t, y.data());
-      if (watch && (rocker0_ != ws.status.rocker || pulley0_ != ws.status.pulley)) ode_.w_invalidate();
-      y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
+      const bool watch = w_blocks && opt_.jac.w_status_rebuild;
+      if (watch) rocker0_ = ws_.status.rocker, pulley0_ = ws_.status.pulley;
+      update_statuses_after_step(m_, schedule_, ws_, t, y);
+      if (watch && (rocker0_ != ws_.status.rocker || pulley0_ != ws_.status.pulley)) ode_.w_invalidate();
       ++macro_;
     }
   });
-  sim_.set_clock(t, sim_.steps() + static_cast<long>(solver_.stats().steps - steps0));
+  return static_cast<long>(solver_.stats().steps - steps0);
 }
 
 }  // namespace cvt

@@ -12,7 +12,7 @@
 
 #include "engine/ode/block_cyclic.hpp"
 #include "engine/ode/ode.hpp"
-#include "engine/simulation.hpp"
+#include "graph/schedule.hpp"
 
 namespace cvt {
 
@@ -38,15 +38,17 @@ struct ModelOdeOptions {
   // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
   // nonsmooth law at v0 (docs/integrators.md 11).
   bool freeze_friction = true;
-  // W-method (Ros2): rebuild the friction blocks and refactorize at every step whose index
-  // is a multiple of this (a W-method keeps its order with a stale matrix; only the stiff
-  // part must be captured).
-  int w_every = 1;  // (Config's integrator.w_every defaults to 8 for cvt-engine run, w_k_every to 64)
-  // Workspace::damping_secant: true (the secant slope N f(v)/v along the sliding direction
+  // The W-method settings default to the configuration's [integrator] defaults (one source:
+  // Config::Integrator; w_run_options maps a configuration).
+  // W-methods: rebuild the friction blocks and refactorize at every step whose index is a
+  // multiple of this (a W-method keeps its order with a stale matrix; only the stiff part
+  // must be captured).
+  int w_every = Config::Integrator{}.w_every;
+  // FrictionJacobian::secant: true (the secant slope N f(v)/v along the sliding direction
   // too, never below the exact one) keeps a sliding contact that is about to stick stiff in
   // W; with the exact slope (0 above v0 for the nonsmooth law) a stale W meets such a
   // contact explicitly, and its friction chatters (docs/integrators.md 12.2).
-  bool w_secant = true;
+  bool w_secant = Config::Integrator{}.w_secant;
   // false: no friction blocks; ROS2 then takes the full coloured finite-difference Jacobian
   // and a sparse LU at every step (slow: for checking what the blocks leave out).
   bool w_blocks = true;
@@ -54,7 +56,7 @@ struct ModelOdeOptions {
   // 21 evaluations per colour: 63 for 3 colours), taken at every w_k_every-th step's rebuild
   // (the elastic forces change slowly; the friction blocks, every w_every steps).
   bool w_stiffness = true;
-  int w_k_every = 16;
+  int w_k_every = Config::Integrator{}.w_k_every;
   // true: a change of the contact statuses (after a step) makes the next step rebuild the
   // whole matrix. Off: measured worse (8-10 % against 0.8 % over the 5 ms window at 2.5e-7,
   // and 5x further from RK4 in the mini model's load ramp), as the stiffness differences
@@ -74,8 +76,8 @@ struct ModelOdeOptions {
   // joins, and a rank-2 term in every solve after. More than w_fresh_max of them make the
   // next step rebuild the friction blocks. 0: off (the stale blocks of docs/integrators.md 12.3); off too
   // without w_secant.
-  double w_fresh = 0;
-  int w_fresh_max = 12;
+  double w_fresh = Config::Integrator{}.w_fresh;
+  int w_fresh_max = Config::Integrator{}.w_fresh_max;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -115,8 +117,8 @@ class ModelOde {
   void jacobian(double t, const double* y, Eigen::SparseMatrix<double>& jac);
   // The W-method's matrix (OdeSystem::w_factor / w_solve, docs/integrators.md 12):
   // W = I - gh J~ with J~ = [0, I; -A^-1 K, -A^-1 C] on the chain's coordinates, C the
-  // friction damping blocks that the last evaluation recorded (Workspace::record_damping,
-  // which the adapter turns on while a W-method runs), K = -dF/dq the chain's stiffness
+  // friction damping blocks that the last evaluation recorded (FrictionJacobian::blocks,
+  // asked for by ask_friction_jacobian), K = -dF/dq the chain's stiffness
   // (finite differences), A the chain's mass matrix (A0, plus the link inertia); on the
   // shafts' velocities the identity (their increments drag the pins through the pulley
   // friction). Solved as (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, x_q = b_q + gh x_v:
@@ -125,9 +127,17 @@ class ModelOde {
   void w_factor(double t, const double* y, double gh);
   void w_solve(double* x) const;
   void w_solve_untimed(double* x) const;
-  // The index of the next step (OdeDriver sets it from the simulation's step count), and
-  // whether that step rebuilds the matrix, so its first evaluation must record the blocks.
-  void set_step_index(long i) { w_index_ = i; }
+  // The next step is the run's step `index`: its first evaluation also fills the friction
+  // part of W (FrictionJacobian) where the step needs it: the blocks when it rebuilds the
+  // matrix (w_due), each contact's mu for the fresh-friction correction (w_fresh_on).
+  void ask_friction_jacobian(long index) {
+    w_index_ = index;
+    fjac_.blocks = w_due();
+    fjac_.mu = w_fresh_on();
+  }
+  // What the kernels filled at the last request (tests).
+  const FrictionJacobian& friction_jacobian() const { return fjac_; }
+  // Whether the next step rebuilds the matrix.
   bool w_due() const {
     return w_gh_ == 0 || w_invalid_ || wf_force_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0;
   }
@@ -146,13 +156,13 @@ class ModelOde {
   void eval(double t, const double* y, double* dy) {
     Profiler* prof = schedule_.profiler();
     const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
-    schedule_.rhs(t, y, dy, nullptr);
+    // The friction part of W comes from the first evaluation of a step that asks for it
+    // (ask_friction_jacobian); the step's later evaluations compute f alone.
+    schedule_.rhs(t, y, dy, nullptr, fjac_.requested() ? &fjac_ : nullptr);
     if (prof) prof->add_rhs_wall(Profiler::ticks() - t0);
     ++rhs_evals_;
-    // The W-method's blocks come from the first evaluation of a rebuilding step only.
-    ws_.record_damping = false;
-    wf_recorded_ = ws_.record_mu;
-    ws_.record_mu = false;
+    wf_recorded_ = fjac_.mu;
+    fjac_.blocks = fjac_.mu = false;
     if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
   }
   void eval_scaled(double t, const double* z, double* dz);
@@ -169,6 +179,7 @@ class ModelOde {
   Workspace& ws_;
   Schedule& schedule_;
   ModelOdeOptions opt_;
+  FrictionJacobian fjac_;  // the W-method's friction part, filled by the evaluations that ask
   OdeSystem sys_;
   std::int64_t rhs_evals_ = 0, jac_evals_ = 0;
   // Column colours (the pins by the pattern without pin -> tail entries).
@@ -245,7 +256,7 @@ class ModelOde {
   // each), D = gh (mu - mu_w) on both; Z = W^-1 U (chain velocities in link order, physical
   // units), G = U^T Z, the capacitance I + D G factorized once per step.
   struct FreshContact {
-    Workspace::FreshMu* kind;  // ws_.rocker_fresh or ws_.pulley_fresh
+    FrictionJacobian::FreshMu* kind;  // fjac_.rocker_fresh or fjac_.pulley_fresh
     int idx, joint, shaft;     // shaft: the sheave of a pin end, -1 for a rocker station
     const double* columns() const;  // its U, 2 x 40 (a pin end's sheave part: ws_.pulley_shaft_cols)
   };
@@ -279,22 +290,33 @@ struct OdeRunOptions {
   double status_interval = 0;
 };
 
-// Advances a Simulation with any OdeMethod. Each macro step: integrate() from t to
-// t + H with the statuses frozen, where H is the controller's proposed step (status_interval
-// 0) or status_interval; then update the statuses and add the switching work to
-// y[2n + kWorkSwitch] (docs/model.md 4.4), as Simulation::step does.
+// The OdeRunOptions of `cvt-engine run`'s W-methods for steps of size h, from the
+// configuration's [integrator] (the one place that maps it): fixed steps, unscaled, the
+// matrix intervals and the friction settings; startup: ROS2 (its start-up sub-steps).
+OdeRunOptions w_run_options(const Config& c, double h, bool startup);
+
+// Runs any OdeMethod on the model. Each macro step: integrate() from t to t + H with the
+// statuses frozen, where H is the fixed step, the controller's proposed step
+// (status_interval 0) or status_interval; then the statuses for the next step and the
+// switching work (update_statuses_after_step, as after an RK4 step).
 class OdeDriver {
  public:
-  OdeDriver(Simulation& sim, const OdeRunOptions& opt);
-  // Advances the simulation's state and clock to exactly t1.
-  void advance(double t1);
+  // Over the schedule and its workspace (whose statuses are the frozen ones); model,
+  // workspace and schedule must outlive the driver.
+  OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const OdeRunOptions& opt);
+  // Advances the state y from time t to exactly t1; first_step is the run's index of the
+  // first step taken (the W-method's matrix is rebuilt at fixed step indices). Returns the
+  // number of steps taken.
+  long advance(double t, Eigen::VectorXd& y, double t1, long first_step);
   const OdeStats& stats() const { return solver_.stats(); }
   const ModelOde& model_ode() const { return ode_; }
   std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
   std::int64_t macro_steps() const { return macro_; }
 
  private:
-  Simulation& sim_;
+  const Model& m_;
+  Workspace& ws_;
+  Schedule& schedule_;
   OdeRunOptions opt_;
   ModelOde ode_;
   OdeSolver solver_;

@@ -89,7 +89,7 @@ TEST(ConfigTest, ReferenceMatchesModel) {
   EXPECT_DOUBLE_EQ(c.clamping.driving, 25.0e3);
   EXPECT_DOUBLE_EQ(c.clamping.driven, 30.0e3);
   EXPECT_DOUBLE_EQ(c.ramp.time, 2.0e-3);
-  EXPECT_EQ(c.integrator.method, "ros34pw2");
+  EXPECT_EQ(c.integrator.method, IntegratorMethod::ros34pw2);
   EXPECT_DOUBLE_EQ(c.integrator.step, 1.0e-5 / 12);
   EXPECT_DOUBLE_EQ(c.run.t_end, 2.0e-2);
   EXPECT_DOUBLE_EQ(c.run.sample_interval, 1.0e-5);
@@ -111,7 +111,7 @@ TEST(ConfigTest, EveryShippedConfigLoads) {
     SCOPED_TRACE(name);
     Config c;
     ASSERT_NO_THROW(c = load_config(kConfigDir + name));
-    EXPECT_EQ(c.integrator.method, "ros34pw2");
+    EXPECT_EQ(c.integrator.method, IntegratorMethod::ros34pw2);
     EXPECT_DOUBLE_EQ(c.integrator.step, 1e-5 / 12);
     EXPECT_GE(c.run.t_end, 2e-2);
     EXPECT_DOUBLE_EQ(c.run.sample_interval, 1e-5);

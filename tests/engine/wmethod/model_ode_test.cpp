@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "engine/simulation.hpp"
 #include "engine/wmethod/model_ode.hpp"
 #include "engine/rhs/rhs.hpp"
 #include "modules/chain_forces.hpp"
@@ -126,7 +127,7 @@ std::unique_ptr<Simulation> at_running_state(const Running& r) {
   return sim;
 }
 
-// The W-method's friction blocks (Workspace::record_damping, docs/integrators.md 12) are
+// The W-method's friction blocks (FrictionJacobian::blocks, docs/integrators.md 12) are
 // the Hessian of the friction dissipation in the joint's own half velocities: with every
 // damping off and v0 so large that every contact is on the linear branch, the dissipated
 // power is exactly P = sum_c mu_c |P_c G_c v|^2, so for a velocity perturbation d of joint
@@ -135,8 +136,8 @@ std::unique_ptr<Simulation> at_running_state(const Running& r) {
 // the neighbouring halves that turn with a link through one of joint j's halves (exported).
 // The friction damping of the whole chain, assembled from each joint's 40 x 40 blocks
 // (lower triangles, over b_{j-1}, a_j, b_j, a_{j+1}) and mirrored: ndof x ndof.
-Eigen::MatrixXd assembled_damping(const Model& m, const Workspace& ws, int* pulley_joints) {
-  constexpr int kD = Workspace::kDampDim;
+Eigen::MatrixXd assembled_damping(const Model& m, const FrictionJacobian& ws, int* pulley_joints) {
+  constexpr int kD = FrictionJacobian::kDim;
   const int n = m.ndof;
   Eigen::MatrixXd K = Eigen::MatrixXd::Zero(n, n);
   *pulley_joints = 0;
@@ -169,13 +170,13 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
                                        "pin.damping_time=0"});
   Workspace ws(m);
   ws.status = r.status;
-  ws.record_damping = true;
+  FrictionJacobian jac(m);
+  jac.blocks = true;
   Eigen::VectorXd y = r.y, dy(m.nstate);
-  rhs_serial(m, ws, r.t, y.data(), dy.data());
+  rhs_serial(m, ws, r.t, y.data(), dy.data(), nullptr, nullptr, &jac);
   int pulley_joints = 0;
-  const Eigen::MatrixXd K = assembled_damping(m, ws, &pulley_joints);
+  const Eigen::MatrixXd K = assembled_damping(m, jac, &pulley_joints);
   const int n = m.ndof;
-  ws.record_damping = false;
   const double p0 = ws.p_diss;
   std::srand(7);
   double worst = 0, smallest_form = 1e300;
@@ -236,16 +237,18 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   const double gh = 3e-7;
   ModelOdeOptions opt;
   opt.w_every = 1;
+  opt.w_fresh = 0;
   for (bool stiffness : {false, true}) {
     opt.w_stiffness = stiffness;
     ModelOde ode(m, ws, *sched, opt);
-    ws.record_damping = true;
+    ode.ask_friction_jacobian(0);
     ode.system().rhs(r.t, r.y.data(), dy.data());
     int pj = 0;
-    const Eigen::MatrixXd C = assembled_damping(m, ws, &pj).topLeftCorner(tail, tail);
+    const FrictionJacobian& jac = ode.friction_jacobian();
+    const Eigen::MatrixXd C = assembled_damping(m, jac, &pj).topLeftCorner(tail, tail);
     ode.system().w_factor(r.t, r.y.data(), gh);
     // C_ps: the pins' rows against each shaft's 7 velocities, from the recorded joint blocks.
-    constexpr int kD = Workspace::kDampDim;
+    constexpr int kD = FrictionJacobian::kDim;
     Eigen::MatrixXd Cps = Eigen::MatrixXd::Zero(tail, 2 * kShaftSize);
     for (int j = 0; j < m.links; ++j) {
       const int base[4] = {m.half_b(j - 1), m.half_a(j), m.half_b(j), m.half_a(j + 1)};
@@ -253,7 +256,7 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
         for (int i = 0; i < kD; ++i)
           for (int c = 0; c < kShaftSize; ++c)
             Cps(base[i / half::kSize] + i % half::kSize, k * kShaftSize + c) +=
-                ws.pulley_shaft_damping[(static_cast<std::size_t>(j) * 2 + k) * kD * kShaftSize + i * kShaftSize + c];
+                jac.pulley_shaft_damping[(static_cast<std::size_t>(j) * 2 + k) * kD * kShaftSize + i * kShaftSize + c];
     }
     EXPECT_GT(Cps.norm(), 0);
     Eigen::VectorXd b = Eigen::VectorXd::Random(m.nstate), x = b;
@@ -294,22 +297,18 @@ TEST(ModelOde, WFreshCorrectionSolvesTheCurrentFrictionMatrix) {
   for (int kind = 0; kind < 3; ++kind) {
     Workspace ws(m);
     ws.status = r.status;
-    ws.damping_secant = true;  // as OdeDriver sets it (ModelOdeOptions::w_secant)
     auto sched = make_schedule(m, ws, {});
     ModelOdeOptions o = opt;
     o.w_fresh = kind == 1 ? 1e-12 : 0.0;
     o.w_fresh_max = m.links * (m.cfg.rocker.stations + 8);
     ModelOde ode(m, ws, *sched, o);
-    ode.set_step_index(0);
-    ws.record_damping = true;
-    ws.record_mu = ode.w_fresh_on();
+    ode.ask_friction_jacobian(0);
     const Eigen::VectorXd& y0 = kind == 0 ? y1 : r.y;
     ode.system().rhs(r.t, y0.data(), dy.data());
     ode.system().w_factor(r.t, y0.data(), gh);
     if (kind > 0) {
-      ode.set_step_index(1);
-      ASSERT_FALSE(ode.w_due());
-      ws.record_mu = ode.w_fresh_on();
+      ode.ask_friction_jacobian(1);
+      ASSERT_FALSE(ode.friction_jacobian().blocks);
       ode.system().rhs(r.t, y1.data(), dy.data());
       ode.system().w_factor(r.t, y1.data(), gh);
     }
@@ -336,8 +335,8 @@ TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {
   ro.method = OdeMethod::Rk4;
   ro.ode.h0 = h;
   ro.jac.scaled = false;
-  OdeDriver drv(*b, ro);
-  drv.advance(r.t + steps * h);
+  OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
+  b->advance(drv, r.t + steps * h);
   const Eigen::VectorXd& ya = a->state();
   const Eigen::VectorXd& yb = b->state();
   const int pins = kJointSize * m.links;
@@ -368,13 +367,13 @@ TEST(ModelOde, ImplicitStaysCloseToRk4) {
   ro.ode.rtol = ro.ode.atol = 1e-2;
   ro.ode.h0 = 1e-8;
   ro.jac.scaled = true;
-  OdeDriver drv(*b, ro);
+  OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
   double worst_f = 0, range_lo = 1e300, range_hi = -1e300;
   const int pins = kJointSize * m.links;
   for (int k = 1; k <= 10; ++k) {
     const double t = r.t + k * window / 10;
     for (int i = 0; i < 200; ++i) a->step(h);
-    drv.advance(t);
+    b->advance(drv, t);
     for (int j = 0; j < m.links; ++j) {
       const double fa = half_axial_force(m, a->state().data(), a->state().data() + m.ndof, m.half_a(j));
       const double fb = half_axial_force(m, b->state().data(), b->state().data() + m.ndof, m.half_a(j));
@@ -408,9 +407,9 @@ TEST(ModelOde, EnergyBalanceWithImplicitMethod) {
   ro.ode.rtol = ro.ode.atol = 1e-1;
   ro.ode.h0 = 1e-8;
   ro.jac.scaled = true;
-  OdeDriver drv(*b, ro);
+  OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
   const double window = 5e-5;
-  drv.advance(r.t + window);
+  b->advance(drv, r.t + window);
   for (long k = 0; k < std::lround(window / m.cfg.integrator.step); ++k) a->step(m.cfg.integrator.step);
   const Sample sb = b->sample(), sa = a->sample();
   const double win = sb.work_input - s0.work_input, flow = win + std::abs(sb.work_clamping - s0.work_clamping) +
