@@ -209,213 +209,270 @@ void rocker_slip_columns(const LinkKinematics& kin, const RockerEval& r, int lp,
   }
 }
 
-}  // namespace
+// The chain's constants of one call (docs/model.md 4.1-4.3), with what is the same for
+// every joint computed once: the stations' Hermite weights and the plates' offsets.
+struct ChainConstants {
+  using A4 = Eigen::Array4d;
+  double kpl, cpl, crk, brk, ks, cs, kkeep;
+  FrictionLaw law;
+  double f0, v0;
+  int nst, groups;
+  HermiteWeights sh[kMaxStations];  // the stations sit at fixed xi
+  // The plates' offsets in groups of four; the last group padded with the first plate's
+  // offset and valid = 0.
+  A4 zeta4[kMaxPlateGroups], valid4[kMaxPlateGroups];
+  explicit ChainConstants(const Model& m) {
+    const Config& c = m.cfg;
+    kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
+    crk = c.rocker.stiffness, brk = c.rocker.damping * m.damp;
+    ks = c.chain.pack_stiffness, cs = c.chain.pack_damping * m.damp;
+    kkeep = c.rocker.keeper_stiffness;
+    law = c.friction.law;
+    f0 = c.friction.f0, v0 = c.friction.v0;
+    nst = c.rocker.stations;
+    for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
+    const int npl = static_cast<int>(m.plate_zeta.size());
+    groups = (npl + 3) / 4;
+    for (int g = 0; g < groups; ++g)
+      for (int l = 0; l < 4; ++l) {
+        const bool in = 4 * g + l < npl;
+        zeta4[g][l] = m.plate_zeta[in ? 4 * g + l : 0];
+        valid4[g][l] = in ? 1.0 : 0.0;
+      }
+  }
+};
 
-void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
+// What joint j's parts read and write: the halves a_j and b_j, a_{j+1} (the other end of
+// link j's plates), the pack s_j, and the slot's force entries.
+struct JointHalves {
+  const double *qa, *va, *qb, *vb, *qn, *vn;
+  double sq, sv;
+  double *fa, *fb, *fs, *fn;
+  JointHalves(const Model& m, const Workspace& ws, int j, JointSlot& s)
+      : qa(ws.q + m.half_a(j)), va(ws.v + m.half_a(j)), qb(ws.q + m.half_b(j)), vb(ws.v + m.half_b(j)),
+        qn(ws.q + m.half_a(j + 1)), vn(ws.v + m.half_a(j + 1)), sq(ws.q[m.pack(j)]), sv(ws.v[m.pack(j)]),
+        fa(s.f.data() + kJointA), fb(s.f.data() + kJointB), fs(s.f.data() + kJointS), fn(s.f_next_a.data()) {}
+};
+
+// 4.3 the rocker joint j (its active stations; a_j turns with link j-1, b_j with link j):
+// Hertz normal force with damping, friction on the sliding of the faces, and with jac the
+// W-method's friction part.
+void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, FrictionJacobian* jac, int j,
+                     const JointHalves& h, JointSlot& s) {
   const Config& c = m.cfg;
   const LinkKinematics& kin = ws.kin;
-  const double kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
-  const double crk = c.rocker.stiffness, brk = c.rocker.damping * m.damp;
-  const double ks = c.chain.pack_stiffness, cs = c.chain.pack_damping * m.damp;
-  const double kkeep = c.rocker.keeper_stiffness;
-  const FrictionLaw law = c.friction.law;
-  const double f0 = c.friction.f0, v0 = c.friction.v0;
-  const int nst = c.rocker.stations;
-  HermiteWeights sh[kMaxStations];  // the stations sit at fixed xi: weights once per call
-  for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
-  // The plates' offsets in groups of four, once per call; the last group padded with the
-  // first plate's offset and valid = 0.
-  using A4 = Eigen::Array4d;
-  const int npl = static_cast<int>(m.plate_zeta.size()), groups = (npl + 3) / 4;
-  A4 zeta4[kMaxPlateGroups], valid4[kMaxPlateGroups];
-  for (int g = 0; g < groups; ++g)
-    for (int l = 0; l < 4; ++l) {
-      const bool in = 4 * g + l < npl;
-      zeta4[g][l] = m.plate_zeta[in ? 4 * g + l : 0];
-      valid4[g][l] = in ? 1.0 : 0.0;
+  const double crk = k.crk, brk = k.brk;
+  const FrictionLaw law = k.law;
+  const double f0 = k.f0, v0 = k.v0;
+  const int nst = k.nst;
+  const HermiteWeights* sh = k.sh;
+  const double *qa = h.qa, *va = h.va, *qb = h.qb, *vb = h.vb;
+  double *fa = h.fa, *fb = h.fb;
+  const int lp = m.wrap(j - 1), lc = j;
+  constexpr int kD = FrictionJacobian::kDim;
+  double* Kd = jac && jac->blocks ? jac->rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
+  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
+  const bool rec_mu = jac && jac->mu;
+  if (rec_mu) jac->rocker_fresh.clear(j * nst, nst, Kd != nullptr);
+  for (int st = 0; st < nst; ++st) {
+    if (!ws.status.rocker[j * nst + st]) continue;
+    const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
+    const double Nel = hertz_force(crk, r.pen);
+    const double N = Nel + (r.pen > 0 ? brk * r.pen_rate : 0.0);
+    s.p_diss += (N - Nel) * r.pen_rate;
+    // Normal: F_a = N m, F_b = -N m; link torques -N kappa (m . n).
+    s.tau_prev += -N * m.kappa * (r.mx * -kin.ey[lp] + r.my * kin.ex[lp]);
+    s.tau_own += -N * m.kappa * (r.mx * -kin.ey[lc] + r.my * kin.ex[lc]);
+    double Rx = 0, Ry = 0;  // friction on a (lateral part)
+    if (Nel > 0 && law != FrictionLaw::none) {
+      // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
+      const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
+      const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
+      const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
+      const double xi = r.xi;
+      const double vax = r.lvax - kin.psi_dot[lp] * ray;
+      const double vay = r.lvay + kin.psi_dot[lp] * rax;
+      const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
+      const double vbx = r.lvbx - kin.psi_dot[lc] * rby;
+      const double vby = r.lvby + kin.psi_dot[lc] * rbx;
+      const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
+      double wx = vax - vbx, wy = vay - vby;
+      const double wz = vaz - vbz;
+      const double wn = wx * r.mx + wy * r.my;
+      wx -= wn * r.mx;
+      wy -= wn * r.my;
+      const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
+      const int idx = j * nst + st;
+      const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
+      double Rv[3];
+      s.p_diss +=
+          contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
+      Rx = Rv[0], Ry = Rv[1];
+      const double Rz = Rv[2];
+      if (Kd || rec_mu) {
+        const double mu = Nel * friction_over_speed(law, f0, v0, speed);
+        const bool cols = rec_mu && jac->rocker_fresh.note(idx, mu, Kd != nullptr, jac->mu_tol);
+        if (Kd || cols) {
+          double G[kD][3] = {};
+          rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
+          if (Kd)
+            add_friction_damping(Kd, kD, G, nrm, u, speed, mu,
+                                 jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed));
+          if (cols) {
+            double* U = jac->rocker_fresh.columns(idx);
+            friction_columns(kD, G, nrm, u, speed, U, U + kD);
+          }
+        }
+      }
+      fa[half::kZ] += (1 - xi) * Rz;
+      fa[half::kEnd + half::kZ] += xi * Rz;
+      fb[half::kZ] -= (1 - xi) * Rz;
+      fb[half::kEnd + half::kZ] -= xi * Rz;
+      s.tau_prev += rax * Ry - ray * Rx;
+      s.tau_own -= rbx * Ry - rby * Rx;
     }
+    // Normal and friction act at the same station: one Hermite distribution each plane.
+    const double Fx = N * r.mx + Rx, Fy = N * r.my + Ry;
+    add_lateral(fa, r.h, 0, Fx);
+    add_lateral(fa, r.h, 1, Fy);
+    add_lateral(fb, r.h, 0, -Fx);
+    add_lateral(fb, r.h, 1, -Fy);
+  }
+}
+
+// 4.3 the rolling keeper of joint j: s = nbar . (mid(a_j) - mid(b_j)), nbar normal to the
+// bisector of e_{j-1} and e_j; ds/dpsi_{j-1} = ds/dpsi_j = -(1/2) ebar . (mid(a) - mid(b)).
+void keeper(const Model& m, const ChainConstants& k, const LinkKinematics& kin, int j, const JointHalves& h,
+            JointSlot& s) {
+  const double kkeep = k.kkeep;
+  const int lp = m.wrap(j - 1), lc = j;
+  const double *qa = h.qa, *qb = h.qb;
+  double *fa = h.fa, *fb = h.fb;
+  if (kkeep > 0) {
+    double bx = kin.ex[lp] + kin.ex[lc], by = kin.ey[lp] + kin.ey[lc];
+    const double bl = std::sqrt(bx * bx + by * by);
+    bx /= bl;
+    by /= bl;
+    const double dx = mid(qa, 0) - mid(qb, 0), dy = mid(qa, 1) - mid(qb, 1);
+    const double shear = -by * dx + bx * dy;
+    const double along = bx * dx + by * dy;
+    const double F = kkeep * shear;  // -dE/ds = -F
+    for (int e = 0; e < 2; ++e) {
+      fa[e * half::kEnd + half::kX] -= 0.5 * F * -by;
+      fa[e * half::kEnd + half::kY] -= 0.5 * F * bx;
+      fb[e * half::kEnd + half::kX] += 0.5 * F * -by;
+      fb[e * half::kEnd + half::kY] += 0.5 * F * bx;
+    }
+    s.tau_prev -= F * (-0.5 * along);
+    s.tau_own -= F * (-0.5 * along);
+  }
+}
+
+// 4.2 the plates of link j between b_j and a_{j+1}. Each half's lateral centre line is a
+// cubic in xi (Horner, instead of four Hermite weights per plate), and the plate forces are
+// gathered as moments sum f xi^p, mapped back to the half's coordinates once.
+void plates(const Model& m, const ChainConstants& k, const JointHalves& h, JointSlot& s) {
+  using A4 = Eigen::Array4d;
+  const double kpl = k.kpl, cpl = k.cpl;
+  const int groups = k.groups;
+  const A4* zeta4 = k.zeta4;
+  const A4* valid4 = k.valid4;
+  const double *qb = h.qb, *vb = h.vb, *qn = h.qn, *vn = h.vn;
+  const double sq = h.sq, sv = h.sv;
+  double *fb = h.fb, *fn = h.fn, *fs = h.fs;
+  {
+    const double L = m.L0, invL = 1.0 / L;
+    const Cubic bx = cubic_of(qb, 0, L), by = cubic_of(qb, 1, L), bvx = cubic_of(vb, 0, L), bvy = cubic_of(vb, 1, L);
+    const Cubic nx = cubic_of(qn, 0, L), ny = cubic_of(qn, 1, L), nvx = cubic_of(vn, 0, L), nvy = cubic_of(vn, 1, L);
+    const double zmb = 0.5 * (qb[half::kZ] + qb[half::kEnd + half::kZ]);
+    const double zmn = 0.5 * (qn[half::kZ] + qn[half::kEnd + half::kZ]);
+    const double xidb = (sv - 0.5 * (vb[half::kZ] + vb[half::kEnd + half::kZ])) * invL;
+    const double xidn = (sv - 0.5 * (vn[half::kZ] + vn[half::kEnd + half::kZ])) * invL;
+    // Four plates at a time (one AVX2 register per quantity, lanes summed at the end in
+    // a fixed order); a plate beyond the pack's count, or not stretched (d <= rest),
+    // contributes zeros (selected, so that its values, finite or not, never enter).
+    A4 mbx[4], mby[4], mnx[4], mny[4];
+    for (int p = 0; p < 4; ++p) mbx[p] = mby[p] = mnx[p] = mny[p] = A4::Zero();
+    A4 sb = A4::Zero(), sn = A4::Zero(), pd = A4::Zero();
+    for (int g = 0; g < groups; ++g) {
+      const A4& zeta = zeta4[g];
+      const A4& valid = valid4[g];
+      const A4 xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
+      const A4 dx = at4(nx, xn) - at4(bx, xb), dy = at4(ny, xn) - at4(by, xb);
+      const A4 d = (dx * dx + dy * dy).sqrt();
+      const A4 stretch = d - m.plate_rest;
+      const A4 inv = 1.0 / d, ux = dx * inv, uy = dy * inv;
+      const A4 sbx = slope4(bx, xb), sby = slope4(by, xb), snx = slope4(nx, xn), sny = slope4(ny, xn);
+      const A4 rate = ux * ((at4(nvx, xn) + snx * xidn) - (at4(bvx, xb) + sbx * xidb)) +
+                      uy * ((at4(nvy, xn) + sny * xidn) - (at4(bvy, xb) + sby * xidb));
+      const auto on = stretch > 0.0;
+      const A4 T = kpl * stretch + cpl * rate;
+      pd += valid * on.select(cpl * rate * rate, 0.0);
+      // (T ux, T uy) on the b point, the opposite on the n point.
+      const A4 fx = valid * on.select(T * ux, 0.0), fy = valid * on.select(T * uy, 0.0);
+      const A4 xb2 = xb * xb, xn2 = xn * xn, xb3 = xb2 * xb, xn3 = xn2 * xn;
+      mbx[0] += fx, mbx[1] += fx * xb, mbx[2] += fx * xb2, mbx[3] += fx * xb3;
+      mby[0] += fy, mby[1] += fy * xb, mby[2] += fy * xb2, mby[3] += fy * xb3;
+      mnx[0] += fx, mnx[1] += fx * xn, mnx[2] += fx * xn2, mnx[3] += fx * xn3;
+      mny[0] += fy, mny[1] += fy * xn, mny[2] += fy * xn2, mny[3] += fy * xn3;
+      sb += fx * sbx + fy * sby;
+      sn += fx * snx + fy * sny;
+    }
+    double Mbx[4], Mby[4], Mnx[4], Mny[4];
+    for (int p = 0; p < 4; ++p)
+      Mbx[p] = lanes(mbx[p]), Mby[p] = lanes(mby[p]), Mnx[p] = -lanes(mnx[p]), Mny[p] = -lanes(mny[p]);
+    const double Sb = lanes(sb), Sn = -lanes(sn);  // sum of f . dP/dxi at the b and the n points
+    s.p_diss += lanes(pd);
+    add_moments(fb, 0, L, Mbx);
+    add_moments(fb, 1, L, Mby);
+    add_moments(fn, 0, L, Mnx);
+    add_moments(fn, 1, L, Mny);
+    // Through xi the forces also act on s (+1/L0) and on the half's end z (-1/(2 L0) each).
+    *fs += (Sb + Sn) * invL;
+    fb[half::kZ] -= 0.5 * Sb * invL;
+    fb[half::kEnd + half::kZ] -= 0.5 * Sb * invL;
+    fn[half::kZ] -= 0.5 * Sn * invL;
+    fn[half::kEnd + half::kZ] -= 0.5 * Sn * invL;
+  }
+}
+
+// 4.2 the pack of link j: s held to the axial mid-position of each of its two halves, so
+// that no half slides out through its plates.
+void pack(const ChainConstants& k, const JointHalves& h, JointSlot& s) {
+  const double ks = k.ks, cs = k.cs;
+  const double *qb = h.qb, *vb = h.vb, *qn = h.qn, *vn = h.vn;
+  const double sq = h.sq, sv = h.sv;
+  double *fb = h.fb, *fn = h.fn, *fs = h.fs;
+  for (int h = 0; h < 2; ++h) {
+    const double* hq = h == 0 ? qb : qn;
+    const double* hv = h == 0 ? vb : vn;
+    double* hf = h == 0 ? fb : fn;
+    const double rel = sq - 0.5 * (hq[half::kZ] + hq[half::kEnd + half::kZ]);
+    const double rate = sv - 0.5 * (hv[half::kZ] + hv[half::kEnd + half::kZ]);
+    const double Fp = ks * rel + cs * rate;
+    s.p_diss += cs * rate * rate;
+    *fs -= Fp;
+    hf[half::kZ] += 0.5 * Fp;
+    hf[half::kEnd + half::kZ] += 0.5 * Fp;
+  }
+}
+
+}  // namespace
+
+// Joint j: the beams of its two halves (4.1), its rocker stations and keeper (4.3), then
+// the plates and the pack of link j (4.2), in this order into chain_slots[j].
+void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
+  const ChainConstants k(m);
   for (int j = begin; j < end; ++j) {
     JointSlot& s = ws.chain_slots[j];
     s.clear();
-    const double* qa = ws.q + m.half_a(j);
-    const double* va = ws.v + m.half_a(j);
-    const double* qb = ws.q + m.half_b(j);
-    const double* vb = ws.v + m.half_b(j);
-    double* fa = s.f.data() + kJointA;
-    double* fb = s.f.data() + kJointB;
-    double* fs = s.f.data() + kJointS;
-    double* fn = s.f_next_a.data();
-    // 4.1 beams.
-    s.p_diss += beam(m, qa, va, fa);
-    s.p_diss += beam(m, qb, vb, fb);
-
-    // 4.3 rocker joint j: a_j turns with link j-1, b_j with link j.
-    const int lp = m.wrap(j - 1), lc = j;
-    constexpr int kD = FrictionJacobian::kDim;
-    double* Kd = jac && jac->blocks ? jac->rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
-    if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
-    const bool rec_mu = jac && jac->mu;
-    if (rec_mu) jac->rocker_fresh.clear(j * nst, nst, Kd != nullptr);
-    for (int st = 0; st < nst; ++st) {
-      if (!ws.status.rocker[j * nst + st]) continue;
-      const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], sh[st]);
-      const double Nel = hertz_force(crk, r.pen);
-      const double N = Nel + (r.pen > 0 ? brk * r.pen_rate : 0.0);
-      s.p_diss += (N - Nel) * r.pen_rate;
-      // Normal: F_a = N m, F_b = -N m; link torques -N kappa (m . n).
-      s.tau_prev += -N * m.kappa * (r.mx * -kin.ey[lp] + r.my * kin.ex[lp]);
-      s.tau_own += -N * m.kappa * (r.mx * -kin.ey[lc] + r.my * kin.ex[lc]);
-      double Rx = 0, Ry = 0;  // friction on a (lateral part)
-      if (Nel > 0 && law != FrictionLaw::none) {
-        // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
-        const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
-        const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
-        const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
-        const double xi = r.xi;
-        const double vax = r.lvax - kin.psi_dot[lp] * ray;
-        const double vay = r.lvay + kin.psi_dot[lp] * rax;
-        const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
-        const double vbx = r.lvbx - kin.psi_dot[lc] * rby;
-        const double vby = r.lvby + kin.psi_dot[lc] * rbx;
-        const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
-        double wx = vax - vbx, wy = vay - vby;
-        const double wz = vaz - vbz;
-        const double wn = wx * r.mx + wy * r.my;
-        wx -= wn * r.mx;
-        wy -= wn * r.my;
-        const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
-        const int idx = j * nst + st;
-        const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
-        double Rv[3];
-        s.p_diss +=
-            contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
-        Rx = Rv[0], Ry = Rv[1];
-        const double Rz = Rv[2];
-        if (Kd || rec_mu) {
-          const double mu = Nel * friction_over_speed(law, f0, v0, speed);
-          const bool cols = rec_mu && jac->rocker_fresh.note(idx, mu, Kd != nullptr, jac->mu_tol);
-          if (Kd || cols) {
-            double G[kD][3] = {};
-            rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
-            if (Kd)
-              add_friction_damping(Kd, kD, G, nrm, u, speed, mu,
-                                   jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed));
-            if (cols) {
-              double* U = jac->rocker_fresh.columns(idx);
-              friction_columns(kD, G, nrm, u, speed, U, U + kD);
-            }
-          }
-        }
-        fa[half::kZ] += (1 - xi) * Rz;
-        fa[half::kEnd + half::kZ] += xi * Rz;
-        fb[half::kZ] -= (1 - xi) * Rz;
-        fb[half::kEnd + half::kZ] -= xi * Rz;
-        s.tau_prev += rax * Ry - ray * Rx;
-        s.tau_own -= rbx * Ry - rby * Rx;
-      }
-      // Normal and friction act at the same station: one Hermite distribution each plane.
-      const double Fx = N * r.mx + Rx, Fy = N * r.my + Ry;
-      add_lateral(fa, r.h, 0, Fx);
-      add_lateral(fa, r.h, 1, Fy);
-      add_lateral(fb, r.h, 0, -Fx);
-      add_lateral(fb, r.h, 1, -Fy);
-    }
-
-    // 4.3 rolling keeper: s = nbar . (mid(a_j) - mid(b_j)), nbar normal to the bisector of
-    // e_{j-1} and e_j; ds/dpsi_{j-1} = ds/dpsi_j = -(1/2) ebar . (mid(a) - mid(b)).
-    if (kkeep > 0) {
-      double bx = kin.ex[lp] + kin.ex[lc], by = kin.ey[lp] + kin.ey[lc];
-      const double bl = std::sqrt(bx * bx + by * by);
-      bx /= bl;
-      by /= bl;
-      const double dx = mid(qa, 0) - mid(qb, 0), dy = mid(qa, 1) - mid(qb, 1);
-      const double shear = -by * dx + bx * dy;
-      const double along = bx * dx + by * dy;
-      const double F = kkeep * shear;  // -dE/ds = -F
-      for (int e = 0; e < 2; ++e) {
-        fa[e * half::kEnd + half::kX] -= 0.5 * F * -by;
-        fa[e * half::kEnd + half::kY] -= 0.5 * F * bx;
-        fb[e * half::kEnd + half::kX] += 0.5 * F * -by;
-        fb[e * half::kEnd + half::kY] += 0.5 * F * bx;
-      }
-      s.tau_prev -= F * (-0.5 * along);
-      s.tau_own -= F * (-0.5 * along);
-    }
-
-    // 4.2 plates of link j between b_j and a_{j+1}. Each half's lateral centre line is a
-    // cubic in xi (Horner, instead of four Hermite weights per plate), and the plate forces
-    // are gathered as moments sum f xi^p, mapped back to the half's coordinates once.
-    const double* qn = ws.q + m.half_a(j + 1);
-    const double* vn = ws.v + m.half_a(j + 1);
-    const double sq = ws.q[m.pack(j)], sv = ws.v[m.pack(j)];
-    {
-      const double L = m.L0, invL = 1.0 / L;
-      const Cubic bx = cubic_of(qb, 0, L), by = cubic_of(qb, 1, L), bvx = cubic_of(vb, 0, L), bvy = cubic_of(vb, 1, L);
-      const Cubic nx = cubic_of(qn, 0, L), ny = cubic_of(qn, 1, L), nvx = cubic_of(vn, 0, L), nvy = cubic_of(vn, 1, L);
-      const double zmb = 0.5 * (qb[half::kZ] + qb[half::kEnd + half::kZ]);
-      const double zmn = 0.5 * (qn[half::kZ] + qn[half::kEnd + half::kZ]);
-      const double xidb = (sv - 0.5 * (vb[half::kZ] + vb[half::kEnd + half::kZ])) * invL;
-      const double xidn = (sv - 0.5 * (vn[half::kZ] + vn[half::kEnd + half::kZ])) * invL;
-      // Four plates at a time (one AVX2 register per quantity, lanes summed at the end in
-      // a fixed order); a plate beyond the pack's count, or not stretched (d <= rest),
-      // contributes zeros (selected, so that its values, finite or not, never enter).
-      A4 mbx[4], mby[4], mnx[4], mny[4];
-      for (int p = 0; p < 4; ++p) mbx[p] = mby[p] = mnx[p] = mny[p] = A4::Zero();
-      A4 sb = A4::Zero(), sn = A4::Zero(), pd = A4::Zero();
-      for (int g = 0; g < groups; ++g) {
-        const A4& zeta = zeta4[g];
-        const A4& valid = valid4[g];
-        const A4 xb = 0.5 + (sq + zeta - zmb) * invL, xn = 0.5 + (sq + zeta - zmn) * invL;
-        const A4 dx = at4(nx, xn) - at4(bx, xb), dy = at4(ny, xn) - at4(by, xb);
-        const A4 d = (dx * dx + dy * dy).sqrt();
-        const A4 stretch = d - m.plate_rest;
-        const A4 inv = 1.0 / d, ux = dx * inv, uy = dy * inv;
-        const A4 sbx = slope4(bx, xb), sby = slope4(by, xb), snx = slope4(nx, xn), sny = slope4(ny, xn);
-        const A4 rate = ux * ((at4(nvx, xn) + snx * xidn) - (at4(bvx, xb) + sbx * xidb)) +
-                        uy * ((at4(nvy, xn) + sny * xidn) - (at4(bvy, xb) + sby * xidb));
-        const auto on = stretch > 0.0;
-        const A4 T = kpl * stretch + cpl * rate;
-        pd += valid * on.select(cpl * rate * rate, 0.0);
-        // (T ux, T uy) on the b point, the opposite on the n point.
-        const A4 fx = valid * on.select(T * ux, 0.0), fy = valid * on.select(T * uy, 0.0);
-        const A4 xb2 = xb * xb, xn2 = xn * xn, xb3 = xb2 * xb, xn3 = xn2 * xn;
-        mbx[0] += fx, mbx[1] += fx * xb, mbx[2] += fx * xb2, mbx[3] += fx * xb3;
-        mby[0] += fy, mby[1] += fy * xb, mby[2] += fy * xb2, mby[3] += fy * xb3;
-        mnx[0] += fx, mnx[1] += fx * xn, mnx[2] += fx * xn2, mnx[3] += fx * xn3;
-        mny[0] += fy, mny[1] += fy * xn, mny[2] += fy * xn2, mny[3] += fy * xn3;
-        sb += fx * sbx + fy * sby;
-        sn += fx * snx + fy * sny;
-      }
-      double Mbx[4], Mby[4], Mnx[4], Mny[4];
-      for (int p = 0; p < 4; ++p)
-        Mbx[p] = lanes(mbx[p]), Mby[p] = lanes(mby[p]), Mnx[p] = -lanes(mnx[p]), Mny[p] = -lanes(mny[p]);
-      const double Sb = lanes(sb), Sn = -lanes(sn);  // sum of f . dP/dxi at the b and the n points
-      s.p_diss += lanes(pd);
-      add_moments(fb, 0, L, Mbx);
-      add_moments(fb, 1, L, Mby);
-      add_moments(fn, 0, L, Mnx);
-      add_moments(fn, 1, L, Mny);
-      // Through xi the forces also act on s (+1/L0) and on the half's end z (-1/(2 L0) each).
-      *fs += (Sb + Sn) * invL;
-      fb[half::kZ] -= 0.5 * Sb * invL;
-      fb[half::kEnd + half::kZ] -= 0.5 * Sb * invL;
-      fn[half::kZ] -= 0.5 * Sn * invL;
-      fn[half::kEnd + half::kZ] -= 0.5 * Sn * invL;
-    }
-    // 4.2 pack: s held to the axial mid-position of each of its two halves, so that no
-    // half slides out through its plates.
-    for (int h = 0; h < 2; ++h) {
-      const double* hq = h == 0 ? qb : qn;
-      const double* hv = h == 0 ? vb : vn;
-      double* hf = h == 0 ? fb : fn;
-      const double rel = sq - 0.5 * (hq[half::kZ] + hq[half::kEnd + half::kZ]);
-      const double rate = sv - 0.5 * (hv[half::kZ] + hv[half::kEnd + half::kZ]);
-      const double Fp = ks * rel + cs * rate;
-      s.p_diss += cs * rate * rate;
-      *fs -= Fp;
-      hf[half::kZ] += 0.5 * Fp;
-      hf[half::kEnd + half::kZ] += 0.5 * Fp;
-    }
+    const JointHalves h(m, ws, j, s);
+    s.p_diss += beam(m, h.qa, h.va, h.fa);
+    s.p_diss += beam(m, h.qb, h.vb, h.fb);
+    rocker_stations(m, k, ws, jac, j, h, s);
+    keeper(m, k, ws.kin, j, h, s);
+    plates(m, k, h, s);
+    pack(k, h, s);
   }
 }
 

@@ -66,6 +66,60 @@ inline bool near_pulley(const Model& m, const double* hq, int k) {
   return x * x + y * y < rmax * rmax;
 }
 
+// What FrictionJacobian asks of one pin end with friction (docs/integrators.md 12): u as a
+// function of the two halves of the link that this half turns with (the sheave's velocity
+// left out): c_dot, the cap's tilt, and the link spin through this half's mid-point (a_j:
+// +n/(2|Delta|), b_j: -n/(2|Delta|)) and through the link's other half (the opposite sign).
+// Columns: b_{j-1} 0..9, a_j 10..19 (link j-1); b_j 20..29, a_{j+1} 30..39 (link j). Then
+// the sheave's columns (its point's velocity enters u with the sign -). Kd, Xd: the joint's
+// blocks (nullptr unless asked); cols: record the contact's columns.
+struct PinEndSlip {
+  int h, e, k, idx, link;
+  double sigma, R;
+  double o[3], rs[3];  // P - c, and P - O - u (the sheave's lever)
+  bool axial;          // the sheave's axial coordinate moves the contact (g.gw != 0)
+  const double* u;
+  const double* n;
+  double speed;
+};
+
+void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac, double* Kd, double* Xd, bool cols,
+                               const PinEndSlip& p, double mu, double mu_t) {
+  constexpr int kD = FrictionJacobian::kDim;
+  const int h = p.h, e = p.e, k = p.k, idx = p.idx, link = p.link;
+  const double sigma = p.sigma, R = p.R, ox = p.o[0], oy = p.o[1], oz = p.o[2];
+  const double rsx = p.rs[0], rsy = p.rs[1], rsz = p.rs[2];
+  const double* u = p.u;
+  const double* nrm = p.n;
+  const double speed = p.speed;
+  double G[kD][3] = {};
+  double(*Gh)[3] = G + (h == 0 ? 10 : 20);
+  const int b = e * half::kEnd;
+  Gh[b + half::kX][0] += 1;
+  Gh[b + half::kY][1] += 1;
+  Gh[b + half::kZ][2] += 1;
+  Gh[b + half::kSx][0] += -sigma * R + oz, Gh[b + half::kSx][2] += -ox;
+  Gh[b + half::kSy][1] += -sigma * R + oz, Gh[b + half::kSy][2] += -oy;
+  const double cp = (h == 0 ? 0.5 : -0.5) * kin.inv_len[link];
+  const double lnx = -kin.ey[link], lny = kin.ex[link];
+  add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
+  add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
+  if (Kd) add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
+  double Gs[kShaftSize][3] = {};
+  Gs[kUx][0] = -1, Gs[kUy][1] = -1, Gs[kUz][2] = -1;
+  Gs[kTx][1] = rsz, Gs[kTx][2] = -rsy;
+  Gs[kTy][0] = -rsz, Gs[kTy][2] = rsx;
+  Gs[kPhi][0] = rsy, Gs[kPhi][1] = -rsx;
+  if (p.axial) Gs[kW][2] = -1;
+  if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+  if (cols) {
+    double* U = jac.pulley_fresh.columns(idx);
+    double* V = jac.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
+    friction_columns(kD, G, nrm, u, speed, U, U + kD);
+    friction_columns(kShaftSize, Gs, nrm, u, speed, V, V + kShaftSize);
+  }
+}
+
 }  // namespace
 
 void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
@@ -145,39 +199,9 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           const double mu = (Kd || rec_mu) ? Nel * friction_over_speed(law, f0, v0, speed) : 0.0;
           const bool cols = rec_mu && jac->pulley_fresh.note(idx, mu, Kd != nullptr, jac->mu_tol);
           if (Kd || cols) {
-            // FrictionJacobian blocks / mu: u as a function of the two halves of the link that
-            // this half turns with (the sheave's velocity left out): c_dot, the cap's tilt, and
-            // the link spin through this half's mid-point (a_j: +n/(2|Delta|), b_j:
-            // -n/(2|Delta|)) and through the link's other half (the opposite sign). Columns:
-            // b_{j-1} 0..9, a_j 10..19 (link j-1); b_j 20..29, a_{j+1} 30..39 (link j).
-            double G[FrictionJacobian::kDim][3] = {};
-            double(*Gh)[3] = G + (h == 0 ? 10 : 20);
-            const int b = e * half::kEnd;
-            Gh[b + half::kX][0] += 1;
-            Gh[b + half::kY][1] += 1;
-            Gh[b + half::kZ][2] += 1;
-            Gh[b + half::kSx][0] += -sigma * R + oz, Gh[b + half::kSx][2] += -ox;
-            Gh[b + half::kSy][1] += -sigma * R + oz, Gh[b + half::kSy][2] += -oy;
-            const double cp = (h == 0 ? 0.5 : -0.5) * ws.kin.inv_len[link];
-            const double lnx = -ws.kin.ey[link], lny = ws.kin.ex[link];
-            add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
-            add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
+            const PinEndSlip p{h, e, k, idx, link, sigma, R, {ox, oy, oz}, {rsx, rsy, rsz}, g.gw != 0, u, nrm, speed};
             const double mu_t = jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed);
-            if (Kd) add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
-            // The sheave point's velocity enters u with the sign -.
-            double Gs[kShaftSize][3] = {};
-            Gs[kUx][0] = -1, Gs[kUy][1] = -1, Gs[kUz][2] = -1;
-            Gs[kTx][1] = rsz, Gs[kTx][2] = -rsy;
-            Gs[kTy][0] = -rsz, Gs[kTy][2] = rsx;
-            Gs[kPhi][0] = rsy, Gs[kPhi][1] = -rsx;
-            if (g.gw != 0) Gs[kW][2] = -1;
-            if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
-            if (cols) {
-              double* U = jac->pulley_fresh.columns(idx);
-              double* V = jac->pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
-              friction_columns(kD, G, nrm, u, speed, U, U + kD);
-              friction_columns(kShaftSize, Gs, nrm, u, speed, V, V + kShaftSize);
-            }
+            pin_end_friction_jacobian(ws.kin, *jac, Kd, Xd, cols, p, mu, mu_t);
           }
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).
