@@ -1,8 +1,9 @@
-// The simulation driver (MuJoCo's mj_step loop): RK4 steps, contact statuses after each
-// step, channels sampled every sample_interval, snapshots, HDF5 output, end-of-run summary.
+// The simulation (MuJoCo's mj_step): the model's state, its clock and the step of the
+// configured method (RK4, or a W-method through an OdeDriver), the contact statuses after
+// each step, the channels of a state (Sample), snapshots, the blow-up guard and
+// checkpoints. engine/run.hpp runs it to t_end with the output.
 #pragma once
 
-#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -12,7 +13,6 @@
 #include "graph/schedule.hpp"
 #include "engine/model/model.hpp"
 #include "engine/model/state.hpp"
-#include "engine/summary.hpp"
 #include "engine/rhs/profile.hpp"
 
 namespace cvt {
@@ -131,68 +131,5 @@ class Simulation {
 
 // Names coordinate i of the first-order state (e.g. "velocity of joint 17, half b, end 1, x").
 std::string describe_state_index(const Model& m, int i);
-
-// The energy turned over so far, sum of |W_in|, |W_out|, |W_diss|, |W_clamp| and
-// |W_switch|: what the balance's residual is measured against (docs/output.md).
-double energy_turnover(const Sample& s);
-
-// The energy guard of a run: warns (once) when the balance's residual passes `limit` of the
-// energy turned over, judged once the turnover reaches `turnover_min` [J] (before that the
-// residual of the start from rest dominates a small sum). Returns the warning, or "".
-struct EnergyGuard {
-  double limit = 0.05;
-  double turnover_min = 10.0;
-  bool warned = false;
-  std::string check(const Sample& s);
-};
-
-// The RK4 guard: the warning for a step h above the stability limit 2.8 / rho (rho the
-// Jacobian's spectral radius at time t), or "" when h is within it.
-std::string rk4_stability_warning(double h, double rho, double t);
-
-struct RunOptions {
-  std::string out_path = "results.h5";
-  bool progress = true;
-  ScheduleOptions schedule;
-  // A checkpoint every this many steps (0: only at the end and on SIGINT/SIGTERM), to
-  // checkpoint_path (default: out_path + ".ckpt"). The output file is flushed first, so
-  // that it holds every sample up to the checkpoint.
-  long checkpoint_every = 50000;
-  double flush_seconds = 10.0;  // wall time between flushes of the output file
-  std::string checkpoint_path;
-  // Continue from this checkpoint (its model: build it from resume->config_toml).
-  const Checkpoint* resume = nullptr;
-  // With resume: append to out_path, the run's own file (its samples after the checkpoint
-  // dropped), so that it equals an uninterrupted run; otherwise out_path is a new file that
-  // holds the continuation only.
-  bool append = false;
-  // The end-of-run profile as JSON to this file as well (empty: not written).
-  std::string profile_json;
-  // The summary as JSON to this file as well (empty: not written).
-  std::string summary_json;
-  // Warnings as they happen (default: "cvt-engine: warning: ..." on stderr); they are also
-  // kept in the summary and the file's /summary.
-  std::function<void(const std::string&)> warn;
-};
-
-// What run_simulation returns: the summary and the profile.
-struct RunResult : RunSummary {
-  Profiler::Report profile;  // the end-of-run table (also in /profile of the file)
-};
-
-// A configuration whose step does not divide run.t_end, run.sample_interval or
-// run.snapshot_interval: ConfigError naming both keys (exit 78).
-void check_step_grid(const Config& c);
-
-// The output cannot be written (a folder that does not exist, no permission): exit 73.
-class OutputError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
-// Throws OutputError unless a file can be created at path (its folder exists and is writable).
-void check_writable(const std::string& path, const std::string& what);
-
-// Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.
-RunResult run_simulation(const Model& m, const RunOptions& opt);
 
 }  // namespace cvt

@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "engine/io/json.hpp"
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 
 namespace cvt {

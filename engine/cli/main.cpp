@@ -19,6 +19,7 @@
 #include "engine/studies/modes.hpp"
 #include "engine/studies/scale.hpp"
 #include "engine/studies/integrators.hpp"
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "graph/schedule.hpp"
 #include "numa/arenas.hpp"

@@ -12,6 +12,7 @@
 #include "engine/io/checkpoint.hpp"
 #include "engine/wmethod/model_ode.hpp"
 #include "engine/rhs/rhs.hpp"
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "modules/chain_forces.hpp"
 

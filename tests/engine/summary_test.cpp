@@ -8,6 +8,7 @@
 #include <cmath>
 #include <functional>
 
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
 

@@ -11,6 +11,7 @@
 
 #include "engine/io/checkpoint.hpp"
 #include "engine/io/h5_writer.hpp"
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
 

@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
 

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "engine/wmethod/model_ode.hpp"
 #include "engine/rhs/rhs.hpp"

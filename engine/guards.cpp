@@ -1,0 +1,104 @@
+#include "engine/guards.hpp"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+
+namespace cvt {
+
+namespace {
+
+// The shortest decimal that reads back as x ("3e-07", not "2.9999999999999999e-07").
+std::string shortest(double x) {
+  char b[64];
+  for (int p = 1; p <= 17; ++p) {
+    std::snprintf(b, sizeof b, "%.*g", p, x);
+    if (std::strtod(b, nullptr) == x) break;
+  }
+  return b;
+}
+
+// Whether h divides x to within a millionth of a step.
+bool divides(double h, double x) {
+  const double k = std::round(x / h);
+  return k >= 1 && std::abs(k * h - x) <= 1e-6 * h;
+}
+
+}  // namespace
+
+void check_step_grid(const Config& c) {
+  const double h = c.integrator.step;
+  const std::vector<std::pair<const char*, double>> keys = {{"run.sample_interval", c.run.sample_interval},
+                                                            {"run.snapshot_interval", c.run.snapshot_interval},
+                                                            {"run.t_end", c.run.t_end}};
+  const auto all_divide = [&](double step) {
+    for (const auto& [key, x] : keys)
+      if (x > 0 && !divides(step, x)) return false;
+    return true;
+  };
+  for (const auto& [key, x] : keys) {
+    if (!(x > 0) || divides(h, x)) continue;
+    // The largest step below h that divides all three: x / n for the smallest n that fits.
+    const double base = std::min(c.run.sample_interval > 0 ? c.run.sample_interval : c.run.t_end, c.run.t_end);
+    double fit = 0;
+    for (double n = std::ceil(base / h * (1 - 1e-12)); n < 1e6 && fit == 0; ++n)
+      if (all_divide(base / n)) fit = base / n;
+    char steps[32];
+    std::snprintf(steps, sizeof steps, "%.4g", x / h);
+    std::string reason = "does not divide " + std::string(key) + " = " + shortest(x) + " s (" + steps +
+                         " steps): samples would not fall on multiples of the step and the run would not end at "
+                         "run.t_end; choose a step that divides run.t_end, run.sample_interval and "
+                         "run.snapshot_interval";
+    if (fit > 0) reason += ", e.g. --step " + shortest(fit);
+    else reason += ", with run.t_end a multiple of run.sample_interval";
+    throw ConfigError("integrator.step", shortest(h), reason);
+  }
+}
+
+double energy_turnover(const Sample& s) {
+  return std::abs(s.work_input) + std::abs(s.work_output) + std::abs(s.work_dissipated) + std::abs(s.work_clamping) +
+         std::abs(s.work_contact_switching);
+}
+
+std::string EnergyGuard::check(const Sample& s) {
+  const double turnover = energy_turnover(s);
+  if (warned || !(turnover >= turnover_min)) return "";
+  if (std::abs(s.energy_residual) <= limit * turnover && std::isfinite(s.energy_residual)) return "";
+  warned = true;
+  char b[512];
+  std::snprintf(b, sizeof b,
+                "at t = %.6g s the energy balance's residual is %.4g J, %.1f %% of the energy turned over (%.4g J; "
+                "limit %.0f %%): the integration is not accurate, reduce integrator.step",
+                s.t, s.energy_residual, 100 * std::abs(s.energy_residual) / turnover, turnover, 100 * limit);
+  return b;
+}
+
+std::string rk4_stability_warning(double h, double rho, double t) {
+  const double h_stable = rho > 0 && std::isfinite(rho) ? 2.8 / rho : 0;
+  if (!(h_stable > 0) || h <= h_stable) return "";
+  char b[512];
+  std::snprintf(b, sizeof b,
+                "RK4's step %.4g s is above its stability limit of about %.3g s, estimated at t = %.6g s (the "
+                "Jacobian's spectral radius %.3g 1/s): the results are not to be trusted; use --step %.2g or less, "
+                "or --method ros34pw2",
+                h, h_stable, t, rho, 0.5 * h_stable);
+  return b;
+}
+
+void check_writable(const std::string& path, const std::string& what) {
+  namespace fs = std::filesystem;
+  const fs::path p(path);
+  const fs::path dir = p.has_parent_path() ? p.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    throw OutputError("cannot write the " + what + " '" + path + "': the folder '" + dir.string() +
+                      "' does not exist (create it first, or choose another path)");
+  if (fs::is_directory(p, ec)) throw OutputError("cannot write the " + what + " '" + path + "': it is a folder");
+  if (access(dir.c_str(), W_OK) != 0)
+    throw OutputError("cannot write the " + what + " '" + path + "': no permission to write in '" + dir.string() + "'");
+}
+
+}  // namespace cvt

@@ -1,0 +1,45 @@
+// The guards of a run against silent garbage (docs/cli.md, docs/output.md): a step that
+// does not fit the sample grid, an output that cannot be written, the energy balance, and
+// RK4's step against its stability limit.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+
+#include "engine/model/config.hpp"
+#include "engine/simulation.hpp"
+
+namespace cvt {
+
+// The energy turned over so far, sum of |W_in|, |W_out|, |W_diss|, |W_clamp| and
+// |W_switch|: what the balance's residual is measured against (docs/output.md).
+double energy_turnover(const Sample& s);
+
+// The energy guard of a run: warns (once) when the balance's residual passes `limit` of the
+// energy turned over, judged once the turnover reaches `turnover_min` [J] (before that the
+// residual of the start from rest dominates a small sum). Returns the warning, or "".
+struct EnergyGuard {
+  double limit = 0.05;
+  double turnover_min = 10.0;
+  bool warned = false;
+  std::string check(const Sample& s);
+};
+
+// The RK4 guard: the warning for a step h above the stability limit 2.8 / rho (rho the
+// Jacobian's spectral radius at time t), or "" when h is within it.
+std::string rk4_stability_warning(double h, double rho, double t);
+
+// A configuration whose step does not divide run.t_end, run.sample_interval or
+// run.snapshot_interval: ConfigError naming both keys (exit 78).
+void check_step_grid(const Config& c);
+
+// The output cannot be written (a folder that does not exist, no permission): exit 73.
+class OutputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+// Throws OutputError unless a file can be created at path (its folder exists and is writable).
+void check_writable(const std::string& path, const std::string& what);
+
+
+}  // namespace cvt

@@ -1,0 +1,173 @@
+#include "engine/output.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <random>
+
+namespace cvt {
+
+void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
+  f.set_string_attribute("/parameters", "version", CVT_VERSION);
+  f.set_string_attribute("/parameters", "config", m.cfg.resolved_toml);
+  f.set_string_attribute("/parameters", "run_id", run_id);
+  f.set_string_attribute("/parameters", "geometry",
+                         "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
+                             std::to_string(m.pulley[1].running_radius) +
+                             " m, closure residual = " + std::to_string(m.closure_residual) + " m");
+}
+
+void write_profile(H5File& f, const Profiler::Report& r) {
+  std::vector<std::string> names;
+  std::vector<double> calls, wall, us, pct, bmin, bavg, bmax, imb;
+  for (const auto& row : r.rows) {
+    names.push_back(row.name);
+    calls.push_back(static_cast<double>(row.calls));
+    wall.push_back(row.wall_s), us.push_back(row.us_per_step), pct.push_back(row.percent);
+    bmin.push_back(row.busy_min_s), bavg.push_back(row.busy_avg_s), bmax.push_back(row.busy_max_s);
+    imb.push_back(row.imbalance_percent);
+  }
+  f.set_strings_attribute("/profile", "rows", names);  // the rows' names, in the order of the columns
+  f.write_vector("/profile/calls", calls);
+  f.write_vector("/profile/wall_s", wall);
+  f.write_vector("/profile/us_per_step", us);
+  f.write_vector("/profile/percent", pct);
+  f.write_vector("/profile/busy_min_s", bmin);
+  f.write_vector("/profile/busy_avg_s", bavg);
+  f.write_vector("/profile/busy_max_s", bmax);
+  f.write_vector("/profile/imbalance_percent", imb);
+  f.set_int_attribute("/profile", "steps", r.steps);
+  f.set_double_attribute("/profile", "us_per_step", r.us_per_step);
+  f.set_double_attribute("/profile", "model_s_per_hour", r.model_s_per_hour);
+  f.set_int_attribute("/profile", "threads", r.threads);
+  f.set_int_attribute("/profile", "numa_nodes", r.numa_nodes);
+  f.set_double_attribute("/profile", "wall_s", r.wall_s);
+  f.set_string_attribute("/profile", "scheduler", r.scheduler);
+}
+
+std::string new_run_id() {
+  std::random_device rd;
+  const std::uint64_t x = (static_cast<std::uint64_t>(rd()) << 32) ^ rd() ^
+                          static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+  char b[20];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(x));
+  return b;
+}
+
+// Strings that h5py reads as str, flags and counts as integers, the rest as doubles.
+void write_summary(H5File& f, const RunSummary& s) {
+  f.remove("/summary");
+  f.set_strings_attribute("/summary", "reasons", s.reasons);
+  f.set_strings_attribute("/summary", "warnings", s.warnings);
+  f.set_string_attribute("/summary", "status", s.status);
+  f.set_string_attribute("/summary", "method", s.method);
+  f.set_string_attribute("/summary", "controller", s.controller);
+  f.set_int_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? 1 : 0);
+  f.set_int_attribute("/summary", "interrupted", s.interrupted ? 1 : 0);
+  f.set_int_attribute("/summary", "steps", s.steps);
+  for (auto [name, v] : std::initializer_list<std::pair<const char*, double>>{
+           {"step", s.step},
+           {"drive_speed", s.drive_speed},
+           {"load_torque_nominal", s.load_torque_nominal},
+           {"clamping_force_driving_nominal", s.clamp_driving_nominal},
+           {"clamping_force_driven_nominal", s.clamp_driven_nominal},
+           {"ratio_target", s.ratio_target},
+           {"window_start", s.window_start},
+           {"window_end", s.window_end},
+           {"speed_ratio", s.speed_ratio},
+           {"geometric_ratio", s.geometric_ratio},
+           {"slip", s.slip},
+           {"input_speed", s.input_speed},
+           {"output_speed", s.output_speed},
+           {"input_torque", s.input_torque},
+           {"output_torque", s.output_torque},
+           {"load_torque", s.load_torque},
+           {"clamping_force_driving", s.clamp_driving},
+           {"clamping_force_driven", s.clamp_driven},
+           {"sheave_position_driving", s.sheave_driving},
+           {"sheave_position_driven", s.sheave_driven},
+           {"efficiency", s.efficiency},
+           {"loss_efficiency", s.loss_efficiency},
+           {"energy_residual", s.energy_residual},
+           {"energy_turnover", s.energy_turnover},
+           {"residual_fraction", s.residual_fraction},
+           {"model_time", s.model_time},
+           {"wall_s", s.wall_s}})
+    f.set_double_attribute("/summary", name, v);
+}
+
+FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long every_sample, long every_snapshot) {
+  const Config& c = m.cfg;
+  const double h = c.integrator.step;
+  std::string path = f.path();  // the run's file, moved to FILE.partial while it is continued
+  if (path.size() > 8 && path.compare(path.size() - 8, 8, ".partial") == 0) path.resize(path.size() - 8);
+  const auto refuse = [&](const std::string& why) {
+    throw std::runtime_error("cannot continue " + path + " from the checkpoint: " + why +
+                             "; give --out NEW to write the continuation to a new file");
+  };
+  std::string id;
+  try {
+    id = f.read_string_attribute("/parameters", "run_id");
+  } catch (const H5Error&) {
+    refuse("the file has no run id (it was not written by this run)");
+  }
+  if (id != ck.run_id) refuse("it belongs to another run (run id " + id + ", the checkpoint's " + ck.run_id + ")");
+  const auto on_grid = [&](double t, long every) {
+    const double k = std::round(t / h);
+    return std::abs(k * h - t) <= 1e-6 * h && static_cast<long>(k) % every == 0;
+  };
+  const auto kept = [&](const std::vector<double>& t, long every) {
+    hsize_t n = 0;
+    while (n < t.size() && t[n] <= ck.t + 1e-6 * h) ++n;
+    if (n > 0 && !on_grid(t[n - 1], every) && n > 1) --n;  // an off-grid last sample (an interrupt, t_end)
+    return n;
+  };
+  FileHistory hist;
+  const std::vector<double> t = f.read_doubles("/observables/input_speed/time");
+  hist.samples = kept(t, every_sample);
+  const long last_grid = (ck.steps / every_sample) * every_sample;
+  if (hist.samples == 0 || std::abs(t[hist.samples - 1] - static_cast<double>(last_grid) * h) > 1e-6 * h) {
+    char b[256];
+    std::snprintf(b, sizeof b, "its samples end at t = %.9g s, before the checkpoint's last sample at t = %.9g s",
+                  hist.samples ? t[hist.samples - 1] : 0.0, static_cast<double>(last_grid) * h);
+    refuse(b);
+  }
+  if (every_snapshot && f.exists("/particles/chain/position/time"))
+    hist.snapshots = kept(f.read_doubles("/particles/chain/position/time"), every_snapshot);
+  const auto read = [&](const char* name) {
+    std::vector<double> v = f.read_doubles(std::string("/observables/") + name + "/value");
+    if (v.size() < hist.samples) refuse(std::string("its channel ") + name + " is shorter than its time");
+    return v;
+  };
+  SummaryChannels& ch = hist.channels;
+  const std::size_t n = hist.samples;
+  ch.t.assign(t.begin(), t.begin() + static_cast<long>(n));
+  for (auto [name, to] : std::initializer_list<std::pair<const char*, std::vector<double>*>>{
+           {"input_speed", &ch.input_speed},
+           {"output_speed", &ch.output_speed},
+           {"input_torque", &ch.input_torque},
+           {"output_torque", &ch.output_torque},
+           {"load_torque", &ch.load_torque},
+           {"speed_ratio", &ch.speed_ratio},
+           {"geometric_ratio", &ch.geometric_ratio},
+           {"clamping_force_driving", &ch.clamp_driving},
+           {"clamping_force_driven", &ch.clamp_driven},
+           {"work_input", &ch.work_input},
+           {"work_output", &ch.work_output},
+           {"work_dissipated", &ch.work_dissipated}}) {
+    const std::vector<double> v = read(name);
+    to->assign(v.begin(), v.begin() + static_cast<long>(n));
+  }
+  const std::vector<double> sheave = read("sheave_position");
+  for (std::size_t i = 0; i < n; ++i) ch.sheave_driving.push_back(sheave[2 * i]), ch.sheave_driven.push_back(sheave[2 * i + 1]);
+  for (std::size_t i = 0; i < n; ++i)
+    if (ch.t[i] >= ck.t - c.run.efficiency_window - 1e-6 * h) {
+      Sample s;
+      s.t = ch.t[i], s.work_input = ch.work_input[i], s.work_output = ch.work_output[i];
+      hist.tail.push_back(s);
+    }
+  return hist;
+}
+
+}  // namespace cvt

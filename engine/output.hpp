@@ -1,0 +1,156 @@
+// The results file of a run (docs/output.md): the channels under /observables, the chain's
+// snapshots under /particles, /parameters, /profile and /summary, and what a continued
+// run reads back from its own file. engine/run.cpp writes it through these.
+#pragma once
+
+#include <set>
+#include <string>
+#include <vector>
+
+#include "engine/io/checkpoint.hpp"
+#include "engine/io/h5_writer.hpp"
+#include "engine/rhs/profile.hpp"
+#include "engine/simulation.hpp"
+#include "engine/summary.hpp"
+
+namespace cvt {
+
+// The HDF5 layout of docs/output.md.
+class Recorder {
+ public:
+  Recorder(H5File& f, const Model& m) : f_(f), N_(m.links) {}
+
+  void scalar(const std::string& name, const std::string& unit, double t, double value) {
+    H5Series& v = series(name, unit, {});
+    H5Series& tt = time(name);
+    if (declare_only_) return;
+    v.append(value);
+    tt.append(t);
+  }
+  void vector(const std::string& name, const std::string& unit, double t, const double* v, hsize_t k) {
+    H5Series& s = series(name, unit, {k});
+    H5Series& tt = time(name);
+    if (declare_only_) return;
+    s.append(v);
+    tt.append(t);
+  }
+  // Creates (or opens, in a continued file) every series and its unit without appending:
+  // in SWMR mode no object may be created later.
+  void declare(const Sample& s, bool snapshots) {
+    declare_only_ = true;
+    record(s);
+    if (snapshots) snapshot(s.t, {}, {});
+    declare_only_ = false;
+  }
+  // Keeps the first `samples` rows of every observable and `snaps` of every snapshot series.
+  void truncate(hsize_t samples, hsize_t snaps) {
+    for (H5Series* x : observables_) x->truncate(samples);
+    for (H5Series* x : snapshots_) x->truncate(snaps);
+  }
+  void record(const Sample& s) {
+    scalar("input_speed", "rad/s", s.t, s.input_speed);
+    scalar("output_speed", "rad/s", s.t, s.output_speed);
+    scalar("load_speed", "rad/s", s.t, s.load_speed);
+    scalar("input_torque", "N m", s.t, s.input_torque);
+    scalar("output_torque", "N m", s.t, s.output_torque);
+    scalar("load_torque", "N m", s.t, s.load_torque);
+    scalar("speed_ratio", "1", s.t, s.speed_ratio);
+    scalar("geometric_ratio", "1", s.t, s.geometric_ratio);
+    scalar("slip", "1", s.t,  // 0 while undefined: no pin touches a sheave yet (geometric ratio 0)
+           s.speed_ratio != 0 && s.geometric_ratio > 0 ? 1.0 - s.geometric_ratio / s.speed_ratio : 0.0);
+    scalar("efficiency", "1", s.t, s.efficiency);
+    scalar("clamping_force_driving", "N", s.t, s.clamp[0]);
+    scalar("clamping_force_driven", "N", s.t, s.clamp[1]);
+    vector("sheave_position", "m", s.t, s.sheave_position, 2);
+    vector("support_force", "N", s.t, s.support_force, 4);
+    vector("pin_axial_force", "N", s.t, s.pin_axial_force, 2);
+    vector("pin_end_normal_force", "N", s.t, s.pin_end_normal, 4);
+    vector("pin_end_friction_force", "N", s.t, s.pin_end_friction, 4);
+    scalar("link_tension", "N", s.t, s.link_tension);
+    vector("plate_tension", "N", s.t, s.plate_tension.data(), static_cast<int>(s.plate_tension.size()));
+    scalar("rocker_force", "N", s.t, s.rocker_force);
+    scalar("chain_torsion_angle", "rad", s.t, s.chain_torsion_angle);
+    scalar("input_angle", "rad", s.t, s.input_angle);
+    scalar("output_angle", "rad", s.t, s.output_angle);
+    scalar("load_angle", "rad", s.t, s.load_angle);
+    scalar("power_input", "W", s.t, s.power_input);
+    scalar("power_output", "W", s.t, s.power_output);
+    scalar("power_dissipated", "W", s.t, s.power_dissipated);
+    scalar("running_efficiency", "1", s.t, s.running_efficiency);
+    scalar("energy_kinetic", "J", s.t, s.energy_kinetic);
+    scalar("energy_elastic", "J", s.t, s.energy_elastic);
+    scalar("work_input", "J", s.t, s.work_input);
+    scalar("work_output", "J", s.t, s.work_output);
+    scalar("work_dissipated", "J", s.t, s.work_dissipated);
+    scalar("work_clamping", "J", s.t, s.work_clamping);
+    scalar("work_contact_switching", "J", s.t, s.work_contact_switching);
+    scalar("energy_residual", "J", s.t, s.energy_residual);
+  }
+  void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension) {
+    auto& p = f_.series("/particles/chain/position/value", {hsize_t(N_), 3}, 16);
+    auto& pt = f_.series("/particles/chain/position/time", {}, 256);
+    auto& l = f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16);
+    auto& lt = f_.series("/particles/chain/link_tension/time", {}, 256);
+    if (!snap_init_) {
+      f_.set_string_attribute("/particles/chain/position/value", "unit", "m");
+      f_.set_string_attribute("/particles/chain/link_tension/value", "unit", "N");
+      snapshots_ = {&p, &pt, &l, &lt};
+      snap_init_ = true;
+    }
+    if (declare_only_) return;
+    p.append(pos.data());
+    pt.append(t);
+    l.append(tension.data());
+    lt.append(t);
+  }
+
+ private:
+  H5Series& series(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
+    const std::string path = "/observables/" + name + "/value";
+    H5Series& s = f_.series(path, shape);
+    if (!units_done_.count(name)) {
+      f_.set_string_attribute(path, "unit", unit);
+      units_done_.insert(name);
+      observables_.push_back(&s);
+    }
+    return s;
+  }
+  H5Series& time(const std::string& name) {
+    const std::string path = "/observables/" + name + "/time";
+    H5Series& s = f_.series(path, {});
+    if (!units_done_.count(name + "/time")) {
+      f_.set_string_attribute(path, "unit", "s");
+      units_done_.insert(name + "/time");
+      observables_.push_back(&s);
+    }
+    return s;
+  }
+  H5File& f_;
+  int N_;
+  bool snap_init_ = false, declare_only_ = false;
+  std::set<std::string> units_done_;
+  std::vector<H5Series*> observables_, snapshots_;
+};
+
+// /parameters: the version, the resolved configuration, the run id and the geometry.
+void write_parameters(H5File& f, const Model& m, const std::string& run_id);
+// The /profile group: one entry per row of the table.
+void write_profile(H5File& f, const Profiler::Report& r);
+// The /summary group: every entry an attribute.
+void write_summary(H5File& f, const RunSummary& s);
+// A new random run id (16 hex digits).
+std::string new_run_id();
+
+// The earlier part of a continued run, read back from its file: the rows up to the
+// checkpoint on the sample grid, for the summary and the running efficiency's window.
+struct FileHistory {
+  hsize_t samples = 0, snapshots = 0;
+  SummaryChannels channels;
+  std::vector<Sample> tail;  // the rows within run.efficiency_window of the checkpoint (t and works)
+};
+
+// Opens the run's own file for a continuation, checks that it belongs to the checkpoint and
+// holds every sample up to it, and reads the history. Throws std::runtime_error otherwise.
+FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long every_sample, long every_snapshot);
+
+}  // namespace cvt

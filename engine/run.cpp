@@ -1,0 +1,361 @@
+#include "engine/run.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <csignal>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+
+#include "engine/base/timing.hpp"
+#include "engine/output.hpp"
+
+namespace cvt {
+
+namespace {
+
+long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
+
+// SIGINT / SIGTERM during a run: the step in progress finishes, the state at that moment
+// is sampled, and the file is closed and kept (docs/cli.md, exit code 130).
+volatile std::sig_atomic_t g_stop_signal = 0;
+extern "C" void on_stop_signal(int sig) { g_stop_signal = sig; }
+
+// Installs the handlers for the lifetime of a run and restores the previous ones.
+struct StopSignals {
+  struct sigaction old_int {}, old_term {};
+  StopSignals() {
+    g_stop_signal = 0;
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, &old_int);
+    sigaction(SIGTERM, &sa, &old_term);
+  }
+  ~StopSignals() {
+    sigaction(SIGINT, &old_int, nullptr);
+    sigaction(SIGTERM, &old_term, nullptr);
+  }
+};
+
+// The checks before anything is built: the step grid (exit 78) and every output writable
+// (exit 73).
+const Model& checked(const Model& m, const RunOptions& opt, const std::string& ckpt_path) {
+  check_step_grid(m.cfg);
+  check_writable(opt.out_path, "output file");
+  check_writable(ckpt_path, "checkpoint");
+  for (const std::string* p : {&opt.profile_json, &opt.summary_json})
+    if (!p->empty()) check_writable(*p, "JSON file");
+  return m;
+}
+
+void write_text(const std::string& path, const std::string& text) {
+  std::ofstream js(path);
+  js << text;
+  js.close();
+  if (!js) throw OutputError("cannot write '" + path + "'");
+}
+
+// One run, in the order it happens: the checks and the simulation at its start
+// (constructor), the output file opened and its series declared (open_output), the steps
+// with their samples, snapshots, checkpoints, stops and progress (steps), and the end:
+// the last checkpoint, the summary and the profile into the file, which gets its final
+// name (finish).
+class Run {
+ public:
+  Run(const Model& m, const RunOptions& opt);
+  void open_output();
+  void steps();
+  RunResult finish();
+
+ private:
+  void warn(const std::string& w);
+  // Times f as the profile's output row (sampling, snapshots, flushes, checkpoints).
+  template <class F>
+  void output(F&& f) {
+    const std::uint64_t k0 = Profiler::ticks();
+    f();
+    prof_.add_output(Profiler::ticks() - k0);
+  }
+  void record();
+  void watch(const Sample& s);
+  void snapshot();
+  Checkpoint checkpoint() const;
+  void progress(long n, WallClock::time_point now);
+
+  const Model& m_;
+  const Config& c_;
+  const RunOptions& opt_;
+  const double h_;
+  const long total_, every_sample_, every_snapshot_;
+  const bool append_;
+  const std::string ckpt_path_, tmp_;
+  Simulation sim_;
+  Profiler& prof_;
+  long start_ = 0, rebuild_every_ = 1, checkpoint_every_ = 0, done_ = 0;
+  std::string run_id_;
+  std::optional<H5File> file_;  // opened by open_output
+  std::unique_ptr<Recorder> rec_;
+  FileHistory hist_;
+  std::vector<Sample> samples_;  // the running efficiency's window (reaching back into the file)
+  SummaryChannels channels_;
+  std::vector<double> pos_, ten_;
+  RunResult r_;
+  EnergyGuard energy_;
+  bool warned_stability_ = false;
+  double next_stability_check_ = 0;
+  const bool tty_ = isatty(fileno(stderr));
+  WallClock::time_point t0_ = WallClock::now(), last_progress_ = t0_, last_flush_ = t0_;
+  double step_wall_ = 0;
+};
+
+// The checks, the simulation at its start or at the checkpoint, and the checkpoint interval: a W-method's matrix is not in a checkpoint, so a
+// continuation repeats the bits only from a step that rebuilds all of it, a multiple of
+// integrator.w_k_every; periodic checkpoints and stops on a signal fall on such steps.
+Run::Run(const Model& m, const RunOptions& opt)
+    : m_(m), c_(m.cfg), opt_(opt), h_(c_.integrator.step), total_(std::max(1L, std::lround(c_.run.t_end / h_))),
+      every_sample_(steps_for(c_.run.sample_interval, h_)), every_snapshot_(steps_for(c_.run.snapshot_interval, h_)),
+      append_(opt.append && opt.resume),
+      ckpt_path_(opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path),
+      tmp_(opt.out_path + ".partial"), sim_(checked(m, opt, ckpt_path_), opt.schedule),
+      prof_(sim_.enable_profiling()) {
+  if (opt.resume) {
+    sim_.restore(*opt.resume);
+    // A checkpoint of a run at another step (RK4 warmed at 1e-8, continued with ROS2 at
+    // 2e-7): the run counts steps of the new h, so its step count is t / h.
+    const double t = sim_.time();
+    if (std::abs(static_cast<double>(sim_.steps()) * h_ - t) > 1e-6 * h_) {
+      const long k = std::lround(t / h_);
+      if (std::abs(static_cast<double>(k) * h_ - t) > 1e-6 * h_)
+        throw std::runtime_error("the checkpoint's time t = " + std::to_string(t) +
+                                 " s is not a multiple of the step h = " + std::to_string(h_) +
+                                 " s: choose a step that divides it");
+      sim_.set_clock(t, k);
+    }
+  }
+  start_ = done_ = sim_.steps();
+  if (start_ >= total_)
+    throw std::runtime_error("the checkpoint is at step " + std::to_string(start_) + " (t = " +
+                             std::to_string(sim_.time()) + " s), not before t_end = " + std::to_string(c_.run.t_end) +
+                             " s: raise --t-end");
+  rebuild_every_ = c_.integrator.method == IntegratorMethod::rk4 ? 1 : std::max(1, c_.integrator.w_k_every);
+  checkpoint_every_ = opt.checkpoint_every > 0
+                          ? (opt.checkpoint_every + rebuild_every_ - 1) / rebuild_every_ * rebuild_every_
+                          : 0;
+  run_id_ = opt.resume && append_ ? opt.resume->run_id : new_run_id();
+  // RK4's step against its stability limit: first when the loads have ramped up (at rest,
+  // while the contacts form, the linearization overstates the limit: RK4 at 1e-8 runs the
+  // mini model, whose estimate at t = 0 is 6.4e-9), then every millisecond.
+  next_stability_check_ = std::max(sim_.time(), c_.ramp.time);
+}
+
+void Run::warn(const std::string& w) {
+  r_.warnings.push_back(w);
+  if (opt_.warn) opt_.warn(w);
+  else std::fprintf(stderr, "cvt-engine: warning: %s\n", w.c_str());
+}
+
+// The file is written under a temporary name and renamed at the end: a failed run never
+// leaves a file that looks complete; a continued run moves its own file there while it
+// writes, and drops its rows after the checkpoint. Every series is created here, after
+// which the file is only appended to and readers can follow the run (SWMR).
+void Run::open_output() {
+  file_.emplace([&] {
+    if (!append_) return H5File::create(tmp_);
+    namespace fs = std::filesystem;
+    if (!fs::exists(opt_.out_path) && !fs::exists(tmp_))
+      throw std::runtime_error("cannot continue " + opt_.out_path +
+                               ": the file does not exist; give --out NEW to write the continuation to a new file");
+    if (fs::exists(opt_.out_path)) fs::rename(opt_.out_path, tmp_);
+    return H5File::open(tmp_);
+  }());
+  if (append_) {
+    try {
+      hist_ = continue_file(*file_, m_, *opt_.resume, every_sample_, every_snapshot_);
+    } catch (...) {
+      file_->close();
+      std::filesystem::rename(tmp_, opt_.out_path);
+      throw;
+    }
+    file_->remove("/profile");
+    file_->remove("/summary");
+  }
+  write_parameters(*file_, m_, run_id_);
+  rec_ = std::make_unique<Recorder>(*file_, m_);
+  std::printf("  schedule: %s\n", sim_.schedule().describe().c_str());
+  if (opt_.resume)
+    std::printf("  resumed at t = %.9g s, step %ld%s\n", sim_.time(), start_,
+                append_ ? (", appending to " + opt_.out_path).c_str() : "");
+  std::fflush(stdout);
+  samples_ = hist_.tail;
+  channels_ = hist_.channels;
+  if (opt_.resume && start_ % rebuild_every_ != 0)
+    warn("the checkpoint is at step " + std::to_string(start_) + ", not a multiple of integrator.w_k_every = " +
+         std::to_string(rebuild_every_) + ": " + to_string(c_.integrator.method) +
+         "'s matrix is rebuilt here, so the continuation is close to, not bit-identical with, an uninterrupted run");
+  t0_ = last_progress_ = last_flush_ = WallClock::now();
+  sim_.check_finite();
+  if (append_) {
+    // The file holds this state's sample if it is on the grid: declare the series (none may
+    // be created once SWMR starts) and drop the rows after the checkpoint.
+    rec_->declare(sim_.sample(), every_snapshot_ > 0);
+    rec_->truncate(hist_.samples, hist_.snapshots);
+  } else {
+    record();
+    if (every_snapshot_) {
+      sim_.snapshot(pos_, ten_);
+      rec_->snapshot(sim_.time(), pos_, ten_);
+    }
+  }
+  file_->start_swmr();
+}
+
+// The sample of the current state, with the running-mean efficiency (work out over work
+// in across the last run.efficiency_window, or since the first sample while the run is
+// shorter), into the file, the summary's channels and the guards.
+void Run::record() {
+  output([&] {
+    samples_.push_back(sim_.sample());
+    Sample& s = samples_.back();
+    const double t_from = s.t - c_.run.efficiency_window;
+    const auto it = std::lower_bound(samples_.begin(), samples_.end(), t_from,
+                                     [](const Sample& x, double t) { return x.t < t; });
+    const double win = s.work_input - it->work_input;
+    s.running_efficiency = win > 0 ? (s.work_output - it->work_output) / win : 0.0;
+    rec_->record(s);
+    channels_.push(s);
+    watch(s);
+    // Only the running efficiency's window is needed later.
+    if (samples_.size() > 4096 && samples_.front().t < t_from - c_.run.efficiency_window)
+      samples_.erase(samples_.begin(), samples_.begin() + 2048);
+  });
+}
+
+// The guards at a sample: the energy balance, and RK4's step against its stability limit.
+void Run::watch(const Sample& s) {
+  if (std::string w = energy_.check(s); !w.empty()) warn(w);
+  if (c_.integrator.method == IntegratorMethod::rk4 && !warned_stability_ && s.t >= next_stability_check_) {
+    next_stability_check_ = s.t + 1e-3;
+    const double rho = sim_.spectral_radius(sim_.state(), sim_.time(), sim_.workspace().status);
+    if (std::string w = rk4_stability_warning(h_, rho, s.t); !w.empty()) warn(w), warned_stability_ = true;
+  }
+}
+
+void Run::snapshot() {
+  output([&] {
+    sim_.snapshot(pos_, ten_);
+    rec_->snapshot(sim_.time(), pos_, ten_);
+  });
+}
+
+Checkpoint Run::checkpoint() const {
+  Checkpoint ck = sim_.checkpoint();
+  ck.run_id = run_id_;
+  ck.output = std::filesystem::absolute(opt_.out_path).string();
+  return ck;
+}
+
+void Run::progress(long n, WallClock::time_point now) {
+  if (!opt_.progress || now - last_progress_ <= std::chrono::seconds(3)) return;
+  const double el = std::chrono::duration<double>(now - t0_).count();
+  const double eta = el / static_cast<double>(n - start_) * static_cast<double>(total_ - n);
+  std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s", tty_ ? "\r" : "", n,
+               total_, sim_.time(), 100.0 * static_cast<double>(n) / static_cast<double>(total_),
+               (sim_.time() - (opt_.resume ? opt_.resume->t : 0.0)) / el * 3600, eta, tty_ ? "   " : "\n");
+  last_progress_ = now;
+}
+
+// Each step, then its sample and snapshot, then a checkpoint (after a flush: a crash
+// leaves a file that holds every sample up to the checkpoint), then a stop on a signal
+// (at a step a continuation repeats bit for bit), then the periodic flush and progress.
+// A blow-up keeps every good sample: the file is closed under its final name.
+void Run::steps() {
+  StopSignals signals;
+  done_ = total_;
+  try {
+    for (long n = start_ + 1; n <= total_; ++n) {
+      sim_.step(h_);
+      const bool on_grid = n % every_sample_ == 0 || n == total_;
+      if (on_grid) sim_.check_finite(), record();
+      if (every_snapshot_ && n % every_snapshot_ == 0) snapshot();
+      if (checkpoint_every_ > 0 && n % checkpoint_every_ == 0)
+        output([&] {
+          file_->flush();
+          last_flush_ = WallClock::now();
+          write_checkpoint(ckpt_path_, checkpoint());
+        });
+      if (g_stop_signal && (n % rebuild_every_ == 0 || n == total_)) {
+        done_ = n;  // its sample ends the series
+        if (!on_grid) sim_.check_finite(), record();
+        break;
+      }
+      if (on_grid) {
+        const auto now = WallClock::now();
+        if (std::chrono::duration<double>(now - last_flush_).count() > opt_.flush_seconds) {
+          output([&] { file_->flush(); });
+          last_flush_ = now;
+        }
+        progress(n, now);
+      }
+    }
+  } catch (const BlowUpError& e) {
+    if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+    file_->close();
+    std::filesystem::rename(tmp_, opt_.out_path);
+    throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt_.out_path);
+  }
+  step_wall_ = seconds_since(t0_);
+  if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+}
+
+// The last checkpoint, the summary and the profile. SWMR allows no new objects: the
+// profile and the summary go into the file after it is closed, and it gets its name last.
+RunResult Run::finish() {
+  output([&] {
+    write_checkpoint(ckpt_path_, checkpoint());
+    file_->close();
+  });
+  const double t_start = opt_.resume ? opt_.resume->t : 0.0;
+  r_.profile = prof_.report(seconds_since(t0_), sim_.time() - t_start, sim_.schedule().numa_nodes(),
+                            scheduler_name(opt_.schedule.kind));
+  const long steps = done_ - start_;
+  r_.steps = steps;
+  r_.interrupted = g_stop_signal != 0;
+  r_.signal = g_stop_signal;
+  r_.t_start = t_start;
+  r_.model_time = sim_.time();
+  r_.wall_s = step_wall_;
+  r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
+  r_.model_s_per_hour = static_cast<double>(steps) * h_ / step_wall_ * 3600.0;
+  summarize(m_, channels_, r_);
+  const Sample& last = samples_.back();
+  r_.energy_residual = last.energy_residual;
+  r_.work_input = last.work_input;
+  r_.energy_turnover = energy_turnover(last);
+  r_.residual_fraction = r_.energy_turnover > 0 ? std::abs(r_.energy_residual) / r_.energy_turnover : 0.0;
+  {
+    H5File f = H5File::open(tmp_);
+    write_profile(f, r_.profile);
+    write_summary(f, r_);
+    f.close();
+  }
+  if (!opt_.profile_json.empty()) write_text(opt_.profile_json, profile_json(r_.profile));
+  if (!opt_.summary_json.empty()) write_text(opt_.summary_json, summary_json(r_));
+  std::filesystem::rename(tmp_, opt_.out_path);
+  return r_;
+}
+
+}  // namespace
+
+RunResult run_simulation(const Model& m, const RunOptions& opt) {
+  Run run(m, opt);
+  run.open_output();
+  run.steps();
+  return run.finish();
+}
+
+}  // namespace cvt

@@ -1,0 +1,51 @@
+// A run (cvt-engine run): the simulation from its initial state or a checkpoint to
+// run.t_end, with the output file (engine/output.hpp), checkpoints, the guards
+// (engine/guards.hpp), progress on stderr and the end-of-run summary.
+#pragma once
+
+#include <functional>
+#include <string>
+
+#include "engine/guards.hpp"
+#include "engine/io/checkpoint.hpp"
+#include "engine/rhs/profile.hpp"
+#include "engine/simulation.hpp"
+#include "engine/summary.hpp"
+#include "graph/schedule.hpp"
+
+namespace cvt {
+
+struct RunOptions {
+  std::string out_path = "results.h5";
+  bool progress = true;
+  ScheduleOptions schedule;
+  // A checkpoint every this many steps (0: only at the end and on SIGINT/SIGTERM), to
+  // checkpoint_path (default: out_path + ".ckpt"). The output file is flushed first, so
+  // that it holds every sample up to the checkpoint.
+  long checkpoint_every = 50000;
+  double flush_seconds = 10.0;  // wall time between flushes of the output file
+  std::string checkpoint_path;
+  // Continue from this checkpoint (its model: build it from resume->config_toml).
+  const Checkpoint* resume = nullptr;
+  // With resume: append to out_path, the run's own file (its samples after the checkpoint
+  // dropped), so that it equals an uninterrupted run; otherwise out_path is a new file that
+  // holds the continuation only.
+  bool append = false;
+  // The end-of-run profile as JSON to this file as well (empty: not written).
+  std::string profile_json;
+  // The summary as JSON to this file as well (empty: not written).
+  std::string summary_json;
+  // Warnings as they happen (default: "cvt-engine: warning: ..." on stderr); they are also
+  // kept in the summary and the file's /summary.
+  std::function<void(const std::string&)> warn;
+};
+
+// What run_simulation returns: the summary and the profile.
+struct RunResult : RunSummary {
+  Profiler::Report profile;  // the end-of-run table (also in /profile of the file)
+};
+
+// Runs the model from its initial state to cfg.run.t_end and writes the HDF5 file.
+RunResult run_simulation(const Model& m, const RunOptions& opt);
+
+}  // namespace cvt
