@@ -37,6 +37,7 @@ NewtonMatrix::NewtonMatrix(const OdeSystem& sys) : sys_(sys), sparse_(sys.is_spa
   const int n = sys.size;
   if (!sparse_) {
     j_dense_.setZero(n, n), m_dense_.setZero(n, n);
+    lu_dense_ = Eigen::PartialPivLU<Eigen::MatrixXd>(n);  // its storage too: no allocation in a step
     return;
   }
   j_sparse_ = sys.sparsity;

@@ -184,6 +184,16 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     const int k = 2 * opt.w_fresh_max;
     wf_z_.setZero(static_cast<Eigen::Index>(N) * kLinkDim, k);
     wf_g_.setZero(k, k);
+    // Everything a step's correction uses, sized here: nothing is allocated inside a step.
+    // The capacitance matrix and its LU for each number of contacts in the correction.
+    for (Eigen::VectorXd* v : {&wf_d_, &wf_p_, &wf_t_, &wf_s_, &wf_b_}) v->setZero(k);
+    for (int i = 1; i <= opt.w_fresh_max; ++i) {
+      wf_cap_m_.emplace_back(Eigen::MatrixXd::Zero(2 * i, 2 * i));
+      wf_cap_.emplace_back(2 * i);
+    }
+    wf_set_.reserve(opt.w_fresh_max);
+    wf_cand_.reserve(fjac_.rocker_fresh.mu.size() + fjac_.pulley_fresh.mu.size());
+    wf_corr_.setZero(static_cast<Eigen::Index>(N) * kLinkDim);
   }
   if (opt.w_blocks) {
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
@@ -423,14 +433,14 @@ void ModelOde::wf_update(double gh) {
   }
   const int k = 2 * static_cast<int>(wf_set_.size());
   if (k == 0) return;
-  wf_d_.resize(k);
   for (int i = 0; i < k; i += 2) {
     const FreshContact& c = wf_set_[i / 2];
     wf_d_[i] = wf_d_[i + 1] = gh * (c.kind->mu[c.idx] - c.kind->mu_w[c.idx]);
   }
-  Eigen::MatrixXd cap = wf_d_.asDiagonal() * wf_g_.topLeftCorner(k, k);
+  Eigen::MatrixXd& cap = wf_cap_m_[k / 2 - 1];
+  cap.noalias() = wf_d_.head(k).asDiagonal() * wf_g_.topLeftCorner(k, k);
   cap.diagonal().array() += 1.0;
-  wf_cap_.compute(cap);
+  wf_cap_[k / 2 - 1].compute(cap);
 }
 
 void ModelOde::wf_correct(double* x) const {
@@ -440,9 +450,8 @@ void ModelOde::wf_correct(double* x) const {
   const int n = m_.ndof;
   const double gh = w_gh_;
   const double* y0 = w_rhs_[0].data();  // W^-1 r, physical, link order
-  Eigen::VectorXd& p = wf_p_;
-  p.resize(k);
-  wf_t_.resize(k);
+  auto p = wf_p_.head(k);
+  auto t = wf_t_.head(k);
   for (int i = 0; i < k; ++i) {
     const FreshContact& c = wf_set_[i / 2];
     double w = 0;
@@ -454,12 +463,18 @@ void ModelOde::wf_correct(double* x) const {
       }
     }
     p[i] = wf_d_[i] * w;
-    wf_t_[i] = wf_dot(c, i % 2, y0);
+    t[i] = wf_dot(c, i % 2, y0);
   }
-  wf_t_.noalias() -= wf_g_.topLeftCorner(k, k) * p;
-  wf_s_ = p + wf_cap_.solve(wf_d_.cwiseProduct(wf_t_));
+  t.noalias() -= wf_g_.topLeftCorner(k, k) * p;
+  // s = p + (I + D G)^-1 D t, formed in preallocated vectors (the sum in either order is
+  // the same number).
+  auto b = wf_b_.head(k);
+  auto s = wf_s_.head(k);
+  b = wf_d_.head(k).cwiseProduct(t);
+  s = wf_cap_[k / 2 - 1].solve(b);
+  s += p;
   Eigen::VectorXd& corr = wf_corr_;
-  corr.noalias() = wf_z_.leftCols(k) * wf_s_;
+  corr.noalias() = wf_z_.leftCols(k) * s;
   const double* uv = w_unit_v_.data();
   const double* ratio = w_unit_ratio_.data();
   for (int j = 0; j < m_.links * kLinkDim; ++j) {

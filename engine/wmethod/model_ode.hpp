@@ -273,8 +273,10 @@ class ModelOde {
   std::vector<FreshContact> wf_set_;
   Eigen::MatrixXd wf_z_, wf_g_;
   Eigen::VectorXd wf_d_;
-  Eigen::PartialPivLU<Eigen::MatrixXd> wf_cap_;
-  mutable Eigen::VectorXd wf_s_, wf_t_, wf_p_, wf_corr_;  // wf_correct's scratch
+  // The capacitance matrix I + D G and its LU, one of each size 2, 4, .., 2 w_fresh_max.
+  std::vector<Eigen::MatrixXd> wf_cap_m_;
+  std::vector<Eigen::PartialPivLU<Eigen::MatrixXd>> wf_cap_;
+  mutable Eigen::VectorXd wf_s_, wf_t_, wf_p_, wf_b_, wf_corr_;  // wf_correct's scratch
   bool wf_recorded_ = false, wf_force_ = false;
   std::int64_t wf_joined_ = 0, wf_rebuilds_ = 0;
 };

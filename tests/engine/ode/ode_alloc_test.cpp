@@ -1,7 +1,9 @@
 // No heap allocation inside the generic integrators' steps (the house rule: nothing is
-// allocated inside a step). Counts calls of the global operator new while a solver whose
-// workspace is already built integrates. The replacement operators below serve the whole
-// test binary; they only count while `counting` is set.
+// allocated inside a step). Counts the calls of malloc, calloc, realloc and aligned
+// allocation (glibc's, which the C++ operator new and Eigen's aligned allocator both end
+// in) while a solver whose workspace is already built integrates. The replacements below
+// serve the whole test binary (tests/alloc_count.hpp); they only count while `counting`
+// is set.
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -11,23 +13,55 @@
 #include <gtest/gtest.h>
 
 #include "engine/ode/ode.hpp"
+#include "tests/alloc_count.hpp"
 #include "tests/engine/ode/ode_problems.hpp"
 
-namespace {
+namespace cvt::test {
 std::atomic<bool> counting{false};
 std::atomic<long> allocations{0};
+}  // namespace cvt::test
+
+using cvt::test::allocations;
+using cvt::test::counting;
+
+extern "C" {
+void* __libc_malloc(std::size_t);
+void* __libc_calloc(std::size_t, std::size_t);
+void* __libc_realloc(void*, std::size_t);
+void* __libc_memalign(std::size_t, std::size_t);
+
+namespace {
+void count() {
+  if (counting.load(std::memory_order_relaxed)) allocations.fetch_add(1, std::memory_order_relaxed);
+}
 }  // namespace
 
-void* operator new(std::size_t n) {
-  if (counting.load(std::memory_order_relaxed)) allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
+void* malloc(std::size_t n) {
+  count();
+  return __libc_malloc(n);
 }
-void* operator new[](std::size_t n) { return operator new(n); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+void* calloc(std::size_t k, std::size_t n) {
+  count();
+  return __libc_calloc(k, n);
+}
+void* realloc(void* p, std::size_t n) {
+  count();
+  return __libc_realloc(p, n);
+}
+void* aligned_alloc(std::size_t a, std::size_t n) {
+  count();
+  return __libc_memalign(a, n);
+}
+void* memalign(std::size_t a, std::size_t n) {
+  count();
+  return __libc_memalign(a, n);
+}
+int posix_memalign(void** p, std::size_t a, std::size_t n) {
+  count();
+  *p = __libc_memalign(a, n);
+  return *p ? 0 : 12;  // ENOMEM
+}
+}
 
 namespace cvt {
 namespace {
