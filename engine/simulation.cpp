@@ -6,7 +6,7 @@
 #include <cstdlib>
 
 #include "engine/rhs/rhs.hpp"
-#include "engine/wmethod/model_ode.hpp"
+#include "engine/wmethod/driver.hpp"
 #include "modules/beam.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/pulley_contact.hpp"

@@ -10,7 +10,7 @@
 #include <memory>
 
 #include "engine/io/checkpoint.hpp"
-#include "engine/wmethod/model_ode.hpp"
+#include "engine/wmethod/driver.hpp"
 #include "engine/rhs/rhs.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"

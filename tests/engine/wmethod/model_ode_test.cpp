@@ -10,7 +10,7 @@
 
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
-#include "engine/wmethod/model_ode.hpp"
+#include "engine/wmethod/driver.hpp"
 #include "engine/rhs/rhs.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"

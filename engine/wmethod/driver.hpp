@@ -1,0 +1,66 @@
+// OdeDriver: the generic integrators of engine/ode/ run on the model (ModelOde), with the
+// contact statuses frozen within each macro step and updated after it; and the options of
+// `cvt-engine run`'s W-methods from the configuration.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "engine/model/config.hpp"
+#include "engine/wmethod/model_ode.hpp"
+
+namespace cvt {
+
+// How OdeDriver runs a method on the model.
+struct OdeRunOptions {
+  OdeMethod method = OdeMethod::TrBdf2;
+  OdeOptions ode;        // rtol, atol, h0 (fixed step for Rk4), ...
+  ModelOdeOptions jac;
+  // Contact statuses are frozen within each integrate() call and updated after it. 0: one
+  // accepted step per call (the statuses follow every step, like the RK4 driver); > 0: calls
+  // of this length (several steps each).
+  double status_interval = 0;
+};
+
+// The OdeRunOptions of `cvt-engine run`'s W-methods for steps of size h, from the
+// configuration's [integrator] (the one place that maps it): fixed steps, unscaled, the
+// matrix intervals and the friction settings; startup: ROS2 (its start-up sub-steps).
+OdeRunOptions w_run_options(const Config& c, double h, bool startup);
+
+// Runs any OdeMethod on the model. Each macro step: integrate() from t to t + H with the
+// statuses frozen, where H is the fixed step, the controller's proposed step
+// (status_interval 0) or status_interval; then the statuses for the next step and the
+// switching work (update_statuses_after_step, as after an RK4 step).
+class OdeDriver {
+ public:
+  // Over the schedule and its workspace (whose statuses are the frozen ones); model,
+  // workspace and schedule must outlive the driver.
+  OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const OdeRunOptions& opt);
+  // Advances the state y from time t to exactly t1; first_step is the run's index of the
+  // first step taken (the W-method's matrix is rebuilt at fixed step indices). Returns the
+  // number of steps taken.
+  long advance(double t, Eigen::VectorXd& y, double t1, long first_step);
+  const OdeStats& stats() const { return solver_.stats(); }
+  const ModelOde& model_ode() const { return ode_; }
+  std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
+  std::int64_t macro_steps() const { return macro_; }
+
+ private:
+  const Model& m_;
+  Workspace& ws_;
+  Schedule& schedule_;
+  OdeRunOptions opt_;
+  ModelOde ode_;
+  OdeSolver solver_;
+  double h_next_ = 0;
+  std::int64_t macro_ = 0;
+  Eigen::VectorXd z_;
+  std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
+};
+
+// Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws
+// std::invalid_argument otherwise.
+OdeMethod parse_ode_method(const std::string& name);
+
+}  // namespace cvt

@@ -1,0 +1,44 @@
+// What the W-method's matrix code runs on the schedule's threads (engine/wmethod/*.cpp):
+// the block LU's two sweeps, and loops over joint ranges or links.
+#pragma once
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/partitioner.h>
+
+#include "engine/wmethod/model_ode.hpp"
+
+namespace cvt {
+
+// The block LU's two sweeps (CyclicBlockLU): concurrent on the schedule's threads (inside its
+// arena), one after the other without; the same arithmetic, so the same bits, either way.
+struct TwoTasks {
+  bool parallel;
+  template <class F, class G>
+  void operator()(const F& f, const G& g) const {
+    if (parallel)
+      tbb::parallel_invoke(f, g);
+    else
+      f(), g();
+  }
+};
+
+template <class F>
+void ModelOde::for_ranges(const F& f) const {
+  if (schedule_.threads() <= 1) return f(0, m_.links);
+  // Inside the schedule's arena (OdeDriver runs in Schedule::within): its threads share them.
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, m_.links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
+      tbb::static_partitioner());
+}
+
+// Each joint's block is independent of the others: any split over threads gives the same bits.
+template <class F>
+void ModelOde::for_joints(const F& f) const {
+  for_ranges([&](int b, int e) {
+    for (int j = b; j < e; ++j) f(j);
+  });
+}
+
+}  // namespace cvt
