@@ -60,7 +60,7 @@ class FlowGraphSchedule final : public Schedule {
     if (nodes > 1) place_slots();
   }
 
-  void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac) override {
+  void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x) override {
     set_stage_input(m_, ws_, t, y);
     // With one node the graph computes the link kinematics itself, in parallel: done here by
     // the master it would pull the whole state across to one core every stage. With
@@ -72,7 +72,7 @@ class FlowGraphSchedule final : public Schedule {
     }
     dy_ = dy;
     op_ = op;
-    jac_ = jac;
+    extras_ = x;
     if (prof_) prof_->call_rhs(op != nullptr);
     const int nodes = arenas_->nodes();
     if (nodes == 1) {
@@ -343,10 +343,10 @@ class FlowGraphSchedule final : public Schedule {
       source = kin;
     }
     auto* chain = module(0, [this, n] {
-      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e, jac_); });
+      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e, extras_); });
     });
     auto* pulley = module(1, [this, n] {
-      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e, jac_); }, coarse(n));
+      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e, extras_); }, coarse(n));
     });
     auto* inertia = module(2, [this, n] {
       pins(n, kInertia, Section::inertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n));
@@ -386,7 +386,7 @@ class FlowGraphSchedule final : public Schedule {
   std::vector<Part> parts_;
   double* dy_ = nullptr;
   const StageOp* op_ = nullptr;
-  FrictionJacobian* jac_ = nullptr;  // what the evaluation in progress is asked to fill besides f
+  FrictionExtras extras_;  // what the evaluation in progress is asked for besides f
   bool empty_ = false, tracing_ = false;
   bool inside_ = false;  // the master is in arena 0 (within())
   std::vector<NodeSpan> spans_;

@@ -26,7 +26,7 @@ class PaperOmpSchedule final : public Schedule {
         cbuf_(threads, std::vector<double>(size_)), pbuf_(threads, std::vector<double>(size_)),
         csum_(size_), psum_(size_), times_(threads) {}
 
-  void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac) override {
+  void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x) override {
     const Model& m = m_;
     Workspace& ws = ws_;
     set_stage_input(m, ws, t, y);
@@ -52,7 +52,7 @@ class PaperOmpSchedule final : public Schedule {
       // time of each thread is timed without its wait.)
 #pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
-        chain_forces(m, ws, j, j + 1, jac);
+        chain_forces(m, ws, j, j + 1, x);
         scatter_slot(m, ws.chain_slots[j], j, cb);
       }
       const std::uint64_t c2 = prof ? Profiler::ticks() : 0;
@@ -60,7 +60,7 @@ class PaperOmpSchedule final : public Schedule {
       const std::uint64_t c3 = prof ? Profiler::ticks() : 0;
 #pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
-        pulley_contact(m, ws, j, j + 1, jac);
+        pulley_contact(m, ws, j, j + 1, x);
         scatter_slot(m, ws.pulley_slots[j], j, pb);
       }
       const std::uint64_t c4 = prof ? Profiler::ticks() : 0;

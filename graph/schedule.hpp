@@ -43,9 +43,9 @@ class Schedule {
  public:
   virtual ~Schedule() = default;
   // dy = f(t, y) into dy, then (if given) the stage update `op`; the workspace is the one
-  // the schedule was built with. With jac, the kernels also fill what it asks for (the
-  // W-method's friction part, FrictionJacobian).
-  virtual void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac = nullptr) = 0;
+  // the schedule was built with. With extras, the kernels' friction as they ask
+  // (FrictionExtras: the W-method's friction Jacobian, the implicit methods' frozen branch).
+  virtual void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x = {}) = 0;
   // Contact statuses for the next step (engine/rhs/rhs.hpp update_contact_status), scheduled
   // like the RHS; the same bits for every schedule.
   virtual void update_status(double t, const double* y) = 0;

@@ -10,8 +10,8 @@ namespace {
 class SerialSchedule final : public Schedule {
  public:
   SerialSchedule(const Model& m, Workspace& ws) : m_(m), ws_(ws) {}
-  void rhs(double t, const double* y, double* dy, const StageOp* op, FrictionJacobian* jac) override {
-    rhs_serial(m_, ws_, t, y, dy, op, prof_, jac);
+  void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x) override {
+    rhs_serial(m_, ws_, t, y, dy, op, prof_, x);
   }
   void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
   std::string describe() const override { return "serial (1 thread)"; }

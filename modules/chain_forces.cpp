@@ -255,9 +255,9 @@ struct JointHalves {
 };
 
 // 4.3 the rocker joint j (its active stations; a_j turns with link j-1, b_j with link j):
-// Hertz normal force with damping, friction on the sliding of the faces, and with jac the
-// W-method's friction part.
-void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, FrictionJacobian* jac, int j,
+// Hertz normal force with damping, friction on the sliding of the faces (under its frozen
+// branch if x.frozen), and what x.jacobian asks for (the W-method's friction part).
+void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, const FrictionExtras& x, int j,
                      const JointHalves& h, JointSlot& s) {
   const Config& c = m.cfg;
   const LinkKinematics& kin = ws.kin;
@@ -269,6 +269,7 @@ void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, Fri
   const double *qa = h.qa, *va = h.va, *qb = h.qb, *vb = h.vb;
   double *fa = h.fa, *fb = h.fb;
   const int lp = m.wrap(j - 1), lc = j;
+  FrictionJacobian* jac = x.jacobian;
   constexpr int kD = FrictionJacobian::kDim;
   double* Kd = jac && jac->blocks ? jac->rocker_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
   if (Kd) std::fill(Kd, Kd + kD * kD, 0.0);
@@ -306,7 +307,7 @@ void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, Fri
       const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
       double Rv[3];
       s.p_diss +=
-          contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.rocker_stick[idx], &ws.rocker_dir[3 * idx], Rv);
+          contact_friction(rocker_branch(x.frozen, idx), law, f0, v0, Nel, u, speed, nrm, Rv);
       Rx = Rv[0], Ry = Rv[1];
       const double Rz = Rv[2];
       if (Kd || rec_mu) {
@@ -461,7 +462,7 @@ void pack(const ChainConstants& k, const JointHalves& h, JointSlot& s) {
 
 // Joint j: the beams of its two halves (4.1), its rocker stations and keeper (4.3), then
 // the plates and the pack of link j (4.2), in this order into chain_slots[j].
-void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
+void chain_forces(const Model& m, Workspace& ws, int begin, int end, const FrictionExtras& x) {
   const ChainConstants k(m);
   for (int j = begin; j < end; ++j) {
     JointSlot& s = ws.chain_slots[j];
@@ -469,7 +470,7 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJac
     const JointHalves h(m, ws, j, s);
     s.p_diss += beam(m, h.qa, h.va, h.fa);
     s.p_diss += beam(m, h.qb, h.vb, h.fb);
-    rocker_stations(m, k, ws, jac, j, h, s);
+    rocker_stations(m, k, ws, x, j, h, s);
     keeper(m, k, ws.kin, j, h, s);
     plates(m, k, h, s);
     pack(k, h, s);

@@ -7,9 +7,9 @@
 
 namespace cvt {
 
-// Joints [begin, end). With jac, also what it asks for (the W-method's friction part,
-// FrictionJacobian) of those joints' rocker stations.
-void chain_forces(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac = nullptr);
+// Joints [begin, end). With extras (FrictionExtras), the rocker stations' friction under
+// the frozen branch, and what the friction Jacobian asks for.
+void chain_forces(const Model& m, Workspace& ws, int begin, int end, const FrictionExtras& x = {});
 
 // 4.1: adds the elastic and damping forces of one pin-half beam (q, v, f: its 10
 // coordinates) to f; returns the dissipated power. Public for the modal tests, which take

@@ -34,11 +34,13 @@ inline double friction_over_speed(FrictionLaw law, double f0, double v0, double 
   return 0.0;
 }
 
-// The friction force R of one contact under the frozen branch (Workspace::friction_branch
-// != off): u the tangential slip velocity, n the unit contact normal.
-inline void frozen_branch_friction(const Workspace& ws, std::uint8_t& stick, double* dir, double Nel, double f0,
-                                   double v0, const double u[3], double speed, const double n[3], double R[3]) {
-  if (ws.friction_branch == Workspace::FrictionBranch::record) {
+// The friction force R of one contact under its frozen branch b (FrozenFriction): u the
+// tangential slip velocity, n the unit contact normal.
+inline void frozen_branch_friction(const FrozenBranch& b, double Nel, double f0, double v0, const double u[3],
+                                   double speed, const double n[3], double R[3]) {
+  std::uint8_t& stick = *b.stick;
+  double* dir = b.dir;
+  if (b.record) {
     stick = speed < v0;
     if (!stick)
       for (int i = 0; i < 3; ++i) dir[i] = u[i] / speed;
@@ -52,14 +54,14 @@ inline void frozen_branch_friction(const Workspace& ws, std::uint8_t& stick, dou
 }
 
 // The friction force R of one contact with elastic normal force Nel and tangential slip
-// u (|u| = speed, n the unit normal): the configured law, or the frozen branch when the
-// workspace asks for it (stick and dir: this contact's entries of the branch record).
+// u (|u| = speed, n the unit normal): the configured law, or with the nonsmooth law the
+// contact's frozen branch when the evaluation has one (b.on()).
 // Returns the dissipated power -R . u; *mag (if given) is |R|.
-inline double contact_friction(const Workspace& ws, FrictionLaw law, double f0, double v0, double Nel,
-                               const double u[3], double speed, const double n[3], std::uint8_t& stick, double* dir,
-                               double R[3], double* mag = nullptr) {
-  if (law == FrictionLaw::nonsmooth && ws.friction_branch != Workspace::FrictionBranch::off) {
-    frozen_branch_friction(ws, stick, dir, Nel, f0, v0, u, speed, n, R);
+inline double contact_friction(const FrozenBranch& b, FrictionLaw law, double f0, double v0, double Nel,
+                               const double u[3], double speed, const double n[3], double R[3],
+                               double* mag = nullptr) {
+  if (law == FrictionLaw::nonsmooth && b.on()) {
+    frozen_branch_friction(b, Nel, f0, v0, u, speed, n, R);
     if (mag) *mag = std::sqrt(R[0] * R[0] + R[1] * R[1] + R[2] * R[2]);
     return -(R[0] * u[0] + R[1] * u[1] + R[2] * u[2]);
   }

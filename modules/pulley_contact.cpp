@@ -123,7 +123,8 @@ void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac,
 }  // namespace
 
 void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
-                          FrictionJacobian* jac) {
+                          const FrictionExtras& x) {
+  FrictionJacobian* jac = x.jacobian;
   const Config& c = m.cfg;
   const double cn = c.pulley_contact.stiffness, bn = c.pulley_contact.damping * m.damp;
   const double R = c.pulley_contact.end_radius;
@@ -192,8 +193,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           const int idx = ContactStatus::pulley_index(j, h, e, k);
           const double u[3] = {ux, uy, uz}, nrm[3] = {nx, ny, nz};
           double Rv[3];
-          s.p_diss += contact_friction(ws, law, f0, v0, Nel, u, speed, nrm, ws.pulley_stick[idx],
-                                       &ws.pulley_dir[3 * idx], Rv, &Rmag);
+          s.p_diss += contact_friction(pulley_branch(x.frozen, idx), law, f0, v0, Nel, u, speed, nrm, Rv, &Rmag);
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
           tau += ox * Ry - oy * Rx;
           const double mu = (Kd || rec_mu) ? Nel * friction_over_speed(law, f0, v0, speed) : 0.0;
@@ -230,8 +230,8 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   }
 }
 
-void pulley_contact(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac) {
-  for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr, jac);
+void pulley_contact(const Model& m, Workspace& ws, int begin, int end, const FrictionExtras& x) {
+  for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr, x);
 }
 
 namespace {

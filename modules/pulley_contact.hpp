@@ -18,12 +18,12 @@ struct PinContactReport {
   EndContact end[2][2];  // [half a/b][end -z/+z]
 };
 
-// Joints [begin, end). With jac, also what it asks for (the W-method's friction part,
-// FrictionJacobian) of those joints' pin ends.
-void pulley_contact(const Model& m, Workspace& ws, int begin, int end, FrictionJacobian* jac = nullptr);
+// Joints [begin, end). With extras (FrictionExtras), the pin ends' friction under the
+// frozen branch, and what the friction Jacobian asks for.
+void pulley_contact(const Model& m, Workspace& ws, int begin, int end, const FrictionExtras& x = {});
 // One joint; fills `report` when given.
 void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
-                          FrictionJacobian* jac = nullptr);
+                          const FrictionExtras& x = {});
 
 // Hertz energy of the pin ends (with `status`, only the active pairs).
 double pulley_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);

@@ -9,10 +9,6 @@ Workspace::Workspace(const Model& m) {
     v->assign(N, 0.0);
   status.rocker.assign(N * m.cfg.rocker.stations, 1);
   status.pulley.assign(N * ContactStatus::kPulleyPerJoint, 1);
-  rocker_stick.assign(N * m.cfg.rocker.stations, 0);
-  pulley_stick.assign(N * ContactStatus::kPulleyPerJoint, 0);
-  rocker_dir.assign(3 * N * m.cfg.rocker.stations, 0.0);
-  pulley_dir.assign(3 * N * ContactStatus::kPulleyPerJoint, 0.0);
   chain_slots.resize(N);
   pulley_slots.resize(N);
   inertia_slots.resize(N);
@@ -35,6 +31,13 @@ FrictionJacobian::FrictionJacobian(const Model& m) {
   rocker_fresh.resize(nr);
   pulley_fresh.resize(np);
   pulley_shaft_cols.assign(np * 2 * kShaftSize, 0.0);
+}
+
+FrozenFriction::FrozenFriction(const Model& m) {
+  const std::size_t nr = static_cast<std::size_t>(m.links) * m.cfg.rocker.stations;
+  const std::size_t np = static_cast<std::size_t>(m.links) * ContactStatus::kPulleyPerJoint;
+  rocker_stick.assign(nr, 0), pulley_stick.assign(np, 0);
+  rocker_dir.assign(3 * nr, 0.0), pulley_dir.assign(3 * np, 0.0);
 }
 
 }  // namespace cvt

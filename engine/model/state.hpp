@@ -107,17 +107,6 @@ struct Workspace {
   double switch_work = 0;
   std::vector<double> switch_slot;  // per joint, summed in pin order into switch_work
 
-  // Frozen friction branch (docs/integrators.md 11; implicit methods only, off in the
-  // production RK4 path): with the nonsmooth law, one evaluation records each contact's
-  // branch, stick (|u| < v0: R = -f0 N u / v0, linear) or slide (R = -f0 N d with the
-  // direction d = u / |u| of that evaluation, projected on the current tangent plane), and
-  // the following evaluations keep it. f is then smooth within a macro step and Newton
-  // does not meet the kink at v0 nor the turning of the sliding direction. Indexed like the
-  // statuses (directions: 3 per contact).
-  enum class FrictionBranch : std::uint8_t { off, record, frozen };
-  FrictionBranch friction_branch = FrictionBranch::off;
-  std::vector<std::uint8_t> rocker_stick, pulley_stick;
-  std::vector<double> rocker_dir, pulley_dir;
 
 };
 
@@ -193,6 +182,41 @@ struct FrictionJacobian {
   };
   FreshMu rocker_fresh, pulley_fresh;
   std::vector<double> pulley_shaft_cols;  // [idx][2][7]
+};
+
+// The implicit methods' frozen friction branch (docs/integrators.md 11): with the nonsmooth
+// law, the evaluation that records it notes each contact's branch, stick (|u| < v0:
+// R = -f0 N u / v0, linear) or slide (R = -f0 N d with the direction d = u / |u| of that
+// evaluation, projected on the current tangent plane), and the evaluations after it keep
+// it. f is then smooth within a macro step and Newton does not meet the kink at v0 nor the
+// turning of the sliding direction. The adapter of the implicit methods owns it (ModelOde)
+// and hands it to its evaluations; indexed like the statuses (directions: 3 per contact).
+struct FrozenFriction {
+  explicit FrozenFriction(const Model& m);
+  bool record = false;  // this evaluation records the branches (else it keeps them)
+  std::vector<std::uint8_t> rocker_stick, pulley_stick;
+  std::vector<double> rocker_dir, pulley_dir;
+};
+
+// One contact's entry in a FrozenFriction (none: the plain law).
+struct FrozenBranch {
+  bool record = false;
+  std::uint8_t* stick = nullptr;
+  double* dir = nullptr;
+  bool on() const { return stick != nullptr; }
+};
+inline FrozenBranch rocker_branch(FrozenFriction* f, int idx) {
+  return f ? FrozenBranch{f->record, &f->rocker_stick[idx], &f->rocker_dir[3 * idx]} : FrozenBranch{};
+}
+inline FrozenBranch pulley_branch(FrozenFriction* f, int idx) {
+  return f ? FrozenBranch{f->record, &f->pulley_stick[idx], &f->pulley_dir[3 * idx]} : FrozenBranch{};
+}
+
+// What an evaluation of f is asked for besides f (Schedule::rhs's last argument, and the
+// kernels' that have friction): nothing by default, as the production RK4 path takes it.
+struct FrictionExtras {
+  FrictionJacobian* jacobian = nullptr;  // W-methods: fill the friction part of W
+  FrozenFriction* frozen = nullptr;      // implicit methods: record or keep the branches
 };
 
 }  // namespace cvt

@@ -162,7 +162,7 @@ void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, 
 }
 
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op,
-                Profiler* prof, FrictionJacobian* jac) {
+                Profiler* prof, const FrictionExtras& x) {
   if (prof) prof->call_rhs(op != nullptr);
   set_stage_input(m, ws, t, y);
   const int N = m.links;
@@ -172,11 +172,11 @@ void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double
   }
   {
     ScopedTimer tm(prof, 0, Section::chain);
-    chain_forces(m, ws, 0, N, jac);
+    chain_forces(m, ws, 0, N, x);
   }
   {
     ScopedTimer tm(prof, 0, Section::pulley);
-    pulley_contact(m, ws, 0, N, jac);
+    pulley_contact(m, ws, 0, N, x);
   }
   {
     ScopedTimer tm(prof, 0, Section::other);

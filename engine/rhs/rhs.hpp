@@ -46,9 +46,9 @@ void gather_forces(const Model& m, Workspace& ws);
 void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, Profiler* prof = nullptr);
 
 // The serial schedule: module after module over all pins (the baseline); each pass timed
-// into prof (if given, as worker 0). With jac, the kernels also fill what it asks for.
+// into prof (if given, as worker 0). With extras, the kernels' friction as they ask.
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy,
-                const StageOp* op = nullptr, Profiler* prof = nullptr, FrictionJacobian* jac = nullptr);
+                const StageOp* op = nullptr, Profiler* prof = nullptr, const FrictionExtras& x = {});
 
 // Contact statuses for the next step from the state y (docs/model.md 4.4), and the
 // contact energy switched in or out (ws.switch_work). In passes like the RHS: the link

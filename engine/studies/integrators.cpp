@@ -290,7 +290,7 @@ int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) 
         OneStep r{name, hs[i]};
         const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
         if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
-          ws.friction_branch = Workspace::FrictionBranch::record;
+          ode.record_friction_branches();
         if (is_w_method(method) && !opt.ros2_full_jacobian) ode.ask_friction_jacobian(0);  // the W-method's matrix
         ode.offset() = start.state;
         Eigen::VectorXd z;

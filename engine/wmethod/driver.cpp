@@ -45,11 +45,6 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
   const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
                       (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
                        opt_.method == OdeMethod::Esdirk3);
-  // The production RK4 path (Simulation::step) shares this workspace: leave the law plain.
-  struct Plain {
-    Workspace& ws;
-    ~Plain() { ws.friction_branch = Workspace::FrictionBranch::off; }
-  } plain{ws_};
   const bool w_blocks = is_w_method(opt_.method) && opt_.jac.w_blocks;
   schedule_.within([&] {
     while (t < t1) {
@@ -58,7 +53,7 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
       // No sliver shorter than 1 % of a macro step before t1.
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
-      if (freeze) ws_.friction_branch = Workspace::FrictionBranch::record;
+      if (freeze) ode_.record_friction_branches();
       if (w_blocks) ode_.ask_friction_jacobian(first_step + static_cast<long>(solver_.stats().steps - steps0));
       if (opt_.jac.scaled) {
         ode_.offset() = y;

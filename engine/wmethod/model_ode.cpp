@@ -80,7 +80,7 @@ void ModelOde::eval_scaled(double t, const double* z, double* dz) {
 }
 
 ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt)
-    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), fjac_(m) {
+    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), fjac_(m), frozen_(m) {
   fjac_.secant = opt.w_secant;
   const int ns = m.nstate, N = m.links, tail0 = m.shaft(0);
   if (opt.band < 1 || 2 * opt.band + 1 > N) throw std::invalid_argument("ModelOdeOptions::band must be in [1, (links - 1) / 2]");

@@ -36,7 +36,7 @@ struct ModelOdeOptions {
   // RADAU5-style is a fraction of rtol: a tiny rtol made Newton chase 1e-10 m).
   bool scaled = false;
   // Freeze each contact's friction branch (stick / slide) within a macro step: the first
-  // evaluation of each OdeDriver macro step records it (Workspace::friction_branch). Only
+  // evaluation of each OdeDriver macro step records it (FrozenFriction). Only
   // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the
   // nonsmooth law at v0 (docs/integrators.md 11).
   bool freeze_friction = true;
@@ -137,6 +137,10 @@ class ModelOde {
     fjac_.blocks = w_due();
     fjac_.mu = w_fresh_on();
   }
+  // The implicit methods' frozen friction branch (FrozenFriction): from now on the
+  // evaluations keep each contact's branch, and the next one records it afresh (OdeDriver,
+  // at the start of each macro step).
+  void record_friction_branches() { freeze_ = frozen_.record = true; }
   // What the kernels filled at the last request (tests).
   const FrictionJacobian& friction_jacobian() const { return fjac_; }
   // Whether the next step rebuilds the matrix.
@@ -160,12 +164,12 @@ class ModelOde {
     const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
     // The friction part of W comes from the first evaluation of a step that asks for it
     // (ask_friction_jacobian); the step's later evaluations compute f alone.
-    schedule_.rhs(t, y, dy, nullptr, fjac_.requested() ? &fjac_ : nullptr);
+    schedule_.rhs(t, y, dy, nullptr, {fjac_.requested() ? &fjac_ : nullptr, freeze_ ? &frozen_ : nullptr});
     if (prof) prof->add_rhs_wall(Profiler::ticks() - t0);
     ++rhs_evals_;
     wf_recorded_ = fjac_.mu;
     fjac_.blocks = fjac_.mu = false;
-    if (ws_.friction_branch == Workspace::FrictionBranch::record) ws_.friction_branch = Workspace::FrictionBranch::frozen;
+    frozen_.record = false;  // the evaluation that recorded the branches was this one
   }
   void eval_scaled(double t, const double* z, double* dz);
   template <class F>
@@ -182,6 +186,8 @@ class ModelOde {
   Schedule& schedule_;
   ModelOdeOptions opt_;
   FrictionJacobian fjac_;  // the W-method's friction part, filled by the evaluations that ask
+  FrozenFriction frozen_;  // the implicit methods' friction branches
+  bool freeze_ = false;    // the evaluations take frozen_ (record_friction_branches)
   OdeSystem sys_;
   std::int64_t rhs_evals_ = 0, jac_evals_ = 0;
   // Column colours (the pins by the pattern without pin -> tail entries).

@@ -174,7 +174,7 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   FrictionJacobian jac(m);
   jac.blocks = true;
   Eigen::VectorXd y = r.y, dy(m.nstate);
-  rhs_serial(m, ws, r.t, y.data(), dy.data(), nullptr, nullptr, &jac);
+  rhs_serial(m, ws, r.t, y.data(), dy.data(), nullptr, nullptr, {&jac});
   int pulley_joints = 0;
   const Eigen::MatrixXd K = assembled_damping(m, jac, &pulley_joints);
   const int n = m.ndof;
