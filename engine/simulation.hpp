@@ -65,8 +65,6 @@ class Simulation {
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
   Schedule& schedule() { return *schedule_; }
-  // Energy at the start (E(0) of the balance, docs/model.md 6).
-  double initial_energy() const { return energy0_; }
   // Per-module timing of every following step (engine/rhs/profile.hpp); the profiler lives
   // as long as the simulation.
   Profiler& enable_profiling();

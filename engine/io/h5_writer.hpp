@@ -81,7 +81,6 @@ class H5Series {
   hsize_t row_size() const noexcept { return row_size_; }
   hsize_t chunk_rows() const noexcept { return chunk_rows_; }
   bool is_open() const noexcept { return dataset_.valid(); }
-  hid_t dataset_id() const noexcept { return dataset_.get(); }
 
   // Writes the buffered rows to the file (no H5Fflush). H5File::flush() calls it.
   void flush();

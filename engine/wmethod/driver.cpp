@@ -70,7 +70,6 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
       if (watch) rocker0_ = ws_.status.rocker, pulley0_ = ws_.status.pulley;
       update_statuses_after_step(m_, schedule_, ws_, t, y);
       if (watch && (rocker0_ != ws_.status.rocker || pulley0_ != ws_.status.pulley)) ode_.w_invalidate();
-      ++macro_;
     }
   });
   return static_cast<long>(solver_.stats().steps - steps0);

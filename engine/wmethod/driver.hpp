@@ -44,7 +44,6 @@ class OdeDriver {
   const OdeStats& stats() const { return solver_.stats(); }
   const ModelOde& model_ode() const { return ode_; }
   std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
-  std::int64_t macro_steps() const { return macro_; }
 
  private:
   const Model& m_;
@@ -54,7 +53,6 @@ class OdeDriver {
   ModelOde ode_;
   OdeSolver solver_;
   double h_next_ = 0;
-  std::int64_t macro_ = 0;
   Eigen::VectorXd z_;
   std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
 };
