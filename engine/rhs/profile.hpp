@@ -26,7 +26,7 @@ enum class Section : int {
   accel,     // gather + structured solve (A0^-1, Woodbury) + dy
   update,    // the stage update (RK4: in the graph; the W-methods: their vector sums)
   status,    // contact status update
-  // The W-methods' linear algebra, timed on the master (engine/wmethod/model_ode.cpp):
+  // The W-methods' linear algebra, timed on the master (engine/wmethod/w_matrix.cpp):
   w_stiffness,  // the chain's stiffness blocks by finite differences
   w_assembly,   // the matrix's blocks, and the fresh-friction correction
   w_factor,     // the block-cyclic LU
@@ -132,7 +132,7 @@ class ScopedTimer {
 };
 
 // The table as text (fixed-width, like GROMACS's), as JSON (docs/output.md), and into the
-// HDF5 file's /profile group (engine/h5_writer).
+// HDF5 file's /profile group (engine/output.cpp).
 std::string format_profile(const Profiler::Report& r);
 std::string profile_json(const Profiler::Report& r);
 
