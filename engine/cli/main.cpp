@@ -5,6 +5,8 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <memory>
 #include <fstream>
 #include <iostream>
 #include <optional>
@@ -312,22 +314,32 @@ void suggest_options(CLI::App& app, int argc, char** argv) {
   }
 }
 
-}  // namespace
+// A subcommand: its app (true once given on the command line) and what it runs. Each
+// add_*_command declares its subcommand's options next to the state they fill.
+struct Command {
+  CLI::App* app;
+  std::function<int()> run;
+};
 
-int main(int argc, char** argv) {
-  CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
-  app.require_subcommand(1);
-  app.set_version_flag("--version", std::string(CVT_VERSION));
-  app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
-             "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
-
-  auto* run = app.add_subcommand("run", "simulate a configuration and write the results to HDF5");
-  run->footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2 -o results.h5");
+// cvt-engine run: simulate a configuration into HDF5 (cmd_run).
+Command add_run_command(CLI::App& app) {
+  struct Args {
   std::string config;
   std::vector<std::string> overrides;
   std::string t_end, step;
-  run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml); omit with --resume");
   RunArgs run_args;
+  ScheduleArgs sched;
+  };
+  auto a = std::make_shared<Args>();
+  auto& config = a->config;
+  auto& overrides = a->overrides;
+  auto& t_end = a->t_end;
+  auto& step = a->step;
+  auto& run_args = a->run_args;
+  auto& sched = a->sched;
+  auto* run = app.add_subcommand("run", "simulate a configuration and write the results to HDF5");
+  run->footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2 -o results.h5");
+  run->add_option("CONFIG", config, "TOML configuration (configs/reference.toml); omit with --resume");
   run->add_option("--resume", run_args.resume,
                   "continue bit-identically from a checkpoint (FILE.ckpt), appending to the run's own file "
                   "(unless --out)");
@@ -349,21 +361,37 @@ int main(int argc, char** argv) {
   run->add_flag("--profile", run_args.profile, "print the per-module profile table (always stored in /profile)");
   run->add_option("--profile-json", run_args.profile_json, "write the end-of-run profile table as JSON to FILE");
   run->add_option("--summary-json", run_args.summary_json, "write the end-of-run summary as JSON to FILE");
-  ScheduleArgs sched;
   add_schedule_options(run, sched);
+  return {run, [a] {
+    return cmd_run(a->config, a->overrides, a->t_end, a->step, a->sched, a->run_args);
+  }};
+}
 
-  auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
-  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg");
+// cvt-engine graph: the flow graph of one stage as GraphViz.
+Command add_graph_command(CLI::App& app) {
+  struct Args {
   std::string graph_config;
   std::vector<std::string> graph_overrides;
   ScheduleArgs graph_sched;
+  };
+  auto a = std::make_shared<Args>();
+  auto& graph_config = a->graph_config;
+  auto& graph_overrides = a->graph_overrides;
+  auto& graph_sched = a->graph_sched;
+  auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
+  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg");
   graph_sched.scheduler = "flowgraph";
   graph->add_option("CONFIG", graph_config, "TOML configuration")->required();
   graph->add_option("--set", graph_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(graph, graph_sched);
+  return {graph, [a] {
+    return cmd_graph(a->graph_config, a->graph_overrides, a->graph_sched);
+  }};
+}
 
-  auto* scale = app.add_subcommand("scale", "scaling study: time per step per scheduler, thread count and NUMA layout");
-  scale->footer("Example: cvt-engine scale configs/reference.toml --threads 1,2 --out scaling.csv");
+// cvt-engine scale: the scaling study (engine/studies/scale.cpp).
+Command add_scale_command(CLI::App& app) {
+  struct Args {
   std::string scale_config, scale_out, scale_json;
   std::vector<std::string> scale_overrides, scale_layouts = {"native"};
   std::vector<std::string> scale_schedulers = {"serial", "flowgraph", "paper-omp"};
@@ -371,6 +399,21 @@ int main(int argc, char** argv) {
   long scale_steps = 200;
   int scale_repeat = 5, scale_grain = 4;
   double scale_warmup = 3e-4;
+  };
+  auto a = std::make_shared<Args>();
+  auto& scale_config = a->scale_config;
+  auto& scale_out = a->scale_out;
+  auto& scale_json = a->scale_json;
+  auto& scale_overrides = a->scale_overrides;
+  auto& scale_layouts = a->scale_layouts;
+  auto& scale_schedulers = a->scale_schedulers;
+  auto& scale_threads = a->scale_threads;
+  auto& scale_steps = a->scale_steps;
+  auto& scale_repeat = a->scale_repeat;
+  auto& scale_grain = a->scale_grain;
+  auto& scale_warmup = a->scale_warmup;
+  auto* scale = app.add_subcommand("scale", "scaling study: time per step per scheduler, thread count and NUMA layout");
+  scale->footer("Example: cvt-engine scale configs/reference.toml --threads 1,2 --out scaling.csv");
   scale->add_option("CONFIG", scale_config, "TOML configuration")->required();
   scale->add_option("--threads", scale_threads, "thread counts, comma-separated")->delimiter(',')
       ->check(CLI::Range(1, 4096))->capture_default_str();
@@ -388,7 +431,62 @@ int main(int argc, char** argv) {
   scale->add_option("-o,--out", scale_out, "CSV file");
   scale->add_option("--json", scale_json, "JSON file");
   scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
+  return {scale, [a] {
+    return cmd_scale(a->scale_config, a->scale_overrides, a->scale_threads, a->scale_schedulers, a->scale_layouts,
+                     a->scale_steps, a->scale_repeat, a->scale_warmup, a->scale_grain, a->scale_out, a->scale_json);
+  }};
+}
 
+// The W-methods' options of cvt-engine study integrators (docs/integrators.md 12).
+void add_study_w_options(CLI::App* study_int, cvt::IntegratorStudyOptions& si, bool& si_exact_slope) {
+  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its matrix every N steps (default: integrator.w_every)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
+                     "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
+  study_int->add_flag("--w-exact-slope", si_exact_slope,
+                      "ROS2: the exact friction slope along the sliding direction (default: the secant)");
+  study_int->add_option("--w-k-every", si.w_k_every,
+                        "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
+  study_int->add_option("--w-fresh", si.w_fresh,
+                        "W-methods: keep the matrix's friction current between rebuilds for the contacts whose "
+                        "stiffness gamma h mu / m_pin moved by more than this; 0: off (default: integrator.w_fresh)")
+      ->check(CLI::NonNegativeNumber);
+  study_int->add_option("--w-fresh-max", si.w_fresh_max,
+                        "W-methods: at most this many contacts in that correction (default: integrator.w_fresh_max)")
+      ->check(CLI::PositiveNumber);
+  study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
+                      "ROS2: rebuild its whole matrix when the contact statuses change");
+}
+
+// cvt-engine study integrators: the integrator study (engine/studies/integrators.cpp).
+Command add_study_command(CLI::App& app) {
+  struct Args {
+  std::string si_config;
+  std::vector<std::string> si_overrides;
+  cvt::IntegratorStudyOptions si;
+  ScheduleArgs si_sched;
+  bool si_no_one_step = false, si_no_curve = false, si_approx = false, si_plain_friction = false;
+  std::vector<std::string> si_w_steps;
+  bool si_first_accurate = false, si_one_step = false;
+  bool si_exact_slope = false;
+  bool si_no_cache = false;
+  };
+  auto a = std::make_shared<Args>();
+  auto& si_config = a->si_config;
+  auto& si_overrides = a->si_overrides;
+  auto& si = a->si;
+  auto& si_sched = a->si_sched;
+  auto& si_no_one_step = a->si_no_one_step;
+  auto& si_no_curve = a->si_no_curve;
+  auto& si_approx = a->si_approx;
+  auto& si_plain_friction = a->si_plain_friction;
+  auto& si_w_steps = a->si_w_steps;
+  auto& si_first_accurate = a->si_first_accurate;
+  auto& si_one_step = a->si_one_step;
+  auto& si_exact_slope = a->si_exact_slope;
+  auto& si_no_cache = a->si_no_cache;
   auto* study = app.add_subcommand("study", "method studies");
   study->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
   study->require_subcommand(1);
@@ -397,11 +495,6 @@ int main(int argc, char** argv) {
                                           "reference model, most of it the running state and the reference, which the cache keeps "
                                           "for the next run (then about 2 min)");
   study_int->footer("Example: cvt-engine study integrators configs/reference.toml --cache study-cache --out study.csv");
-  std::string si_config;
-  std::vector<std::string> si_overrides;
-  cvt::IntegratorStudyOptions si;
-  ScheduleArgs si_sched;
-  bool si_no_one_step = false, si_no_curve = false, si_approx = false, si_plain_friction = false;
   study_int->add_option("CONFIG", si_config, "TOML configuration")->required();
   study_int->add_option("--t-sample", si.t_sample, "length of the sample-curve window [s]")->capture_default_str();
   study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
@@ -412,13 +505,11 @@ int main(int argc, char** argv) {
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();
-  std::vector<std::string> si_w_steps;
   study_int->add_option("--w-steps,--ros2-steps", si_w_steps,
                         "W-methods' (ros2, ros34pw2) fixed steps tried in (b), largest first [s]; H:W:K also sets "
                         "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
                         "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
       ->delimiter(',');
-  bool si_first_accurate = false, si_one_step = false;
   study_int->add_flag("--all", si.all, "(b): run every candidate (the default)");
   study_int->add_flag("--first-accurate", si_first_accurate, "(b): stop at each method's first accurate candidate");
   study_int->add_flag("--one-step", si_one_step, "run part (a), the error after one step against h (minutes)");
@@ -438,26 +529,7 @@ int main(int argc, char** argv) {
   study_int->add_option("--status-interval", si.status_interval,
                         "contact statuses updated every this long (0: after every accepted step)")->capture_default_str();
   study_int->add_option("--newton-max-iter", si.newton_max_iter, "Newton iterations per stage")->capture_default_str();
-  study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its matrix every N steps (default: integrator.w_every)")
-      ->check(CLI::PositiveNumber);
-  study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
-                     "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
-  bool si_exact_slope = false;
-  study_int->add_flag("--w-exact-slope", si_exact_slope,
-                      "ROS2: the exact friction slope along the sliding direction (default: the secant)");
-  study_int->add_option("--w-k-every", si.w_k_every,
-                        "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
-      ->check(CLI::PositiveNumber);
-  study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
-  study_int->add_option("--w-fresh", si.w_fresh,
-                        "W-methods: keep the matrix's friction current between rebuilds for the contacts whose "
-                        "stiffness gamma h mu / m_pin moved by more than this; 0: off (default: integrator.w_fresh)")
-      ->check(CLI::NonNegativeNumber);
-  study_int->add_option("--w-fresh-max", si.w_fresh_max,
-                        "W-methods: at most this many contacts in that correction (default: integrator.w_fresh_max)")
-      ->check(CLI::PositiveNumber);
-  study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
-                      "ROS2: rebuild its whole matrix when the contact statuses change");
+  add_study_w_options(study_int, si, si_exact_slope);
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
@@ -465,7 +537,6 @@ int main(int argc, char** argv) {
   study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
   study_int->add_flag("--approximate-jacobian", si_approx, "leave the pins -> shaft rows out of the Jacobian");
   si.cache_dir = "study-cache";
-  bool si_no_cache = false;
   study_int->add_option("--cache", si.cache_dir,
                         "keep the running state and the reference curve in this folder (made if missing) and reuse "
                         "them")
@@ -474,19 +545,58 @@ int main(int argc, char** argv) {
   study_int->add_option("-o,--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
   study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(study_int, si_sched);
+  return {study_int, [a] {
+    cvt::IntegratorStudyOptions& si = a->si;
+    si.one_step = a->si_one_step && !a->si_no_one_step;
+    if (a->si_first_accurate) si.all = false;
+    if (a->si_no_cache) si.cache_dir.clear();
+    if (!si.cache_dir.empty()) std::filesystem::create_directories(si.cache_dir);
+    si.curve = !a->si_no_curve;
+    si.exact_dense_rows = !a->si_approx;
+    si.freeze_friction = !a->si_plain_friction;
+    si.w_secant = !a->si_exact_slope;
+    si.schedule = a->si_sched.options();
+    const cvt::Model model = cvt::build_model(cvt::load_config(a->si_config, a->si_overrides));
+    if (!a->si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(a->si_w_steps);
+    else  // the configuration's own step and matrix intervals
+      si.w_steps = {{model.cfg.integrator.step, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
+    if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
+    if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
+    return cvt::run_integrator_study(model, si);
+  }};
+}
 
-  auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
-  topology->footer("Example: cvt-engine topology configs/reference.toml --threads 2");
+// cvt-engine topology: NUMA nodes, cores and the pins per node.
+Command add_topology_command(CLI::App& app) {
+  struct Args {
   std::string topo_config;
   int topo_threads = 0;
+  };
+  auto a = std::make_shared<Args>();
+  auto& topo_config = a->topo_config;
+  auto& topo_threads = a->topo_threads;
+  auto* topology = app.add_subcommand("topology", "NUMA nodes, cores, pins per node, thread and memory binding");
+  topology->footer("Example: cvt-engine topology configs/reference.toml --threads 2");
   topology->add_option("CONFIG", topo_config, "TOML configuration (for the number of pins; default 84)");
   topology->add_option("--threads", topo_threads, "threads to lay out (default: all cores)");
+  return {topology, [a] {
+    return cmd_topology(a->topo_config, a->topo_threads);
+  }};
+}
 
-  auto* modes = app.add_subcommand("modes", "natural frequencies, Jacobian spectrum and stable RK4 step at a state");
-  modes->footer("Example: cvt-engine modes configs/mini.toml --at 1e-3 --count 5");
+// cvt-engine modes: natural frequencies and the Jacobian's spectrum at a state.
+Command add_modes_command(CLI::App& app) {
+  struct Args {
   std::string modes_config;
   std::vector<std::string> modes_overrides;
   ModesArgs modes_args;
+  };
+  auto a = std::make_shared<Args>();
+  auto& modes_config = a->modes_config;
+  auto& modes_overrides = a->modes_overrides;
+  auto& modes_args = a->modes_args;
+  auto* modes = app.add_subcommand("modes", "natural frequencies, Jacobian spectrum and stable RK4 step at a state");
+  modes->footer("Example: cvt-engine modes configs/mini.toml --at 1e-3 --count 5");
   modes->add_option("CONFIG", modes_config, "TOML configuration")->required();
   modes->add_option("--at", modes_args.at, "linearize at model time T [s] (runs the model there first)")
       ->check(CLI::NonNegativeNumber)
@@ -500,7 +610,21 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   modes->add_flag("--no-jacobian", modes_args.no_jacobian, "skip the first-order Jacobian's spectrum");
   modes->add_option("--json", modes_args.json, "also write the report as JSON to FILE");
+  return {modes, [a] {
+    return cmd_modes(a->modes_config, a->modes_overrides, a->modes_args);
+  }};
+}
 
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", std::string(CVT_VERSION));
+  app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
+             "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
+  const Command commands[] = {add_run_command(app),      add_graph_command(app),    add_scale_command(app),
+                              add_study_command(app),    add_topology_command(app), add_modes_command(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {  // --help, --version
@@ -512,31 +636,8 @@ int main(int argc, char** argv) {
     return cvt::kExitUsage;
   }
   try {
-    if (*scale)
-      return cmd_scale(scale_config, scale_overrides, scale_threads, scale_schedulers, scale_layouts, scale_steps,
-                       scale_repeat, scale_warmup, scale_grain, scale_out, scale_json);
-    if (*run) return cmd_run(config, overrides, t_end, step, sched, run_args);
-    if (*graph) return cmd_graph(graph_config, graph_overrides, graph_sched);
-    if (*topology) return cmd_topology(topo_config, topo_threads);
-    if (*modes) return cmd_modes(modes_config, modes_overrides, modes_args);
-    if (*study_int) {
-      si.one_step = si_one_step && !si_no_one_step;
-      if (si_first_accurate) si.all = false;
-      if (si_no_cache) si.cache_dir.clear();
-      if (!si.cache_dir.empty()) std::filesystem::create_directories(si.cache_dir);
-      si.curve = !si_no_curve;
-      si.exact_dense_rows = !si_approx;
-      si.freeze_friction = !si_plain_friction;
-      si.w_secant = !si_exact_slope;
-      si.schedule = si_sched.options();
-      const cvt::Model model = cvt::build_model(cvt::load_config(si_config, si_overrides));
-      if (!si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(si_w_steps);
-      else  // the configuration's own step and matrix intervals
-        si.w_steps = {{model.cfg.integrator.step, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
-      if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
-      if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
-      return cvt::run_integrator_study(model, si);
-    }
+    for (const Command& c : commands)
+      if (*c.app) return c.run();
   } catch (const cvt::ConfigError& e) {
     std::string text = e.what();  // one line per problem found
     for (std::size_t at = text.find('\n'); at != std::string::npos; at = text.find('\n', at + 1))
