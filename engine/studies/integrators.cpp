@@ -195,402 +195,500 @@ std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::ve
   return out;
 }
 
-int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) {
-  // The running state, the reference and the RK4 candidates are RK4 whatever the
-  // configuration's method (the W candidates name theirs); the running state at RK4's
-  // production step, 1e-8 s. The cache stays keyed on the configuration as given.
+namespace {
+
+// One integrator study (docs/integrators.md 13), in the order it runs: the running state
+// (RK4 at the production step, or the cache), (a) the error after one step against h, (b)
+// the reference curve and each method's candidates on it, the repeats, the table, the CSV.
+class Study {
+ public:
+  Study(const Model& model, const IntegratorStudyOptions& opt);
+  void running_state();
+  void one_step_errors();
+  void reference_curve();
+  void candidates();
+  void repeats();
+  void table() const;
+  void write_csv() const;
+
+ private:
+  static Model rk4_model(const Model& model, const IntegratorStudyOptions& opt);
+  void matrix_options();
+  Reference compute_reference(long n_samples) const;
+  CurveRun run_once(const std::string& name, double p, int w_every, int w_k_every) const;
+  void rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_point w0) const;
+  void driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, CurveRun& r,
+                    WallClock::time_point w0) const;
+  void sample(Simulation& s, CurveRun& r) const;
+  double deviation(const std::vector<double>& c) const;
+
+  const IntegratorStudyOptions& opt_;
+  const Model m_;  // the configuration with RK4 at the study's production step (opt.warm_step)
+  const StudyCache cache_;
+  Checkpoint start_;  // the running state
+  double t0_ = 0;
+  OdeOptions base_;
+  ModelOdeOptions jac_opt_;
+  std::vector<OneStep> one_;
+  std::vector<CurveRun> runs_;
+  std::vector<double> times_, ref_curve_;
+  int tracked_ = -1;
+  double range_ = 1, ref_wall_ = 0;
+  bool ref_from_cache_ = false;
+};
+
+// The running state, the reference and the RK4 candidates are RK4 whatever the
+// configuration's method (the W candidates name theirs); the running state at RK4's
+// production step, 1e-8 s. The cache stays keyed on the configuration as given.
+Model Study::rk4_model(const Model& model, const IntegratorStudyOptions& opt) {
   Config rk4_cfg = model.cfg;
   rk4_cfg.integrator.method = IntegratorMethod::rk4;
   rk4_cfg.integrator.step = opt.warm_step;
-  const Model m = build_model(rk4_cfg);
-  const double h_prod = m.cfg.integrator.step;
-  // The running state.
-  const StudyCache cache(m, opt);
-  Simulation warm(m, opt.schedule);
-  const long warm_steps = std::lround(opt.t_warm / h_prod);
-  std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m.links,
-              m.nstate, h_prod, warm_steps * h_prod);
+  return build_model(rk4_cfg);
+}
+
+Study::Study(const Model& model, const IntegratorStudyOptions& opt)
+    : opt_(opt), m_(rk4_model(model, opt)), cache_(m_, opt) {
+  matrix_options();
+}
+
+// The solvers' options: Newton's, and the model's as an ODE system, scaled and shifted
+// (ModelOdeOptions::scaled: tolerances in units of 1 um, 1 mm/s, 1 mJ), with the study's
+// matrix settings, the configuration's where the study gives none.
+void Study::matrix_options() {
+  base_.newton_max_iter = opt_.newton_max_iter;
+  base_.jac_theta = opt_.jac_theta;
+  base_.max_norm = opt_.max_norm;
+  jac_opt_.exact_dense_rows = opt_.exact_dense_rows;
+  jac_opt_.scaled = true;
+  jac_opt_.freeze_friction = opt_.freeze_friction;
+  if (opt_.w_every < 1 || opt_.w_k_every < 1 || opt_.w_k_every % opt_.w_every != 0)
+    throw std::invalid_argument("--w-k-every must be a multiple of --w-every");
+  jac_opt_.w_every = opt_.w_every;
+  jac_opt_.w_k_every = opt_.w_k_every;
+  jac_opt_.w_stiffness = !opt_.w_no_stiffness;
+  jac_opt_.w_secant = opt_.w_secant;
+  jac_opt_.w_fresh = opt_.w_fresh < 0 ? m_.cfg.integrator.w_fresh : opt_.w_fresh;
+  jac_opt_.w_fresh_max = opt_.w_fresh_max > 0 ? opt_.w_fresh_max : m_.cfg.integrator.w_fresh_max;
+  jac_opt_.w_status_rebuild = opt_.w_status_rebuild;
+  jac_opt_.w_blocks = !opt_.ros2_full_jacobian;
+}
+
+// RK4 at the production step to opt.t_warm (or the cache), then the Jacobian's size and
+// the spectral radius there.
+void Study::running_state() {
+  const double h_prod = m_.cfg.integrator.step;
+  Simulation warm(m_, opt_.schedule);
+  const long warm_steps = std::lround(opt_.t_warm / h_prod);
+  std::printf("integrator study: %d links, %d unknowns; running state: RK4 h = %.3g s to t = %.4g s ...\n", m_.links,
+              m_.nstate, h_prod, warm_steps * h_prod);
   std::fflush(stdout);
-  if (!cache.ckpt.empty()) std::printf("  (cache: running state %s, reference %s)\n", cache.ckpt.c_str(), cache.ref.c_str());
-  if (StudyCache::exists(cache.ckpt)) {
-    const Checkpoint c = read_checkpoint(cache.ckpt);
-    if (c.config_toml != m.cfg.resolved_toml) throw std::runtime_error("the study cache " + cache.ckpt + " is of another configuration");
+  if (!cache_.ckpt.empty())
+    std::printf("  (cache: running state %s, reference %s)\n", cache_.ckpt.c_str(), cache_.ref.c_str());
+  if (StudyCache::exists(cache_.ckpt)) {
+    const Checkpoint c = read_checkpoint(cache_.ckpt);
+    if (c.config_toml != m_.cfg.resolved_toml)
+      throw std::runtime_error("the study cache " + cache_.ckpt + " is of another configuration");
     warm.restore(c);
-    std::printf("  (running state from the cache %s)\n", cache.ckpt.c_str());
+    std::printf("  (running state from the cache %s)\n", cache_.ckpt.c_str());
   } else {
     for (long k = 0; k < warm_steps; ++k) warm.step(h_prod);
-    if (!cache.ckpt.empty()) write_checkpoint(cache.ckpt, warm.checkpoint());
+    if (!cache_.ckpt.empty()) write_checkpoint(cache_.ckpt, warm.checkpoint());
   }
-  const Checkpoint start = warm.checkpoint();
-  const double t0 = warm.time();
+  start_ = warm.checkpoint();
+  t0_ = warm.time();
+  Workspace ws(m_);
+  auto sched = make_schedule(m_, ws, ScheduleOptions{});
+  ModelOde probe(m_, ws, *sched, ModelOdeOptions{2, opt_.exact_dense_rows});
+  const double rho = warm.spectral_radius(start_.state, t0_, warm.workspace().status);
+  std::printf("spectral radius of df/dy at the running state: about %.3g 1/s (RK4 stable for h up to about "
+              "%.3g s)\n", rho, 2.8 / rho);
+  std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
+              static_cast<long>(probe.system().sparsity.nonZeros()), opt_.exact_dense_rows ? "exact" : "approximate",
+              probe.colors(), probe.colors() + 1);
+}
+
+// (a) The error after one step of each method and h from the running state, against RK4
+// with a small step, the statuses frozen.
+void Study::one_step_errors() {
+  std::vector<double> hs = opt_.one_step_h;
+  std::sort(hs.begin(), hs.end());
+  std::vector<Eigen::VectorXd> ref(hs.size());  // the reference at every h
   {
-    Workspace ws(m);
-    auto sched = make_schedule(m, ws, ScheduleOptions{});
-    ModelOde probe(m, ws, *sched, ModelOdeOptions{2, opt.exact_dense_rows});
-    const double rho = warm.spectral_radius(start.state, t0, warm.workspace().status);
-    std::printf("spectral radius of df/dy at the running state: about %.3g 1/s (RK4 stable for h up to about "
-                "%.3g s)\n", rho, 2.8 / rho);
-    std::printf("Jacobian: %ld nonzeros (%s dense rows), %d colours (RHS evaluations per Jacobian: %d)\n",
-                static_cast<long>(probe.system().sparsity.nonZeros()), opt.exact_dense_rows ? "exact" : "approximate",
-                probe.colors(), probe.colors() + 1);
+    Simulation s(m_, ScheduleOptions{});
+    s.restore(start_);
+    long done = 0;
+    for (size_t i = 0; i < hs.size(); ++i) {
+      const long want = std::lround(hs[i] / opt_.one_step_ref);
+      for (; done < want; ++done) s.step(opt_.one_step_ref, false);
+      ref[i] = s.state();
+    }
   }
-
-  OdeOptions base;
-  base.newton_max_iter = opt.newton_max_iter;
-  base.jac_theta = opt.jac_theta;
-  base.max_norm = opt.max_norm;
-  // Scaled, shifted system (ModelOdeOptions::scaled): tolerances in units of 1 um, 1 mm/s, 1 mJ.
-  ModelOdeOptions jac_opt;
-  jac_opt.exact_dense_rows = opt.exact_dense_rows;
-  jac_opt.scaled = true;
-  jac_opt.freeze_friction = opt.freeze_friction;
-  if (opt.w_every < 1 || opt.w_k_every < 1 || opt.w_k_every % opt.w_every != 0)
-    throw std::invalid_argument("--w-k-every must be a multiple of --w-every");
-  jac_opt.w_every = opt.w_every;
-  jac_opt.w_k_every = opt.w_k_every;
-  jac_opt.w_stiffness = !opt.w_no_stiffness;
-  jac_opt.w_secant = opt.w_secant;
-  jac_opt.w_fresh = opt.w_fresh < 0 ? m.cfg.integrator.w_fresh : opt.w_fresh;
-  jac_opt.w_fresh_max = opt.w_fresh_max > 0 ? opt.w_fresh_max : m.cfg.integrator.w_fresh_max;
-  jac_opt.w_status_rebuild = opt.w_status_rebuild;
-  jac_opt.w_blocks = !opt.ros2_full_jacobian;
-
-  // ---- (a) one-step error -------------------------------------------------------------
-  std::vector<OneStep> one;
-  if (opt.one_step) {
-    std::vector<double> hs = opt.one_step_h;
-    std::sort(hs.begin(), hs.end());
-    // Reference: RK4 with the small step, statuses frozen, states kept at every h.
-    std::vector<Eigen::VectorXd> ref(hs.size());
-    {
-      Simulation s(m, ScheduleOptions{});
-      s.restore(start);
-      long done = 0;
-      for (size_t i = 0; i < hs.size(); ++i) {
-        const long want = std::lround(hs[i] / opt.one_step_ref);
-        for (; done < want; ++done) s.step(opt.one_step_ref, false);
-        ref[i] = s.state();
+  std::printf("\n(a) error after one step from t = %.4g s against RK4 with h = %.3g s (statuses frozen)\n", t0_,
+              opt_.one_step_ref);
+  std::printf("%-10s %10s %14s %14s\n", "method", "h [s]", "pos err [m]", "vel err [m/s]");
+  for (const std::string& name : opt_.methods) {
+    const OdeMethod method = parse_ode_method(name);
+    for (size_t i = 0; i < hs.size(); ++i) {
+      Workspace ws(m_);
+      ws.status.rocker = start_.rocker;
+      ws.status.pulley = start_.pulley;
+      auto sched = make_schedule(m_, ws, ScheduleOptions{});
+      ModelOde ode(m_, ws, *sched, jac_opt_);
+      OdeOptions o = base_;
+      o.atol = o.rtol = 1e-3;
+      o.fixed_step = true;
+      o.h0 = hs[i];
+      OneStep r{name, hs[i]};
+      const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
+      if (implicit && opt_.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth)
+        ode.record_friction_branches();
+      if (is_w_method(method) && !opt_.ros2_full_jacobian) ode.ask_friction_jacobian(0);  // the W-method's matrix
+      ode.offset() = start_.state;
+      Eigen::VectorXd z;
+      ode.to_z(start_.state, z);
+      try {
+        OdeSolver solver(ode.system(), method, o);
+        solver.integrate(t0_, t0_ + hs[i], z);
+        Eigen::VectorXd y;
+        ode.to_y(z, y);
+        state_errors(m_, y, ref[i], r.err_pos, r.err_vel);
+      } catch (const std::exception&) {
       }
+      std::printf("%-10s %10.3g %14.4g %14.4g\n", name.c_str(), r.h, r.err_pos, r.err_vel);
+      one_.push_back(r);
     }
-    std::printf("\n(a) error after one step from t = %.4g s against RK4 with h = %.3g s (statuses frozen)\n", t0,
-                opt.one_step_ref);
-    std::printf("%-10s %10s %14s %14s\n", "method", "h [s]", "pos err [m]", "vel err [m/s]");
-    for (const std::string& name : opt.methods) {
-      const OdeMethod method = parse_ode_method(name);
-      for (size_t i = 0; i < hs.size(); ++i) {
-        Workspace ws(m);
-        ws.status.rocker = start.rocker;
-        ws.status.pulley = start.pulley;
-        auto sched = make_schedule(m, ws, ScheduleOptions{});
-        ModelOde ode(m, ws, *sched, jac_opt);
-        OdeOptions o = base;
-        o.atol = o.rtol = 1e-3;
-        o.fixed_step = true;
-        o.h0 = hs[i];
-        OneStep r{name, hs[i]};
-        const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
-        if (implicit && opt.freeze_friction && m.cfg.friction.law == FrictionLaw::nonsmooth)
-          ode.record_friction_branches();
-        if (is_w_method(method) && !opt.ros2_full_jacobian) ode.ask_friction_jacobian(0);  // the W-method's matrix
-        ode.offset() = start.state;
-        Eigen::VectorXd z;
-        ode.to_z(start.state, z);
-        try {
-          OdeSolver solver(ode.system(), method, o);
-          solver.integrate(t0, t0 + hs[i], z);
-          Eigen::VectorXd y;
-          ode.to_y(z, y);
-          state_errors(m, y, ref[i], r.err_pos, r.err_vel);
-        } catch (const std::exception&) {
-        }
-        std::printf("%-10s %10.3g %14.4g %14.4g\n", name.c_str(), r.h, r.err_pos, r.err_vel);
-        one.push_back(r);
-      }
-    }
-    std::fflush(stdout);
   }
+  std::fflush(stdout);
+}
 
-  // ---- (b) the sample curve -------------------------------------------------------------
-  std::vector<CurveRun> runs;
-  std::vector<double> times, ref_curve;
-  int tracked = -1;
-  double ref_wall = 0;
-  bool ref_from_cache = false;
-  if (opt.curve) {
-    const long n_samples = std::max(1L, std::lround(opt.t_sample / opt.sample_dt));
-    for (long k = 0; k <= n_samples; ++k) times.push_back(t0 + k * opt.sample_dt);
-    Reference ref;
-    ref_from_cache = StudyCache::exists(cache.ref);
-    if (ref_from_cache) {
-      ref = read_reference(cache.ref, times.size());
-      std::printf("  (reference curve from the cache %s)\n", cache.ref.c_str());
-    } else {
-      // Reference: production RK4 at ref_step, all pins' axial forces.
-      std::vector<std::vector<double>> all_f;
-      std::vector<std::vector<int>> all_touch;
-      Simulation s(m, opt.schedule);
-      s.restore(start);
-      s.set_clock(t0, 0);
-      std::vector<double> f;
-      std::vector<int> touch;
-      const auto w0 = Clock::now();
-      pin_forces(m, s.state(), s.workspace().status, f, touch);
-      all_f.push_back(f), all_touch.push_back(touch);
-      const long per = std::lround(opt.sample_dt / opt.ref_step);
-      for (long k = 1; k <= n_samples; ++k) {
-        for (long i = 0; i < per; ++i) s.step(opt.ref_step);
-        pin_forces(m, s.state(), s.workspace().status, f, touch);
-        all_f.push_back(f), all_touch.push_back(touch);
-      }
-      ref.wall = seconds_since(w0);
-      // The tracked half: one that starts off the sheaves and touches them from 10 % .. 60 % of
-      // the window on; among those the one with the largest range of axial force.
-      double best_range = -1;
-      for (int i = 0; i < 2 * m.links; ++i) {
-        if (all_touch[0][i]) continue;
-        long first = -1;
-        for (long k = 0; k <= n_samples; ++k)
-          if (all_touch[k][i]) {
-            first = k;
-            break;
-          }
-        if (first < 0) continue;
-        const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
-        double lo = 1e300, hi = -1e300;
-        for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
-        const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
-        if (score > best_range) best_range = score, ref.tracked = i;
-      }
-      if (ref.tracked < 0) ref.tracked = 0;  // nothing enters in this window: take pin 0, half a
-      for (long k = 0; k <= n_samples; ++k) ref.curve.push_back(all_f[k][ref.tracked]), ref.touch.push_back(all_touch[k][ref.tracked]);
-      if (!cache.ref.empty()) write_reference(cache.ref, ref);
-    }
-    tracked = ref.tracked;
-    ref_wall = ref.wall;
-    ref_curve = ref.curve;
-    const double lo = *std::min_element(ref_curve.begin(), ref_curve.end());
-    const double hi = *std::max_element(ref_curve.begin(), ref_curve.end());
-    const double range = std::max(hi - lo, 1e-12);
-    long enters = -1;
+// (b) The reference curve: production RK4 at ref_step, the axial force of every pin half at
+// the sample times; the tracked half is one that starts off the sheaves and touches them
+// from 10 % .. 60 % of the window on, among those the one with the largest range.
+Reference Study::compute_reference(long n_samples) const {
+  Reference ref;
+  std::vector<std::vector<double>> all_f;
+  std::vector<std::vector<int>> all_touch;
+  Simulation s(m_, opt_.schedule);
+  s.restore(start_);
+  s.set_clock(t0_, 0);
+  std::vector<double> f;
+  std::vector<int> touch;
+  const auto w0 = Clock::now();
+  pin_forces(m_, s.state(), s.workspace().status, f, touch);
+  all_f.push_back(f), all_touch.push_back(touch);
+  const long per = std::lround(opt_.sample_dt / opt_.ref_step);
+  for (long k = 1; k <= n_samples; ++k) {
+    for (long i = 0; i < per; ++i) s.step(opt_.ref_step);
+    pin_forces(m_, s.state(), s.workspace().status, f, touch);
+    all_f.push_back(f), all_touch.push_back(touch);
+  }
+  ref.wall = seconds_since(w0);
+  double best_range = -1;
+  for (int i = 0; i < 2 * m_.links; ++i) {
+    if (all_touch[0][i]) continue;
+    long first = -1;
     for (long k = 0; k <= n_samples; ++k)
-      if (ref.touch[k]) {
-        enters = k;
+      if (all_touch[k][i]) {
+        first = k;
         break;
       }
-    std::printf("\n(b) sample curve: axial force of pin %d, half %c over %.4g .. %.4g s (enters a pulley at %.4g s); "
-                "reference RK4 h = %.3g s: range %.1f .. %.1f N, %.2f s wall\n",
-                tracked / 2, tracked % 2 ? 'b' : 'a', t0, times.back(), enters >= 0 ? times[enters] : kNaN,
-                opt.ref_step, lo, hi, ref_wall);
-    if (opt.perturb > 0)
-      std::printf("  every run starts from the running state with its positions moved by %.3g |q| u (seed %llu)\n",
-                  opt.perturb, static_cast<unsigned long long>(opt.seed));
-    std::fflush(stdout);
+    if (first < 0) continue;
+    const bool early_enough = first <= 0.6 * n_samples, late_enough = first >= 0.1 * n_samples;
+    double lo = 1e300, hi = -1e300;
+    for (long k = 0; k <= n_samples; ++k) lo = std::min(lo, all_f[k][i]), hi = std::max(hi, all_f[k][i]);
+    const double score = (hi - lo) * (early_enough && late_enough ? 1.0 : 1e-3);
+    if (score > best_range) best_range = score, ref.tracked = i;
+  }
+  if (ref.tracked < 0) ref.tracked = 0;  // nothing enters in this window: take pin 0, half a
+  for (long k = 0; k <= n_samples; ++k)
+    ref.curve.push_back(all_f[k][ref.tracked]), ref.touch.push_back(all_touch[k][ref.tracked]);
+  return ref;
+}
 
-    auto deviation = [&](const std::vector<double>& c) {
-      double d = 0;
-      for (size_t k = 0; k < c.size(); ++k) d = std::max(d, std::abs(c[k] - ref_curve[k]));
-      return c.size() == ref_curve.size() ? d / range : kNaN;
-    };
-    // One run of a candidate of a method (step or tolerance p; W-methods: their matrix intervals).
-    auto run_once = [&](const std::string& name, double p, int w_every, int w_k_every) {
-      const OdeMethod method = parse_ode_method(name);
-      const bool fixed = method == OdeMethod::Rk4;
-      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
-      CurveRun r;
-      r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
-      r.w_every = w_every, r.w_k_every = w_k_every;
-      Simulation s(m, opt.schedule);
-      s.restore(start);
-      s.set_clock(t0, 0);
-      if (opt.perturb > 0) perturb_positions(m, s.mutable_state(), opt.perturb, opt.seed);
-      std::vector<double> f;
-      std::vector<int> touch;
-      pin_forces(m, s.state(), s.workspace().status, f, touch);
-      r.curve.push_back(f[tracked]);
-      const auto w0 = Clock::now();
-      try {
-        if (fixed) {
-          // The production path (Simulation::step, fused stage update).
-          const long per = std::lround(opt.sample_dt / p);
-          if (std::abs(per * p - opt.sample_dt) > 1e-6 * opt.sample_dt)
-            throw std::invalid_argument("the RK4 step must divide sample_dt");
-          for (size_t k = 1; k < times.size(); ++k) {
-            for (long i = 0; i < per; ++i) s.step(p);
-            r.steps += per, r.rhs += 4 * per;
-            pin_forces(m, s.state(), s.workspace().status, f, touch);
-            r.curve.push_back(f[tracked]);
-            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
-            if (seconds_since(w0) > opt.max_wall) throw std::runtime_error("timeout");
-          }
-        } else {
-          OdeRunOptions ro;
-          ro.method = method;
-          ro.ode = base;
-          ro.ode.atol = ro.ode.rtol = p;
-          ro.ode.h0 = 1e-8;
-          if (w_fixed) {
-            ro.ode.fixed_step = true;
-            ro.ode.h0 = p;
-          }
-          ro.ode.w_reuse_steps = opt.w_every;  // ROS2 with the full Jacobian
-          ro.jac = jac_opt;
-          if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
-          // Fixed-step ROS2 as `cvt-engine run --method ros2` takes it: unscaled (the units only
-          // serve error norms, which fixed steps do not use).
-          if (w_fixed) ro.jac.scaled = false;
-          ro.status_interval = opt.status_interval;
-          OdeDriver drv(s.model(), s.workspace(), s.schedule(), ro);
-          for (size_t k = 1; k < times.size(); ++k) {
-            s.advance(drv, times[k]);
-            pin_forces(m, s.state(), s.workspace().status, f, touch);
-            r.curve.push_back(f[tracked]);
-            if (!s.state().allFinite() || std::abs(f[tracked]) > 1e3 * range + 1e6) throw BlowUpError("blow-up");
-            if (seconds_since(w0) > opt.max_wall) {
-              take_stats(drv, r);
-              r.reached = times[k] - t0;
-              throw std::runtime_error("timeout");
-            }
-          }
-          take_stats(drv, r);
-        }
-      } catch (const BlowUpError&) {
-        r.status = "blow-up";
-      } catch (const OdeError& e) {
-        r.status = "error";
-      } catch (const std::exception& e) {
-        r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
-      }
-      r.wall_s = seconds_since(w0);
-      return r;
-    };
-    for (const std::string& name : opt.methods) {
-      const OdeMethod method = parse_ode_method(name);
-      const bool fixed = method == OdeMethod::Rk4;
-      const bool w_fixed = is_w_method(method) && !opt.w_steps.empty();
-      std::vector<IntegratorStudyOptions::WCandidate> cands;
-      if (w_fixed) {
-        for (const auto& c : opt.w_steps)
-          if (c.method.empty() || c.method == name) cands.push_back(c);
-      } else {
-        for (double p : fixed ? opt.rk4_steps : opt.tolerances) cands.push_back({p});
-      }
-      bool found = false;
-      for (const auto& cand : cands) {
-        const double p = cand.h;
-        const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
-        const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt.w_every;
-        const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt.w_k_every;
-        // The first round; --repeat adds rounds over all runs below.
-        CurveRun r = run_once(name, p, we, wk);
-        r.walls = {r.wall_s};
-        r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times.back() - t0) / r.steps : kNaN;
-        if (r.status == "timeout")
-          std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
-        if (r.status == "ok") r.deviation = deviation(r.curve);
-        const bool good = r.status == "ok" && r.deviation <= opt.max_deviation;
-        if (good && !found) r.chosen = found = true;
-        if (r.w_every > 0) std::printf("  (W matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
-        std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
-                    "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
-                    name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
-                    r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s, r.chosen ? "  <- chosen" : "");
-        if (is_w_method(method) && !opt.ros2_full_jacobian)
-          std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes; fresh friction: "
-                      "%lld contacts corrected, %lld rebuilds forced)\n",
-                      name.c_str(), r.status_rebuilds, r.fresh_contacts, r.fresh_rebuilds);
-        std::fflush(stdout);
-        runs.push_back(std::move(r));
-        if (found && !opt.all) break;
-      }
+// The sample times, the reference curve (computed, or from the cache) and its range.
+void Study::reference_curve() {
+  const long n_samples = std::max(1L, std::lround(opt_.t_sample / opt_.sample_dt));
+  for (long k = 0; k <= n_samples; ++k) times_.push_back(t0_ + k * opt_.sample_dt);
+  Reference ref;
+  ref_from_cache_ = StudyCache::exists(cache_.ref);
+  if (ref_from_cache_) {
+    ref = read_reference(cache_.ref, times_.size());
+    std::printf("  (reference curve from the cache %s)\n", cache_.ref.c_str());
+  } else {
+    ref = compute_reference(n_samples);
+    if (!cache_.ref.empty()) write_reference(cache_.ref, ref);
+  }
+  tracked_ = ref.tracked;
+  ref_wall_ = ref.wall;
+  ref_curve_ = ref.curve;
+  const double lo = *std::min_element(ref_curve_.begin(), ref_curve_.end());
+  const double hi = *std::max_element(ref_curve_.begin(), ref_curve_.end());
+  range_ = std::max(hi - lo, 1e-12);
+  long enters = -1;
+  for (long k = 0; k <= n_samples; ++k)
+    if (ref.touch[k]) {
+      enters = k;
+      break;
     }
-    // The repeats (--repeat N): N - 1 more rounds over every finished run, in the study's order,
-    // so that RK4 and the others meet the machine's drifting load alike (the ratios are what
-    // counts); the same bits every time; each run's wall time is its median.
-    for (int rep = 1; rep < opt.repeat; ++rep)
-      for (CurveRun& r : runs) {
-        if (r.status != "ok") continue;
-        CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every);
-        if (again.status != r.status || again.curve != r.curve)
-          throw std::runtime_error("study: a repeated run of " + r.method + " gave other bits (not reproducible)");
-        r.walls.push_back(again.wall_s);
-      }
-    if (opt.repeat > 1) {
-      std::printf("\nrepeats, in %d rounds over the runs (wall s, round by round; the median counts):\n", opt.repeat);
-      for (CurveRun& r : runs) {
-        if (r.walls.size() < 2) continue;
-        std::printf("  %-10s %s %-8.3g", r.method.c_str(), r.param_kind.c_str(), r.param);
-        if (r.w_every > 0) std::printf(" W%d/%d", r.w_every, r.w_k_every);
-        std::printf(":");
-        for (double w : r.walls) std::printf(" %.2f", w);
-        std::vector<double> sorted = r.walls;
-        std::sort(sorted.begin(), sorted.end());
-        const size_t mid = sorted.size() / 2;
-        r.wall_s = sorted.size() % 2 ? sorted[mid] : 0.5 * (sorted[mid - 1] + sorted[mid]);
-        std::printf("  -> %.2f\n", r.wall_s);
-      }
+  std::printf("\n(b) sample curve: axial force of pin %d, half %c over %.4g .. %.4g s (enters a pulley at %.4g s); "
+              "reference RK4 h = %.3g s: range %.1f .. %.1f N, %.2f s wall\n",
+              tracked_ / 2, tracked_ % 2 ? 'b' : 'a', t0_, times_.back(), enters >= 0 ? times_[enters] : kNaN,
+              opt_.ref_step, lo, hi, ref_wall_);
+  if (opt_.perturb > 0)
+    std::printf("  every run starts from the running state with its positions moved by %.3g |q| u (seed %llu)\n",
+                opt_.perturb, static_cast<unsigned long long>(opt_.seed));
+  std::fflush(stdout);
+}
+
+double Study::deviation(const std::vector<double>& c) const {
+  double d = 0;
+  for (size_t k = 0; k < c.size(); ++k) d = std::max(d, std::abs(c[k] - ref_curve_[k]));
+  return c.size() == ref_curve_.size() ? d / range_ : kNaN;
+}
+
+// The tracked half's force at the state of s into r's curve; a blow-up is a state not
+// finite or a force far out of the reference's range.
+void Study::sample(Simulation& s, CurveRun& r) const {
+  std::vector<double> f;
+  std::vector<int> touch;
+  pin_forces(m_, s.state(), s.workspace().status, f, touch);
+  r.curve.push_back(f[tracked_]);
+  if (!s.state().allFinite() || std::abs(f[tracked_]) > 1e3 * range_ + 1e6) throw BlowUpError("blow-up");
+}
+
+// RK4 candidates: the production path (Simulation::step, fused stage update).
+void Study::rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_point w0) const {
+  const long per = std::lround(opt_.sample_dt / h);
+  if (std::abs(per * h - opt_.sample_dt) > 1e-6 * opt_.sample_dt)
+    throw std::invalid_argument("the RK4 step must divide sample_dt");
+  for (size_t k = 1; k < times_.size(); ++k) {
+    for (long i = 0; i < per; ++i) s.step(h);
+    r.steps += per, r.rhs += 4 * per;
+    sample(s, r);
+    if (seconds_since(w0) > opt_.max_wall) throw std::runtime_error("timeout");
+  }
+}
+
+// The other methods through an OdeDriver: tolerance p, or the W-methods' fixed step p with
+// their matrix intervals. Fixed-step W-methods as `cvt-engine run` takes them: unscaled
+// (the units only serve error norms, which fixed steps do not use).
+void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, CurveRun& r,
+                         WallClock::time_point w0) const {
+  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty();
+  OdeRunOptions ro;
+  ro.method = method;
+  ro.ode = base_;
+  ro.ode.atol = ro.ode.rtol = p;
+  ro.ode.h0 = 1e-8;
+  if (w_fixed) {
+    ro.ode.fixed_step = true;
+    ro.ode.h0 = p;
+  }
+  ro.ode.w_reuse_steps = opt_.w_every;  // ROS2 with the full Jacobian
+  ro.jac = jac_opt_;
+  if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
+  if (w_fixed) ro.jac.scaled = false;
+  ro.status_interval = opt_.status_interval;
+  OdeDriver drv(s.model(), s.workspace(), s.schedule(), ro);
+  for (size_t k = 1; k < times_.size(); ++k) {
+    s.advance(drv, times_[k]);
+    sample(s, r);
+    if (seconds_since(w0) > opt_.max_wall) {
+      take_stats(drv, r);
+      r.reached = times_[k] - t0_;
+      throw std::runtime_error("timeout");
     }
-    // Summary table: every run that finished, against the chosen RK4 run of this study (*: each
-    // method's chosen run, its largest accurate step or loosest accurate tolerance).
-    double rk4_wall = kNaN;
-    for (const CurveRun& r : runs)
-      if (r.chosen && r.method == "rk4") rk4_wall = r.wall_s;
-    std::printf("\n%-10s %-22s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
-                "jac", "lu", "steps", "mean h s", "vs rk4");
-    for (const CurveRun& r : runs) {
+  }
+  take_stats(drv, r);
+}
+
+// One run of a candidate of a method (step or tolerance p; W-methods: their matrix
+// intervals) from the running state over the window.
+CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k_every) const {
+  const OdeMethod method = parse_ode_method(name);
+  const bool fixed = method == OdeMethod::Rk4;
+  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty();
+  CurveRun r;
+  r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
+  r.w_every = w_every, r.w_k_every = w_k_every;
+  Simulation s(m_, opt_.schedule);
+  s.restore(start_);
+  s.set_clock(t0_, 0);
+  if (opt_.perturb > 0) perturb_positions(m_, s.mutable_state(), opt_.perturb, opt_.seed);
+  std::vector<double> f;
+  std::vector<int> touch;
+  pin_forces(m_, s.state(), s.workspace().status, f, touch);
+  r.curve.push_back(f[tracked_]);
+  const auto w0 = Clock::now();
+  try {
+    if (fixed)
+      rk4_curve(s, p, r, w0);
+    else
+      driver_curve(s, method, p, w_every, w_k_every, r, w0);
+  } catch (const BlowUpError&) {
+    r.status = "blow-up";
+  } catch (const OdeError& e) {
+    r.status = "error";
+  } catch (const std::exception& e) {
+    r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
+  }
+  r.wall_s = seconds_since(w0);
+  return r;
+}
+
+// Each method's candidates, largest step or loosest tolerance first; the first accurate
+// one is chosen, and (without --all) the others are not run.
+void Study::candidates() {
+  for (const std::string& name : opt_.methods) {
+    const OdeMethod method = parse_ode_method(name);
+    const bool fixed = method == OdeMethod::Rk4;
+    const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty();
+    std::vector<IntegratorStudyOptions::WCandidate> cands;
+    if (w_fixed) {
+      for (const auto& c : opt_.w_steps)
+        if (c.method.empty() || c.method == name) cands.push_back(c);
+    } else {
+      for (double p : fixed ? opt_.rk4_steps : opt_.tolerances) cands.push_back({p});
+    }
+    bool found = false;
+    for (const auto& cand : cands) {
+      const double p = cand.h;
+      const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
+      const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt_.w_every;
+      const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt_.w_k_every;
+      // The first round; --repeat adds rounds over all runs (repeats()).
+      CurveRun r = run_once(name, p, we, wk);
+      r.walls = {r.wall_s};
+      r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times_.back() - t0_) / r.steps : kNaN;
+      if (r.status == "timeout")
+        std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
+      if (r.status == "ok") r.deviation = deviation(r.curve);
+      const bool good = r.status == "ok" && r.deviation <= opt_.max_deviation;
+      if (good && !found) r.chosen = found = true;
+      if (r.w_every > 0) std::printf("  (W matrix every %d steps, its stiffness every %d)\n", r.w_every, r.w_k_every);
+      std::printf("  %-10s %-3s %-8.3g %-8s dev %8.3f %%  wall %8.2f s  rhs %9lld  jac %5lld  lu %6lld  steps %8lld "
+                  "(rej %lld, Newton it %lld, fail %lld)  mean h %.3g s  [jac %.1f s, LU %.1f s, solves %.1f s]%s\n",
+                  name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
+                  r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s,
+                  r.chosen ? "  <- chosen" : "");
+      if (is_w_method(method) && !opt_.ros2_full_jacobian)
+        std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes; fresh friction: "
+                    "%lld contacts corrected, %lld rebuilds forced)\n",
+                    name.c_str(), r.status_rebuilds, r.fresh_contacts, r.fresh_rebuilds);
+      std::fflush(stdout);
+      runs_.push_back(std::move(r));
+      if (found && !opt_.all) break;
+    }
+  }
+}
+
+// The repeats (--repeat N): N - 1 more rounds over every finished run, in the study's order,
+// so that RK4 and the others meet the machine's drifting load alike (the ratios are what
+// counts); the same bits every time; each run's wall time is its median.
+void Study::repeats() {
+  for (int rep = 1; rep < opt_.repeat; ++rep)
+    for (CurveRun& r : runs_) {
       if (r.status != "ok") continue;
-      char p[48];
-      if (r.w_every > 0)
-        std::snprintf(p, sizeof p, "%s=%.3g W%d/%d%s", r.param_kind.c_str(), r.param, r.w_every, r.w_k_every, r.chosen ? "*" : "");
-      else
-        std::snprintf(p, sizeof p, "%s=%.3g%s", r.param_kind.c_str(), r.param, r.chosen ? "*" : "");
-      char vs[32] = "-";  // without an RK4 candidate in this study
-      if (std::isfinite(rk4_wall) && rk4_wall > 0) std::snprintf(vs, sizeof vs, "%.2fx", rk4_wall / r.wall_s);
-      std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %12s\n", r.method.c_str(), p,
-                  100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, vs);
+      CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every);
+      if (again.status != r.status || again.curve != r.curve)
+        throw std::runtime_error("study: a repeated run of " + r.method + " gave other bits (not reproducible)");
+      r.walls.push_back(again.wall_s);
     }
-    if (opt.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt.repeat);
-    std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt.ref_step, ref_wall,
-                ref_from_cache ? ", from the cache: an earlier run's time" : "");
-    for (const CurveRun& r : runs)
-      if (r.chosen)
-        std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),
-                    r.wall_s / (times.back() - t0), r.wall_s / (times.back() - t0) / 60);
+  if (opt_.repeat <= 1) return;
+  std::printf("\nrepeats, in %d rounds over the runs (wall s, round by round; the median counts):\n", opt_.repeat);
+  for (CurveRun& r : runs_) {
+    if (r.walls.size() < 2) continue;
+    std::printf("  %-10s %s %-8.3g", r.method.c_str(), r.param_kind.c_str(), r.param);
+    if (r.w_every > 0) std::printf(" W%d/%d", r.w_every, r.w_k_every);
+    std::printf(":");
+    for (double w : r.walls) std::printf(" %.2f", w);
+    r.wall_s = median(r.walls);
+    std::printf("  -> %.2f\n", r.wall_s);
   }
+}
 
-  if (!opt.out_csv.empty()) {
-    std::ofstream f(opt.out_csv);
-    f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
-         "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen,"
-         "w_every,w_k_every,repeats\n";
-    f.precision(10);
-    for (const OneStep& r : one)
-      f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel << ",,,,,,,,,,,,,,,,,,\n";
-    for (const CurveRun& r : runs)
-      f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
-        << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
-        << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << ","
-        << r.w_every << "," << r.w_k_every << "," << std::max<size_t>(1, r.walls.size()) << "\n";
-    if (!f) throw std::runtime_error("cannot write '" + opt.out_csv + "'");
-    if (!times.empty()) {
-      std::string cpath = opt.out_csv;
-      if (cpath.size() > 4 && cpath.substr(cpath.size() - 4) == ".csv") cpath.resize(cpath.size() - 4);
-      cpath += "-curves.csv";
-      std::ofstream c(cpath);
-      c.precision(10);
-      c << "t_s,reference";
-      for (const CurveRun& r : runs)
-        if (r.chosen) c << "," << r.method;
-      c << "\n";
-      for (size_t k = 0; k < times.size(); ++k) {
-        c << times[k] << "," << ref_curve[k];
-        for (const CurveRun& r : runs)
-          if (r.chosen) c << "," << r.curve[k];
-        c << "\n";
-      }
-      std::printf("wrote %s and %s (pin %d, half %c)\n", opt.out_csv.c_str(), cpath.c_str(), tracked / 2,
-                  tracked % 2 ? 'b' : 'a');
-    }
+// The summary table: every run that finished, against the chosen RK4 run of this study (*:
+// each method's chosen run, its largest accurate step or loosest accurate tolerance).
+void Study::table() const {
+  double rk4_wall = kNaN;
+  for (const CurveRun& r : runs_)
+    if (r.chosen && r.method == "rk4") rk4_wall = r.wall_s;
+  std::printf("\n%-10s %-22s %9s %10s %10s %6s %6s %9s %10s %12s\n", "method", "step/tol", "dev %", "wall s", "rhs",
+              "jac", "lu", "steps", "mean h s", "vs rk4");
+  for (const CurveRun& r : runs_) {
+    if (r.status != "ok") continue;
+    char p[48];
+    if (r.w_every > 0)
+      std::snprintf(p, sizeof p, "%s=%.3g W%d/%d%s", r.param_kind.c_str(), r.param, r.w_every, r.w_k_every,
+                    r.chosen ? "*" : "");
+    else
+      std::snprintf(p, sizeof p, "%s=%.3g%s", r.param_kind.c_str(), r.param, r.chosen ? "*" : "");
+    char vs[32] = "-";  // without an RK4 candidate in this study
+    if (std::isfinite(rk4_wall) && rk4_wall > 0) std::snprintf(vs, sizeof vs, "%.2fx", rk4_wall / r.wall_s);
+    std::printf("%-10s %-22s %9.3f %10.2f %10lld %6lld %6lld %9lld %10.3g %12s\n", r.method.c_str(), p,
+                100 * r.deviation, r.wall_s, r.rhs, r.jac, r.lu, r.steps, r.h_mean, vs);
   }
+  if (opt_.repeat > 1) std::printf("(wall s: the median of %d runs each)\n", opt_.repeat);
+  std::printf("(reference RK4 h = %.3g s: %.2f s wall%s)\n", opt_.ref_step, ref_wall_,
+              ref_from_cache_ ? ", from the cache: an earlier run's time" : "");
+  for (const CurveRun& r : runs_)
+    if (r.chosen)
+      std::printf("  %-10s extrapolated to 1 s of model time: %.0f s (%.1f min)\n", r.method.c_str(),
+                  r.wall_s / (times_.back() - t0_), r.wall_s / (times_.back() - t0_) / 60);
+}
+
+// --out FILE.csv: one row per one-step error and per run; the chosen runs' curves beside the
+// reference in FILE-curves.csv.
+void Study::write_csv() const {
+  std::ofstream f(opt_.out_csv);
+  f << "part,method,param_kind,param,h,err_pos_m,err_vel_m_s,status,deviation_percent,wall_s,rhs_evals,jac_evals,"
+       "lu_factorizations,steps,rejected,newton_iterations,newton_failures,mean_h_s,jac_s,lu_s,solve_s,chosen,"
+       "w_every,w_k_every,repeats\n";
+  f.precision(10);
+  for (const OneStep& r : one_)
+    f << "one_step," << r.method << ",h," << r.h << "," << r.h << "," << r.err_pos << "," << r.err_vel
+      << ",,,,,,,,,,,,,,,,,,\n";
+  for (const CurveRun& r : runs_)
+    f << "curve," << r.method << "," << r.param_kind << "," << r.param << ",,,," << r.status << ","
+      << 100 * r.deviation << "," << r.wall_s << "," << r.rhs << "," << r.jac << "," << r.lu << "," << r.steps << ","
+      << r.rejected << "," << r.newton_iterations << "," << r.newton_failures << "," << r.h_mean << "," << r.jac_s
+      << "," << r.lu_s << "," << r.solve_s << "," << (r.chosen ? 1 : 0) << "," << r.w_every << "," << r.w_k_every
+      << "," << std::max<size_t>(1, r.walls.size()) << "\n";
+  if (!f) throw std::runtime_error("cannot write '" + opt_.out_csv + "'");
+  if (times_.empty()) return;
+  std::string cpath = opt_.out_csv;
+  if (cpath.size() > 4 && cpath.substr(cpath.size() - 4) == ".csv") cpath.resize(cpath.size() - 4);
+  cpath += "-curves.csv";
+  std::ofstream c(cpath);
+  c.precision(10);
+  c << "t_s,reference";
+  for (const CurveRun& r : runs_)
+    if (r.chosen) c << "," << r.method;
+  c << "\n";
+  for (size_t k = 0; k < times_.size(); ++k) {
+    c << times_[k] << "," << ref_curve_[k];
+    for (const CurveRun& r : runs_)
+      if (r.chosen) c << "," << r.curve[k];
+    c << "\n";
+  }
+  std::printf("wrote %s and %s (pin %d, half %c)\n", opt_.out_csv.c_str(), cpath.c_str(), tracked_ / 2,
+              tracked_ % 2 ? 'b' : 'a');
+}
+
+}  // namespace
+
+int run_integrator_study(const Model& model, const IntegratorStudyOptions& opt) {
+  Study study(model, opt);
+  study.running_state();
+  if (opt.one_step) study.one_step_errors();
+  if (opt.curve) {
+    study.reference_curve();
+    study.candidates();
+    study.repeats();
+    study.table();
+  }
+  if (!opt.out_csv.empty()) study.write_csv();
   return 0;
 }
 
