@@ -6,6 +6,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // Dormand & Prince (1980), as tabulated in Hairer, Norsett & Wanner I, Table II.5.2 and
 // coded in dopri5.f: the 5th-order solution is propagated (local extrapolation), the
@@ -114,4 +115,5 @@ void OdeSolverImpl::step_rkc(double t, double& h, const Eigen::VectorXd& y, doub
   *err = error_norm(err_vec_, y, y_new_);
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

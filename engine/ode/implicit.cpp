@@ -8,6 +8,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
@@ -281,4 +282,5 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_esdirk3(double t, double h, const Eig
   return filtered_error(y, err);
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

@@ -7,6 +7,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
@@ -453,4 +454,5 @@ OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1,
   return solver.stats();
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

@@ -20,7 +20,22 @@
 #include <Eigen/Dense>
 #include <Eigen/Sparse>
 
+// The library's names live in an inline namespace named after Eigen's heap and static
+// alignment (cvt::eigen_align_32_32 under AVX): Eigen objects cross this interface and the
+// linker shares Eigen's template instances between a program and the library, so a program
+// whose Eigen aligns differently (one built with the compiler's default flags: 16 bytes) would
+// free with one allocator what the other allocated, and crash. With the namespace such a
+// program fails to link, naming the alignment it expected, and a pimpl could not help: the
+// state vector, the sparsity pattern and the Jacobians are Eigen objects of the interface
+// itself. CMake targets that link cvt_ode receive the library's values as PUBLIC definitions
+// (EIGEN_MAX_ALIGN_BYTES, EIGEN_MAX_STATIC_ALIGN_BYTES); a program built otherwise passes
+// the same two (docs/integrators.md 1). Spelled out as cvt::OdeSolver etc. everywhere else.
+#define CVT_ODE_ABI_NAME_(heap, stat) eigen_align_##heap##_##stat
+#define CVT_ODE_ABI_NAME(heap, stat) CVT_ODE_ABI_NAME_(heap, stat)
+#define CVT_ODE_ABI CVT_ODE_ABI_NAME(EIGEN_MAX_ALIGN_BYTES, EIGEN_MAX_STATIC_ALIGN_BYTES)
+
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // y' = f(t, y). `rhs` writes dy (size `size`) and must not allocate: it is called once per
 // stage. Raw pointers so that any storage (Eigen, State buffers) can be handed in.
@@ -213,4 +228,5 @@ class OdeSolver {
 OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1, Eigen::VectorXd& y,
                    const OdeOptions& options = {}, const OdeObserver& observer = {});
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

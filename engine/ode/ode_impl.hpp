@@ -11,6 +11,7 @@
 #include "engine/ode/ode.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // The iteration matrix M = I - dh J of the implicit methods, with J dense or sparse, its LU
 // and the Jacobian's provenance. Everything is sized in the constructor; SparseLU's
@@ -121,4 +122,5 @@ class OdeSolverImpl {
   double t_prev_ = 0;
 };
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

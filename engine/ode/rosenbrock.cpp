@@ -21,6 +21,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 namespace {
 const double kRos2Gamma = 1.0 + 1.0 / std::sqrt(2.0);
@@ -159,4 +160,5 @@ void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, 
   *err = error_norm(err_vec_, y, y_new_);
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt
