@@ -153,7 +153,7 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
                            Eigen::VectorXd& z, Eigen::VectorXd& fz) {
   if (!newton_->ok()) return false;
   const double fnewt = std::max(10 * kEps / opt_.rtol, std::min(0.03, std::sqrt(opt_.rtol)));
-  for (int i = 0; i < n_; ++i) scale_[i] = opt_.atol + opt_.rtol * std::abs(y_scale[i]);
+  for (int i = 0; i < n_; ++i) scale_[i] = atol_[i] + opt_.rtol * std::abs(y_scale[i]);
   double faccon = std::pow(std::max(faccon_, kEps), 0.8);
   double dyold = 0;
   const int max_iter = opt_.newton_max_iter;

@@ -193,7 +193,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
   if (n_ <= 0 || !sys.rhs) throw std::invalid_argument("OdeSystem: size must be positive and rhs set");
   if (sys.is_sparse() && (sys.sparsity.rows() != n_ || sys.sparsity.cols() != n_))
     throw std::invalid_argument("OdeSystem: sparsity pattern must be size x size");
-  f0_.setZero(n_), f_new_.setZero(n_), y_new_.setZero(n_), err_vec_.setZero(n_), tmp_.setZero(n_);
+  f0_.setZero(n_), f_new_.setZero(n_), y_new_.setZero(n_), err_vec_.setZero(n_), tmp_.setZero(n_), atol_.setZero(n_);
   switch (method_) {
     case OdeMethod::Rk4: rk4_.emplace(n_); break;
     case OdeMethod::Dopri5:
@@ -237,12 +237,12 @@ int OdeSolverImpl::order() const {
   }
 }
 
-// Hairer's RMS norm of err weighted by atol + rtol max(|y0|, |y1|): 1 is the tolerance.
+// Hairer's RMS norm of err weighted by atol_i + rtol max(|y0_i|, |y1_i|): 1 is the tolerance.
 double OdeSolverImpl::error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0,
                                  const Eigen::VectorXd& y1) const {
   double sum = 0, worst = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
+    const double sk = atol_[i] + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
     const double e = err[i] / sk;
     sum += e * e;
     worst = std::max(worst, std::abs(e));
@@ -256,7 +256,7 @@ double OdeSolverImpl::initial_step(double t0, const Eigen::VectorXd& y0, double 
   const double span = t1 - t0;
   double d0 = 0, d1 = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::abs(y0[i]);
+    const double sk = atol_[i] + opt_.rtol * std::abs(y0[i]);
     d0 += (y0[i] / sk) * (y0[i] / sk);
     d1 += (f0_[i] / sk) * (f0_[i] / sk);
   }
@@ -267,7 +267,7 @@ double OdeSolverImpl::initial_step(double t0, const Eigen::VectorXd& y0, double 
   eval(t0 + h, y_new_, f_new_);
   double d2 = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::abs(y0[i]);
+    const double sk = atol_[i] + opt_.rtol * std::abs(y0[i]);
     const double e = (f_new_[i] - f0_[i]) / sk;
     d2 += e * e;
   }
@@ -321,6 +321,17 @@ void OdeSolverImpl::rejected() {
 void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   if (y.size() != n_) throw std::invalid_argument("OdeSolver::integrate: y has the wrong size");
   if (!(t1 > t0)) throw std::invalid_argument("OdeSolver::integrate: t1 must be greater than t0");
+  // The tolerances of this call (options may change between calls).
+  if (opt_.atol_vector.empty()) {
+    atol_.setConstant(opt_.atol);
+  } else {
+    if (static_cast<int>(opt_.atol_vector.size()) != n_)
+      throw std::invalid_argument("OdeOptions: atol_vector must be empty or have one entry per component");
+    for (int i = 0; i < n_; ++i) {
+      if (!(opt_.atol_vector[i] >= 0)) throw std::invalid_argument("OdeOptions: atol_vector entries must be >= 0");
+      atol_[i] = opt_.atol_vector[i];
+    }
+  }
   have_prev_ = false;
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
   if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;

@@ -91,6 +91,11 @@ const char* to_string(OdeMethod method);
 struct OdeOptions {
   double rtol = 1e-6;
   double atol = 1e-9;
+  // Absolute tolerance per component (size n) in place of atol when not empty: for states
+  // whose components live on different scales (ROBER's y2 ~ 1e-5 beside y1, y3 ~ 1). Used
+  // wherever atol is: the error norm of every adaptive method, the starting step, Newton's
+  // convergence test.
+  std::vector<double> atol_vector;
   double h0 = 0;  // first step; 0: chosen from f (Hairer's starting step algorithm)
   double h_max = std::numeric_limits<double>::infinity();
   double h_min = 0;  // 0: 16 ulps of t; a step size below it throws OdeError

@@ -102,6 +102,7 @@ class OdeSolverImpl {
   bool fixed_ = false;
 
   Eigen::VectorXd f0_, f_new_, y_new_, err_vec_, tmp_;
+  Eigen::VectorXd atol_;  // the absolute tolerance of each component (OdeOptions::atol or atol_vector)
   // DOPRI5 stages (k2_, k3_ also ESDIRK3's)
   Eigen::VectorXd k2_, k3_, k4_, k5_, k6_;
   // RK4
