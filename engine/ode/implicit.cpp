@@ -114,6 +114,13 @@ void NewtonMatrix::factorize(double dh, OdeStats& stats) {
   ok_ = lu_sparse_.info() == Eigen::Success;
 }
 
+void NewtonMatrix::jacobian_times(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
+  if (sparse_)
+    out.noalias() = j_sparse_ * x;
+  else
+    out.noalias() = j_dense_ * x;
+}
+
 void NewtonMatrix::solve_in_place(Eigen::VectorXd& x) {
   if (sparse_)
     tmp_ = lu_sparse_.solve(x);

@@ -24,6 +24,7 @@ class NewtonMatrix {
   void factorize(double dh, OdeStats& stats);  // M = I - dh J; throws nothing, returns via ok()
   bool ok() const { return ok_; }
   void solve_in_place(Eigen::VectorXd& x);  // x <- M^-1 x
+  void jacobian_times(const Eigen::VectorXd& x, Eigen::VectorXd& out) const;  // out = J x
   double factored_dh() const { return dh_; }
   bool factored() const { return factored_; }
   int colors() const { return fd_.colors(); }
@@ -87,6 +88,10 @@ class OdeSolverImpl {
   void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
   void prepare_w(double t, double h, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
   void solve_w(Eigen::VectorXd& x);                                 // x <- W^-1 x
+  // Adaptive W-step from (t, y) to y_new_ with f0_ = f(t, y): the norm of W^-1 h (f(t, y_new)
+  // - f0 - J (y_new - y)), or 0 when the system supplies W or the test is off.
+  double linearization_error(double t, double h, const Eigen::VectorXd& y);
+  double w_nonlinearity(double t, double h, const Eigen::VectorXd& y);
   int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
   Eigen::VectorXd stages_[4];  // Ros34pw2's u_i
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz

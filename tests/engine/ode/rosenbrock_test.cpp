@@ -198,7 +198,8 @@ TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
   EXPECT_NEAR(std::log2(e2 / e3), 3.0, 0.3);
 }
 
-// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)).
+// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)). Each attempt
+// takes four evaluations for the stages and one for the linearization test.
 TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
   for (double tol : {1e-4, 1e-7}) {
     Eigen::VectorXd y = smooth_exact(0);
@@ -209,7 +210,7 @@ TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
     print_stats(tol > 1e-5 ? "ros34pw2 smooth tol 1e-04" : "ros34pw2 smooth tol 1e-07", st);
     std::printf("[ode]   ros34pw2 smooth tol %.0e: error %.3e\n", tol, err);
     EXPECT_LT(err, 30 * tol);
-    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 4 * (st.steps + st.rejected) + 2);
+    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 5 * (st.steps + st.rejected) + 2);
   }
 }
 
