@@ -221,6 +221,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       }
       k2_.setZero(n_);
       z_.setZero(n_);
+      if (sys.time_derivative) dfdt_.setZero(n_);
       if (method_ == OdeMethod::Ros34pw2)
         for (auto& u : stages_) u.setZero(n_);
       break;

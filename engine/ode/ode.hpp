@@ -67,6 +67,14 @@ struct OdeSystem {
   using WSolve = std::function<void(double* x)>;
   WFactor w_factor;
   WSolve w_solve;
+  // df/dt at (t, y), optional: writes size values and must not allocate. With it the
+  // W-methods take the t-column of their matrix exactly (the terms gamma_i h^2 df/dt of
+  // Hairer & Wanner II, IV.7), which keeps their order on stiff problems driven by an
+  // explicit function of t (ROS2 falls to order 1 on Prothero-Robinson without it,
+  // docs/integrators.md 12.1). Without it they run exactly as an autonomous W-method whose
+  // t-column is zero. The other methods do not use it.
+  using TimeDerivative = std::function<void(double t, const double* y, double* dfdt)>;
+  TimeDerivative time_derivative;
   // The pattern from a list of (row, column) nonzeros; duplicates are fine.
   void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
 };

@@ -94,6 +94,7 @@ class OdeSolverImpl {
   double w_nonlinearity(double t, double h, const Eigen::VectorXd& y);
   int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
   Eigen::VectorXd stages_[4];  // Ros34pw2's u_i
+  Eigen::VectorXd dfdt_;       // df/dt at the step's start (systems with time_derivative)
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,
