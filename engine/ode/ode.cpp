@@ -195,7 +195,10 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
     throw std::invalid_argument("OdeSystem: sparsity pattern must be size x size");
   f0_.setZero(n_), f_new_.setZero(n_), y_new_.setZero(n_), err_vec_.setZero(n_), tmp_.setZero(n_), atol_.setZero(n_);
   switch (method_) {
-    case OdeMethod::Rk4: rk4_.emplace(n_); break;
+    case OdeMethod::Rk4:
+      rk4_.emplace(n_);
+      for (auto* k : {&k2_, &k3_, &k4_, &k5_, &k6_}) k->setZero(n_);  // adaptive: step doubling
+      break;
     case OdeMethod::Dopri5:
       for (auto* k : {&k2_, &k3_, &k4_, &k5_, &k6_}) k->setZero(n_);
       break;
@@ -230,7 +233,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
 
 int OdeSolverImpl::order() const {
   switch (method_) {
-    case OdeMethod::Rk4: return 4;
+    case OdeMethod::Rk4: return 4;  // adaptive: the estimate is that of the two half steps
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
     case OdeMethod::Ros2: return 1;  // the estimate is that of the embedded first-order solution
     case OdeMethod::Ros34pw2: return 2;  // and here of the embedded second-order one
@@ -287,9 +290,9 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::Esdirk3: return step_esdirk3(t, h, y, err);
     case OdeMethod::Ros2: step_ros2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
-    case OdeMethod::Rk4: break;
+    case OdeMethod::Rk4: step_rk4_doubling(t, h, y, err); return Attempt::Ok;
   }
-  throw std::logic_error("OdeSolver: RK4 has no step attempt");
+  throw std::logic_error("OdeSolver: unknown method");
 }
 
 void OdeSolverImpl::accepted(double t, double h) {
@@ -337,7 +340,9 @@ void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const Od
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
   if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;
   if (observer) observer(t0, y);
-  if (method_ == OdeMethod::Rk4 || opt_.fixed_step)
+  // RK4 with a step h0 and no fixed_step keeps the fixed steps it always took with one
+  // (engine/wmethod's OdeDriver relies on it); without h0 it is adaptive like the others.
+  if (opt_.fixed_step || (method_ == OdeMethod::Rk4 && opt_.h0 > 0))
     integrate_fixed(t0, t1, y, observer);
   else
     integrate_adaptive(t0, t1, y, observer);

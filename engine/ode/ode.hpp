@@ -80,7 +80,7 @@ struct OdeSystem {
 };
 
 enum class OdeMethod {
-  Rk4,        // classical RK4, fixed step only (the same arithmetic as cvt::Rk4)
+  Rk4,        // classical RK4: fixed steps (the same arithmetic as cvt::Rk4) or step doubling
   Dopri5,     // Dormand-Prince 5(4), Hairer's error norm and PI controller
   Rkc,        // Runge-Kutta-Chebyshev, 2nd order, stabilized explicit (Sommeijer et al. 1997)
   Trapezoid,  // implicit trapezoidal rule, A-stable but not L-stable, order 2
@@ -109,7 +109,8 @@ struct OdeOptions {
   double h_min = 0;  // 0: 16 ulps of t; a step size below it throws OdeError
   std::int64_t max_steps = 10'000'000;
   // Fixed step h0 (required > 0), shortened uniformly so that the steps end on t1; no error
-  // control. Rk4 always runs this way.
+  // control. Rk4 also runs this way when h0 > 0 without fixed_step (as it always has); with
+  // h0 = 0 it is adaptive (step doubling).
   bool fixed_step = false;
 
   // RKC: re-estimate the spectral radius after this many accepted steps (and after a

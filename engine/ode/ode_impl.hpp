@@ -77,6 +77,9 @@ class OdeSolverImpl {
   // ode_explicit.cpp
   void step_dopri5(double t, double h, const Eigen::VectorXd& y, double* err);
   void step_rkc(double t, double& h, const Eigen::VectorXd& y, double* err);
+  void step_rk4_doubling(double t, double h, const Eigen::VectorXd& y, double* err);
+  // One classical RK4 step of h from (t, y) with k1 = f(t, y) given; out must not alias y or k1.
+  void rk4_from(double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& k1, Eigen::VectorXd& out);
   // ode_implicit.cpp
   Attempt step_trapezoid(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt newton_failed();
@@ -109,7 +112,7 @@ class OdeSolverImpl {
 
   Eigen::VectorXd f0_, f_new_, y_new_, err_vec_, tmp_;
   Eigen::VectorXd atol_;  // the absolute tolerance of each component (OdeOptions::atol or atol_vector)
-  // DOPRI5 stages (k2_, k3_ also ESDIRK3's)
+  // DOPRI5 stages (k2_, k3_ also ESDIRK3's; k2_..k6_ adaptive RK4's)
   Eigen::VectorXd k2_, k3_, k4_, k5_, k6_;
   // RK4
   std::optional<Rk4> rk4_;
