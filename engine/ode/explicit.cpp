@@ -1,11 +1,13 @@
-// Explicit steps of the generic integrators: DOPRI5(4) and RKC (docs/integrators.md 3, 4).
-// RK4 is cvt::Rk4 itself (engine/ode/rk4.hpp), called from the fixed-step driver.
+// Explicit steps of the generic integrators: DOPRI5(4), RKC and adaptive RK4
+// (docs/integrators.md 2-4). Fixed-step RK4 is cvt::Rk4 itself (engine/ode/rk4.hpp), called
+// from the fixed-step driver.
 #include <algorithm>
 #include <cmath>
 
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // Dormand & Prince (1980), as tabulated in Hairer, Norsett & Wanner I, Table II.5.2 and
 // coded in dopri5.f: the 5th-order solution is propagated (local extrapolation), the
@@ -41,6 +43,34 @@ void OdeSolverImpl::step_dopri5(double t, double h, const Eigen::VectorXd& y, do
   eval(t + h, y_new_, f_new_);
   if (fixed_) return;
   err_vec_ = h * (e1 * k1 + e3 * k3_ + e4 * k4_ + e5 * k5_ + e6 * k6_ + e7 * f_new_);
+  *err = error_norm(err_vec_, y, y_new_);
+}
+
+// Classical RK4 in the arithmetic of cvt::Rk4, y + h/6 (((k1 + 2 k2) + 2 k3) + k4), but
+// with k1 given (the step doubling below shares it).
+void OdeSolverImpl::rk4_from(double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& k1,
+                             Eigen::VectorXd& out) {
+  const double hh = 0.5 * h;
+  tmp_ = y + hh * k1;
+  eval(t + hh, tmp_, k2_);
+  tmp_ = y + hh * k2_;
+  eval(t + hh, tmp_, k3_);
+  tmp_ = y + h * k3_;
+  eval(t + h, tmp_, k4_);
+  out = y + (h / 6.0) * (((k1 + 2.0 * k2_) + 2.0 * k3_) + k4_);
+}
+
+// Adaptive RK4 by step doubling (Hairer, Norsett & Wanner I, II.4): one step of h and two of
+// h/2 from the same point; the two half steps are propagated and their error is estimated
+// by Richardson extrapolation, (y_h/2 - y_h) / (2^4 - 1). 11 evaluations per step, the last
+// one f(t + h, y_new), which starts the next step.
+void OdeSolverImpl::step_rk4_doubling(double t, double h, const Eigen::VectorXd& y, double* err) {
+  rk4_from(t, h, y, f0_, k5_);  // one step of h
+  rk4_from(t, 0.5 * h, y, f0_, k6_);  // first half step
+  eval(t + 0.5 * h, k6_, f_new_);
+  rk4_from(t + 0.5 * h, 0.5 * h, k6_, f_new_, y_new_);  // second half step
+  eval(t + h, y_new_, f_new_);
+  err_vec_ = (y_new_ - k5_) / 15.0;
   *err = error_norm(err_vec_, y, y_new_);
 }
 
@@ -114,4 +144,5 @@ void OdeSolverImpl::step_rkc(double t, double& h, const Eigen::VectorXd& y, doub
   *err = error_norm(err_vec_, y, y_new_);
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

@@ -8,6 +8,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
@@ -114,6 +115,13 @@ void NewtonMatrix::factorize(double dh, OdeStats& stats) {
   ok_ = lu_sparse_.info() == Eigen::Success;
 }
 
+void NewtonMatrix::jacobian_times(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
+  if (sparse_)
+    out.noalias() = j_sparse_ * x;
+  else
+    out.noalias() = j_dense_ * x;
+}
+
 void NewtonMatrix::solve_in_place(Eigen::VectorXd& x) {
   if (sparse_)
     tmp_ = lu_sparse_.solve(x);
@@ -153,7 +161,7 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
                            Eigen::VectorXd& z, Eigen::VectorXd& fz) {
   if (!newton_->ok()) return false;
   const double fnewt = std::max(10 * kEps / opt_.rtol, std::min(0.03, std::sqrt(opt_.rtol)));
-  for (int i = 0; i < n_; ++i) scale_[i] = opt_.atol + opt_.rtol * std::abs(y_scale[i]);
+  for (int i = 0; i < n_; ++i) scale_[i] = atol_[i] + opt_.rtol * std::abs(y_scale[i]);
   double faccon = std::pow(std::max(faccon_, kEps), 0.8);
   double dyold = 0;
   const int max_iter = opt_.newton_max_iter;
@@ -282,4 +290,5 @@ OdeSolverImpl::Attempt OdeSolverImpl::step_esdirk3(double t, double h, const Eig
   return filtered_error(y, err);
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

@@ -7,6 +7,7 @@
 #include "engine/ode/ode_impl.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 namespace {
 constexpr double kEps = std::numeric_limits<double>::epsilon();
@@ -192,9 +193,12 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
   if (n_ <= 0 || !sys.rhs) throw std::invalid_argument("OdeSystem: size must be positive and rhs set");
   if (sys.is_sparse() && (sys.sparsity.rows() != n_ || sys.sparsity.cols() != n_))
     throw std::invalid_argument("OdeSystem: sparsity pattern must be size x size");
-  f0_.setZero(n_), f_new_.setZero(n_), y_new_.setZero(n_), err_vec_.setZero(n_), tmp_.setZero(n_);
+  f0_.setZero(n_), f_new_.setZero(n_), y_new_.setZero(n_), err_vec_.setZero(n_), tmp_.setZero(n_), atol_.setZero(n_);
   switch (method_) {
-    case OdeMethod::Rk4: rk4_.emplace(n_); break;
+    case OdeMethod::Rk4:
+      rk4_.emplace(n_);
+      for (auto* k : {&k2_, &k3_, &k4_, &k5_, &k6_}) k->setZero(n_);  // adaptive: step doubling
+      break;
     case OdeMethod::Dopri5:
       for (auto* k : {&k2_, &k3_, &k4_, &k5_, &k6_}) k->setZero(n_);
       break;
@@ -220,6 +224,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       }
       k2_.setZero(n_);
       z_.setZero(n_);
+      if (sys.time_derivative) dfdt_.setZero(n_);
       if (method_ == OdeMethod::Ros34pw2)
         for (auto& u : stages_) u.setZero(n_);
       break;
@@ -228,7 +233,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
 
 int OdeSolverImpl::order() const {
   switch (method_) {
-    case OdeMethod::Rk4: return 4;
+    case OdeMethod::Rk4: return 4;  // adaptive: the estimate is that of the two half steps
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
     case OdeMethod::Ros2: return 1;  // the estimate is that of the embedded first-order solution
     case OdeMethod::Ros34pw2: return 2;  // and here of the embedded second-order one
@@ -236,12 +241,12 @@ int OdeSolverImpl::order() const {
   }
 }
 
-// Hairer's RMS norm of err weighted by atol + rtol max(|y0|, |y1|): 1 is the tolerance.
+// Hairer's RMS norm of err weighted by atol_i + rtol max(|y0_i|, |y1_i|): 1 is the tolerance.
 double OdeSolverImpl::error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0,
                                  const Eigen::VectorXd& y1) const {
   double sum = 0, worst = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
+    const double sk = atol_[i] + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
     const double e = err[i] / sk;
     sum += e * e;
     worst = std::max(worst, std::abs(e));
@@ -255,7 +260,7 @@ double OdeSolverImpl::initial_step(double t0, const Eigen::VectorXd& y0, double 
   const double span = t1 - t0;
   double d0 = 0, d1 = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::abs(y0[i]);
+    const double sk = atol_[i] + opt_.rtol * std::abs(y0[i]);
     d0 += (y0[i] / sk) * (y0[i] / sk);
     d1 += (f0_[i] / sk) * (f0_[i] / sk);
   }
@@ -266,7 +271,7 @@ double OdeSolverImpl::initial_step(double t0, const Eigen::VectorXd& y0, double 
   eval(t0 + h, y_new_, f_new_);
   double d2 = 0;
   for (int i = 0; i < n_; ++i) {
-    const double sk = opt_.atol + opt_.rtol * std::abs(y0[i]);
+    const double sk = atol_[i] + opt_.rtol * std::abs(y0[i]);
     const double e = (f_new_[i] - f0_[i]) / sk;
     d2 += e * e;
   }
@@ -285,9 +290,9 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::Esdirk3: return step_esdirk3(t, h, y, err);
     case OdeMethod::Ros2: step_ros2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
-    case OdeMethod::Rk4: break;
+    case OdeMethod::Rk4: step_rk4_doubling(t, h, y, err); return Attempt::Ok;
   }
-  throw std::logic_error("OdeSolver: RK4 has no step attempt");
+  throw std::logic_error("OdeSolver: unknown method");
 }
 
 void OdeSolverImpl::accepted(double t, double h) {
@@ -320,11 +325,24 @@ void OdeSolverImpl::rejected() {
 void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   if (y.size() != n_) throw std::invalid_argument("OdeSolver::integrate: y has the wrong size");
   if (!(t1 > t0)) throw std::invalid_argument("OdeSolver::integrate: t1 must be greater than t0");
+  // The tolerances of this call (options may change between calls).
+  if (opt_.atol_vector.empty()) {
+    atol_.setConstant(opt_.atol);
+  } else {
+    if (static_cast<int>(opt_.atol_vector.size()) != n_)
+      throw std::invalid_argument("OdeOptions: atol_vector must be empty or have one entry per component");
+    for (int i = 0; i < n_; ++i) {
+      if (!(opt_.atol_vector[i] >= 0)) throw std::invalid_argument("OdeOptions: atol_vector entries must be >= 0");
+      atol_[i] = opt_.atol_vector[i];
+    }
+  }
   have_prev_ = false;
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
   if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;
   if (observer) observer(t0, y);
-  if (method_ == OdeMethod::Rk4 || opt_.fixed_step)
+  // RK4 with a step h0 and no fixed_step keeps the fixed steps it always took with one
+  // (engine/wmethod's OdeDriver relies on it); without h0 it is adaptive like the others.
+  if (opt_.fixed_step || (method_ == OdeMethod::Rk4 && opt_.h0 > 0))
     integrate_fixed(t0, t1, y, observer);
   else
     integrate_adaptive(t0, t1, y, observer);
@@ -376,10 +394,15 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
   if (method_ == OdeMethod::Rkc) need_rho_ = true;
   double h = opt_.h0 > 0 ? std::min({opt_.h0, opt_.h_max, t1 - t0}) : initial_step(t0, y, t1);
   // Controller (Hairer & Wanner I, II.4): h_new = h * safe / err^(1/(q+1)) * err_old^beta,
-  // beta = 0.04 (the PI part) for DOPRI5 as in dopri5.f, 0 for the others.
+  // beta = 0.04 (the PI part) for DOPRI5 as in dopri5.f, 0 for the others. The step grows
+  // at most 10x per step for the explicit methods (dopri5.f, rkc.f) and 2x (as DASSL) for the
+  // implicit and W-methods: their estimates hold only where the step is small against the
+  // solution's own time scales, and a step that jumps far past the last one that was
+  // checked can be accepted with a small estimate and a large error (ESDIRK3 on VDPOL at
+  // tol 1e-4 grew 5x into a step with a true error 7600 times the tolerance).
   const double beta = method_ == OdeMethod::Dopri5 ? 0.04 : 0.0;
   const double expo = 1.0 / (order() + 1) - 0.75 * beta;
-  const double safe = 0.9, fac_min = 0.2, fac_max = implicit() ? 5.0 : 10.0;
+  const double safe = 0.9, fac_min = 0.2, fac_max = implicit() || is_w_method(method_) ? 2.0 : 10.0;
   double err_old = 1e-4;
   bool last_rejected = false, last_newton_failed = false;
   double t = t0;
@@ -413,6 +436,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
       const double t_new = last ? t1 : t + h;
       y = y_new_;
       accepted(t, h);
+      stats.err_last = err;
       t = t_new;
       if (observer) observer(t, y);
       double fac = std::pow(std::max(err, 1e-10), expo) / std::pow(err_old, beta) / safe;
@@ -453,4 +477,5 @@ OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1,
   return solver.stats();
 }
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

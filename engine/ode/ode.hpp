@@ -20,7 +20,22 @@
 #include <Eigen/Dense>
 #include <Eigen/Sparse>
 
+// The library's names live in an inline namespace named after Eigen's heap and static
+// alignment (cvt::eigen_align_32_32 under AVX): Eigen objects cross this interface and the
+// linker shares Eigen's template instances between a program and the library, so a program
+// whose Eigen aligns differently (one built with the compiler's default flags: 16 bytes) would
+// free with one allocator what the other allocated, and crash. With the namespace such a
+// program fails to link, naming the alignment it expected, and a pimpl could not help: the
+// state vector, the sparsity pattern and the Jacobians are Eigen objects of the interface
+// itself. CMake targets that link cvt_ode receive the library's values as PUBLIC definitions
+// (EIGEN_MAX_ALIGN_BYTES, EIGEN_MAX_STATIC_ALIGN_BYTES); a program built otherwise passes
+// the same two (docs/integrators.md 1). Spelled out as cvt::OdeSolver etc. everywhere else.
+#define CVT_ODE_ABI_NAME_(heap, stat) eigen_align_##heap##_##stat
+#define CVT_ODE_ABI_NAME(heap, stat) CVT_ODE_ABI_NAME_(heap, stat)
+#define CVT_ODE_ABI CVT_ODE_ABI_NAME(EIGEN_MAX_ALIGN_BYTES, EIGEN_MAX_STATIC_ALIGN_BYTES)
+
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // y' = f(t, y). `rhs` writes dy (size `size`) and must not allocate: it is called once per
 // stage. Raw pointers so that any storage (Eigen, State buffers) can be handed in.
@@ -52,12 +67,20 @@ struct OdeSystem {
   using WSolve = std::function<void(double* x)>;
   WFactor w_factor;
   WSolve w_solve;
+  // df/dt at (t, y), optional: writes size values and must not allocate. With it the
+  // W-methods take the t-column of their matrix exactly (the terms gamma_i h^2 df/dt of
+  // Hairer & Wanner II, IV.7), which keeps their order on stiff problems driven by an
+  // explicit function of t (ROS2 falls to order 1 on Prothero-Robinson without it,
+  // docs/integrators.md 12.1). Without it they run exactly as an autonomous W-method whose
+  // t-column is zero. The other methods do not use it.
+  using TimeDerivative = std::function<void(double t, const double* y, double* dfdt)>;
+  TimeDerivative time_derivative;
   // The pattern from a list of (row, column) nonzeros; duplicates are fine.
   void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
 };
 
 enum class OdeMethod {
-  Rk4,        // classical RK4, fixed step only (the same arithmetic as cvt::Rk4)
+  Rk4,        // classical RK4: fixed steps (the same arithmetic as cvt::Rk4) or step doubling
   Dopri5,     // Dormand-Prince 5(4), Hairer's error norm and PI controller
   Rkc,        // Runge-Kutta-Chebyshev, 2nd order, stabilized explicit (Sommeijer et al. 1997)
   Trapezoid,  // implicit trapezoidal rule, A-stable but not L-stable, order 2
@@ -76,12 +99,18 @@ const char* to_string(OdeMethod method);
 struct OdeOptions {
   double rtol = 1e-6;
   double atol = 1e-9;
+  // Absolute tolerance per component (size n) in place of atol when not empty: for states
+  // whose components live on different scales (ROBER's y2 ~ 1e-5 beside y1, y3 ~ 1). Used
+  // wherever atol is: the error norm of every adaptive method, the starting step, Newton's
+  // convergence test.
+  std::vector<double> atol_vector;
   double h0 = 0;  // first step; 0: chosen from f (Hairer's starting step algorithm)
   double h_max = std::numeric_limits<double>::infinity();
   double h_min = 0;  // 0: 16 ulps of t; a step size below it throws OdeError
   std::int64_t max_steps = 10'000'000;
   // Fixed step h0 (required > 0), shortened uniformly so that the steps end on t1; no error
-  // control. Rk4 always runs this way.
+  // control. Rk4 also runs this way when h0 > 0 without fixed_step (as it always has); with
+  // h0 = 0 it is adaptive (step doubling).
   bool fixed_step = false;
 
   // RKC: re-estimate the spectral radius after this many accepted steps (and after a
@@ -113,6 +142,13 @@ struct OdeOptions {
   // the LU of W for this many steps (a W-method keeps its order with a stale matrix);
   // rebuilt earlier when gamma h changes.
   int w_reuse_steps = 1;
+  // W-methods with the Jacobian above (no system w_factor), adaptive mode: a step passes
+  // only if, besides the embedded estimate, the part of f that W's linearization misses,
+  // carried over the step, || W^-1 h (f(t, y1) - f(t, y0) - J (y1 - y0)) ||, is within the
+  // tolerance (docs/integrators.md 12.5). The embedded estimate alone passes steps over
+  // which the Jacobian changes much: HIRES at tol 1e-4, a step of 212 estimated at 0.55 of
+  // the tolerance, true error 57 times it. One more evaluation of f per attempt.
+  bool w_linearization_test = true;
 };
 
 struct OdeStats {
@@ -130,6 +166,9 @@ struct OdeStats {
   // Adaptive mode: the step the controller proposed for after the last accepted one (a
   // caller that integrates in short pieces passes it on as the next call's h0).
   double h_next = 0;
+  // Adaptive mode: the scaled error estimate of the last accepted step (<= 1; 0 in fixed
+  // steps), for observers that watch the error control.
+  double err_last = 0;
   double rho_last = 0;  // RKC: last spectral radius used
   // Wall time of the implicit methods' linear algebra [s]: Jacobians (with their f
   // evaluations), LU factorizations, and the Newton iterations' solves.
@@ -213,4 +252,5 @@ class OdeSolver {
 OdeStats integrate(const OdeSystem& sys, OdeMethod method, double t0, double t1, Eigen::VectorXd& y,
                    const OdeOptions& options = {}, const OdeObserver& observer = {});
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

@@ -11,6 +11,7 @@
 #include "engine/ode/ode.hpp"
 
 namespace cvt {
+inline namespace CVT_ODE_ABI {
 
 // The iteration matrix M = I - dh J of the implicit methods, with J dense or sparse, its LU
 // and the Jacobian's provenance. Everything is sized in the constructor; SparseLU's
@@ -23,6 +24,7 @@ class NewtonMatrix {
   void factorize(double dh, OdeStats& stats);  // M = I - dh J; throws nothing, returns via ok()
   bool ok() const { return ok_; }
   void solve_in_place(Eigen::VectorXd& x);  // x <- M^-1 x
+  void jacobian_times(const Eigen::VectorXd& x, Eigen::VectorXd& out) const;  // out = J x
   double factored_dh() const { return dh_; }
   bool factored() const { return factored_; }
   int colors() const { return fd_.colors(); }
@@ -75,6 +77,9 @@ class OdeSolverImpl {
   // ode_explicit.cpp
   void step_dopri5(double t, double h, const Eigen::VectorXd& y, double* err);
   void step_rkc(double t, double& h, const Eigen::VectorXd& y, double* err);
+  void step_rk4_doubling(double t, double h, const Eigen::VectorXd& y, double* err);
+  // One classical RK4 step of h from (t, y) with k1 = f(t, y) given; out must not alias y or k1.
+  void rk4_from(double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& k1, Eigen::VectorXd& out);
   // ode_implicit.cpp
   Attempt step_trapezoid(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt newton_failed();
@@ -86,8 +91,13 @@ class OdeSolverImpl {
   void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
   void prepare_w(double t, double h, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
   void solve_w(Eigen::VectorXd& x);                                 // x <- W^-1 x
+  // Adaptive W-step from (t, y) to y_new_ with f0_ = f(t, y): the norm of W^-1 h (f(t, y_new)
+  // - f0 - J (y_new - y)), or 0 when the system supplies W or the test is off.
+  double linearization_error(double t, double h, const Eigen::VectorXd& y);
+  double w_nonlinearity(double t, double h, const Eigen::VectorXd& y);
   int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
   Eigen::VectorXd stages_[4];  // Ros34pw2's u_i
+  Eigen::VectorXd dfdt_;       // df/dt at the step's start (systems with time_derivative)
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,
@@ -101,7 +111,8 @@ class OdeSolverImpl {
   bool fixed_ = false;
 
   Eigen::VectorXd f0_, f_new_, y_new_, err_vec_, tmp_;
-  // DOPRI5 stages (k2_, k3_ also ESDIRK3's)
+  Eigen::VectorXd atol_;  // the absolute tolerance of each component (OdeOptions::atol or atol_vector)
+  // DOPRI5 stages (k2_, k3_ also ESDIRK3's; k2_..k6_ adaptive RK4's)
   Eigen::VectorXd k2_, k3_, k4_, k5_, k6_;
   // RK4
   std::optional<Rk4> rk4_;
@@ -121,4 +132,5 @@ class OdeSolverImpl {
   double t_prev_ = 0;
 };
 
+}  // namespace CVT_ODE_ABI
 }  // namespace cvt

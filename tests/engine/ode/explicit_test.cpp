@@ -1,4 +1,5 @@
 // The explicit generic integrators: RK4 (against cvt::Rk4), DOPRI5(4), RKC.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -34,6 +35,71 @@ TEST(OdeRk4, AgreesWithRk4ClassBitForBit) {
 }
 
 TEST(OdeOrder, Rk4IsFourth) { EXPECT_NEAR(observed_order(OdeMethod::Rk4, 10), 4.0, 0.2); }
+
+// A step h0 without fixed_step keeps RK4 on fixed steps, as before (OdeDriver relies on it):
+// the same bits as with fixed_step.
+TEST(OdeRk4, StepWithoutFixedStepStaysFixed) {
+  const OdeSystem sys = smooth_system();
+  Eigen::VectorXd a = smooth_exact(0), b = a;
+  OdeOptions opt;
+  opt.h0 = 0.01;
+  const OdeStats sa = integrate(sys, OdeMethod::Rk4, 0, 1, a, opt);
+  opt.fixed_step = true;
+  const OdeStats sb = integrate(sys, OdeMethod::Rk4, 0, 1, b, opt);
+  EXPECT_EQ(sa.steps, 100);
+  EXPECT_EQ(sa.rhs_evals, sb.rhs_evals);
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(a[i], b[i]) << i;
+}
+
+// Without h0 and fixed_step RK4 is adaptive like the others: Hairer's starting step, then
+// step doubling (one step of h against two of h/2, whose difference / 15 estimates the
+// error of the two half steps, which are kept). The estimate is asymptotically exact: on
+// the smooth problem each accepted step's true local error (against DOPRI5 at tol 1e-14
+// from the same point) is within 15 % of it. The error is controlled per step and the half
+// steps are kept unextrapolated, so the global error is the local ones added up: below
+// 2 tol per step (DOPRI5, which propagates its higher order, ends closer to tol).
+TEST(OdeRk4, AdaptiveByStepDoubling) {
+  const OdeSystem sys = smooth_system();
+  for (double tol : {1e-5, 1e-8}) {
+    OdeOptions opt;
+    opt.rtol = opt.atol = tol;
+    OdeSolver solver(sys, OdeMethod::Rk4, opt);
+    Eigen::VectorXd y = smooth_exact(0), y_prev = y;
+    double t_prev = 0, worst_ratio = 0, best_ratio = 1e300, first_h = 0;
+    const OdeObserver observer = [&](double t, const Eigen::VectorXd& y_new) {
+      if (t == 0) return;
+      if (first_h == 0) first_h = t;
+      Eigen::VectorXd exact = y_prev;
+      OdeOptions tight;
+      tight.rtol = tight.atol = 1e-14;
+      integrate(sys, OdeMethod::Dopri5, t_prev, t, exact, tight);
+      double sum = 0;
+      for (int i = 0; i < 3; ++i) {
+        const double e = (y_new[i] - exact[i]) / (tol + tol * std::max(std::abs(y_prev[i]), std::abs(y_new[i])));
+        sum += e * e;
+      }
+      const double est = solver.stats().err_last;
+      if (est > 0.05) {
+        worst_ratio = std::max(worst_ratio, std::sqrt(sum / 3) / est);
+        best_ratio = std::min(best_ratio, std::sqrt(sum / 3) / est);
+      }
+      y_prev = y_new, t_prev = t;
+    };
+    solver.integrate(0, 10, y, observer);
+    const OdeStats& st = solver.stats();
+    const double err = (y - smooth_exact(10)).lpNorm<Eigen::Infinity>();
+    char label[64];
+    std::snprintf(label, sizeof label, "rk4 adaptive smooth tol %.0e", tol);
+    print_stats(label, st);
+    std::printf("[ode]   rk4 adaptive smooth tol %.0e: error %.3e, first step %.3g, true / estimated local error "
+                "%.3f-%.3f\n", tol, err, first_h, best_ratio, worst_ratio);
+    EXPECT_LT(err, 2 * tol * static_cast<double>(st.steps));
+    EXPECT_GT(st.steps, 10);
+    EXPECT_EQ(st.rhs_evals, 11 * (st.steps + st.rejected) + 2) << "11 per attempt, f0 and one for the starting step";
+    EXPECT_GT(best_ratio, 0.85);
+    EXPECT_LT(worst_ratio, 1.15);
+  }
+}
 TEST(OdeOrder, Dopri5IsFifth) { EXPECT_NEAR(observed_order(OdeMethod::Dopri5, 5), 5.0, 0.25); }
 TEST(OdeOrder, RkcIsSecond) { EXPECT_NEAR(observed_order(OdeMethod::Rkc, 20), 2.0, 0.15); }
 

@@ -71,11 +71,17 @@ using namespace ode_test;
 TEST(OdeAlloc, NoAllocationWhileIntegrating) {
   const Heat heat(50);
   const OdeSystem sys = heat.system();  // no pattern: dense Jacobian and LU
-  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
-                      OdeMethod::Esdirk3}) {
+  struct Case {
+    OdeMethod m;
+    bool fixed;
+  };
+  for (const Case c : {Case{OdeMethod::Rk4, true}, Case{OdeMethod::Rk4, false}, Case{OdeMethod::Dopri5, false},
+                       Case{OdeMethod::Rkc, false}, Case{OdeMethod::Trapezoid, false}, Case{OdeMethod::TrBdf2, false},
+                       Case{OdeMethod::Esdirk3, false}, Case{OdeMethod::Ros2, false}, Case{OdeMethod::Ros34pw2, false}}) {
+    const OdeMethod m = c.m;
     OdeOptions opt;
     opt.rtol = opt.atol = 1e-6;
-    if (m == OdeMethod::Rk4) opt.fixed_step = true, opt.h0 = 1e-5;
+    if (c.fixed) opt.fixed_step = true, opt.h0 = 1e-5;
     OdeSolver solver(sys, m, opt);
     Eigen::VectorXd y = heat.exact(0);
     for (int i = 0; i < heat.n; ++i) y[i] += 1e-3 * std::sin(40.0 * i);  // wake the fast modes
@@ -85,8 +91,8 @@ TEST(OdeAlloc, NoAllocationWhileIntegrating) {
     counting = true;
     solver.integrate(0, 0.01, y, observer);
     counting = false;
-    std::printf("[ode] %-10s %ld observed steps, %ld heap allocations while integrating\n", to_string(m), steps,
-                allocations.load());
+    std::printf("[ode] %-10s %s %ld observed steps, %ld heap allocations while integrating\n", to_string(m),
+                c.fixed ? "fixed   " : "adaptive", steps, allocations.load());
     EXPECT_EQ(allocations.load(), 0) << to_string(m);
     EXPECT_GT(steps, 1);
   }

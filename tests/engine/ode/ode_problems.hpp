@@ -99,6 +99,87 @@ struct CyclicBand {
   }
 };
 
+// Stiff problems of the Test Set for IVP Solvers (F. Mazzia, C. Magherini et al.,
+// University of Bari, https://archimede.uniba.it/~testset/; also in Hairer & Wanner,
+// "Solving ODEs II", section IV.10) with their published reference solutions at t_end.
+// Each reference is the `solut` subroutine of the test set's Fortran problem file, named
+// below; none of the numbers comes from this code.
+struct TestSetProblem {
+  const char* name;
+  OdeSystem sys;
+  Eigen::VectorXd y0, ref;
+  double t_end;
+};
+
+// HIRES, hires.f: 8 equations, t in [0, 321.8122]; reference "computed using true double
+// precision RADAU5 on Cray C90, rtol = atol = h0 = 1.1d-18".
+inline TestSetProblem hires() {
+  TestSetProblem p{"hires", {}, Eigen::VectorXd(8), Eigen::VectorXd(8), 321.8122};
+  p.sys.size = 8;
+  p.sys.rhs = [](double, const double* y, double* f) {
+    f[0] = -1.71 * y[0] + 0.43 * y[1] + 8.32 * y[2] + 0.0007;
+    f[1] = 1.71 * y[0] - 8.75 * y[1];
+    f[2] = -10.03 * y[2] + 0.43 * y[3] + 0.035 * y[4];
+    f[3] = 8.32 * y[1] + 1.71 * y[2] - 1.12 * y[3];
+    f[4] = -1.745 * y[4] + 0.43 * y[5] + 0.43 * y[6];
+    f[5] = -280 * y[5] * y[7] + 0.69 * y[3] + 1.71 * y[4] - 0.43 * y[5] + 0.69 * y[6];
+    f[6] = 280 * y[5] * y[7] - 1.81 * y[6];
+    f[7] = -280 * y[5] * y[7] + 1.81 * y[6];
+  };
+  p.y0 << 1, 0, 0, 0, 0, 0, 0, 0.0057;
+  p.ref << 0.7371312573325668e-3, 0.1442485726316185e-3, 0.5888729740967575e-4, 0.1175651343283149e-2,
+      0.2386356198831331e-2, 0.6238968252742796e-2, 0.2849998395185769e-2, 0.2850001604814231e-2;
+  return p;
+}
+
+// Van der Pol modified, vdpolm.f: y1' = y2, y2' = 1e3 (1 - y1^2) y2 - y1, y(0) = (2, 0),
+// t in [0, 2000]; reference computed with RADAU, rtol = atol = h0 = 1.1d-18.
+inline TestSetProblem vdpol() {
+  TestSetProblem p{"vdpol mu=1e3", {}, Eigen::VectorXd(2), Eigen::VectorXd(2), 2000};
+  p.sys.size = 2;
+  p.sys.rhs = [](double, const double* y, double* f) {
+    f[0] = y[1];
+    f[1] = 1e3 * (1 - y[0] * y[0]) * y[1] - y[0];
+  };
+  p.sys.dense_jacobian = [](double, const double* y, Eigen::MatrixXd& j) {
+    j(0, 0) = 0, j(0, 1) = 1;
+    j(1, 0) = -2e3 * y[0] * y[1] - 1, j(1, 1) = 1e3 * (1 - y[0] * y[0]);
+  };
+  p.y0 << 2, 0;
+  p.ref << 0.1706167732170469e1, -0.8928097010248125e-3;
+  return p;
+}
+
+// Robertson, rober.f: t in [0, 1e11]; reference values 0.2083340149701255e-7,
+// 0.8333360770334713e-13, 0.9999999791665050 (rober.f `solut`).
+inline TestSetProblem rober() {
+  TestSetProblem p{"rober", {}, Eigen::VectorXd(3), Eigen::VectorXd(3), 1e11};
+  p.sys.size = 3;
+  p.sys.rhs = [](double, const double* y, double* f) {
+    f[0] = -0.04 * y[0] + 1e4 * y[1] * y[2];
+    f[1] = 0.04 * y[0] - 1e4 * y[1] * y[2] - 3e7 * y[1] * y[1];
+    f[2] = 3e7 * y[1] * y[1];
+  };
+  p.y0 << 1, 0, 0;
+  p.ref << 0.2083340149701255e-7, 0.8333360770334713e-13, 0.9999999791665050;
+  return p;
+}
+
+// Oregonator, orego.f: t in [0, 360], y(0) = (1, 2, 3); reference computed with RADAU,
+// rtol = h0 = 1.1d-18, atol = 1.1d-40.
+inline TestSetProblem orego() {
+  TestSetProblem p{"orego", {}, Eigen::VectorXd(3), Eigen::VectorXd(3), 360};
+  p.sys.size = 3;
+  p.sys.rhs = [](double, const double* y, double* f) {
+    f[0] = 77.27 * (y[1] + y[0] * (1 - 8.375e-6 * y[0] - y[1]));
+    f[1] = (y[2] - (1 + y[0]) * y[1]) / 77.27;
+    f[2] = 0.161 * (y[0] - y[2]);
+  };
+  p.y0 << 1, 2, 3;
+  p.ref << 0.1000814870318523e1, 0.1228178521549917e4, 0.1320554942846706e3;
+  return p;
+}
+
 // The Test Set for IVP Solvers' measures (Mazzia & Magherini, report of the Bari test set,
 // section "how the results are measured"): significant correct digits of the maximum
 // relative error, scd, and of the mixed error with weights atol/rtol + |y_ref|, mescd.

@@ -2,6 +2,7 @@
 // the exact Jacobian and with any other matrix J~, L-stable with the exact one, and a
 // stiff component that an explicit step could not take.
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 
@@ -198,7 +199,8 @@ TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
   EXPECT_NEAR(std::log2(e2 / e3), 3.0, 0.3);
 }
 
-// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)).
+// Adaptive mode: the embedded second-order solution sets the steps (tol^(1/3)). Each attempt
+// takes four evaluations for the stages and one for the linearization test.
 TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
   for (double tol : {1e-4, 1e-7}) {
     Eigen::VectorXd y = smooth_exact(0);
@@ -209,8 +211,119 @@ TEST(OdeRos34pw2, AdaptiveSmoothProblem) {
     print_stats(tol > 1e-5 ? "ros34pw2 smooth tol 1e-04" : "ros34pw2 smooth tol 1e-07", st);
     std::printf("[ode]   ros34pw2 smooth tol %.0e: error %.3e\n", tol, err);
     EXPECT_LT(err, 30 * tol);
-    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 4 * (st.steps + st.rejected) + 2);
+    EXPECT_EQ(st.rhs_evals - st.jac_evals * (st.colors > 0 ? st.colors : 3), 5 * (st.steps + st.rejected) + 2);
   }
+}
+
+}  // namespace
+}  // namespace cvt
+
+namespace cvt {
+namespace {
+
+using namespace ode_test;
+
+// Prothero-Robinson: y' = lambda (y - g(t)) + g'(t), g = sin, y(0) = g(0), so y = g; lambda =
+// -1e4. Stiff and driven by t: with the t-column of J~ zero (no df/dt) ROS2 falls to order
+// 1 while h |lambda| >> 1; with OdeSystem::time_derivative it keeps order 2.
+OdeSystem prothero_robinson(bool with_dfdt) {
+  constexpr double lambda = -1e4;
+  OdeSystem sys;
+  sys.size = 1;
+  sys.rhs = [](double t, const double* y, double* f) { f[0] = lambda * (y[0] - std::sin(t)) + std::cos(t); };
+  if (with_dfdt)
+    sys.time_derivative = [](double t, const double*, double* ft) { ft[0] = -lambda * std::cos(t) - std::sin(t); };
+  return sys;
+}
+
+double prothero_robinson_order(OdeMethod m, bool with_dfdt, double* error_at_n10) {
+  const OdeSystem sys = prothero_robinson(with_dfdt);
+  double e[4];
+  const int ns[4] = {10, 20, 40, 80};  // h |lambda| from 1000 to 125
+  for (int k = 0; k < 4; ++k) {
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = 1.0 / ns[k];
+    Eigen::VectorXd y = Eigen::VectorXd::Zero(1);
+    integrate(sys, m, 0, 1, y, opt);
+    e[k] = std::abs(y[0] - std::sin(1.0));
+  }
+  const double p = std::log2(e[2] / e[3]);
+  std::printf("[ode] prothero-robinson lambda -1e4 %-9s %s: n = 10 20 40 80  errors %.3e %.3e %.3e %.3e  orders %.2f "
+              "%.2f %.2f\n",
+              to_string(m), with_dfdt ? "with df/dt   " : "without df/dt", e[0], e[1], e[2], e[3], std::log2(e[0] / e[1]),
+              std::log2(e[1] / e[2]), p);
+  *error_at_n10 = e[0];
+  return p;
+}
+
+TEST(OdeTimeDerivative, Ros2KeepsSecondOrderOnProtheroRobinson) {
+  double e_without = 0, e_with = 0;
+  EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros2, false, &e_without), 1.0, 0.1);
+  EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros2, true, &e_with), 2.0, 0.1);
+  EXPECT_LT(e_with, e_without / 10);
+}
+
+// ROS34PW2 (built for index-1 DAEs) is second order on stiff Prothero-Robinson either way:
+// df/dt moves its result only at the level of rounding here.
+TEST(OdeTimeDerivative, Ros34pw2IsSecondOrderOnProtheroRobinsonEitherWay) {
+  double e_without = 0, e_with = 0;
+  EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros34pw2, false, &e_without), 2.0, 0.15);
+  EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros34pw2, true, &e_with), 2.0, 0.15);
+  EXPECT_NEAR(e_with, e_without, 1e-3 * e_without);
+}
+
+// With df/dt a W-step is the step of the autonomous system (y, t)' = (f, 1) whose Jacobian
+// has the exact t-column: the same numbers to rounding, for a nonlinear f.
+TEST(OdeTimeDerivative, IsTheAutonomousFormWithTheExactTColumn) {
+  constexpr double lambda = -50;
+  auto f = [](double t, double y) { return lambda * (y - std::sin(3 * t)) + 3 * std::cos(3 * t) + y * y * std::cos(t); };
+  auto fy = [](double t, double y) { return lambda + 2 * y * std::cos(t); };
+  auto ft = [](double t, double y) { return -3 * lambda * std::cos(3 * t) - 9 * std::sin(3 * t) - y * y * std::sin(t); };
+  OdeSystem sys;
+  sys.size = 1;
+  sys.rhs = [=](double t, const double* y, double* dy) { dy[0] = f(t, y[0]); };
+  sys.dense_jacobian = [=](double t, const double* y, Eigen::MatrixXd& j) { j(0, 0) = fy(t, y[0]); };
+  sys.time_derivative = [=](double t, const double* y, double* d) { d[0] = ft(t, y[0]); };
+  OdeSystem aut;  // z = (y, t)
+  aut.size = 2;
+  aut.rhs = [=](double, const double* z, double* dz) { dz[0] = f(z[1], z[0]), dz[1] = 1; };
+  aut.dense_jacobian = [=](double, const double* z, Eigen::MatrixXd& j) {
+    j << fy(z[1], z[0]), ft(z[1], z[0]), 0, 0;
+  };
+  for (OdeMethod m : {OdeMethod::Ros2, OdeMethod::Ros34pw2}) {
+    OdeOptions opt;
+    opt.fixed_step = true;
+    opt.h0 = 0.05;
+    Eigen::VectorXd y(1), z(2);
+    y << 0.2;
+    z << 0.2, 0.0;
+    integrate(sys, m, 0, 1, y, opt);
+    integrate(aut, m, 0, 1, z, opt);
+    EXPECT_NEAR(y[0], z[0], 1e-14) << to_string(m);
+    OdeSystem plain = sys;  // and without df/dt the result differs by far more
+    plain.time_derivative = nullptr;
+    Eigen::VectorXd y0(1);
+    y0 << 0.2;
+    integrate(plain, m, 0, 1, y0, opt);
+    EXPECT_GT(std::abs(y0[0] - y[0]), 1e-4) << to_string(m);
+  }
+}
+
+// Adaptive ROS2 on Prothero-Robinson at tol 1e-6 over [0, 2]: the first-order error without
+// df/dt makes the controller crawl.
+TEST(OdeTimeDerivative, AdaptiveRos2NeedsFarFewerStepsWithIt) {
+  std::int64_t steps[2];
+  for (int with = 0; with < 2; ++with) {
+    OdeOptions opt;
+    opt.rtol = opt.atol = 1e-6;
+    Eigen::VectorXd y = Eigen::VectorXd::Zero(1);
+    steps[with] = integrate(prothero_robinson(with), OdeMethod::Ros2, 0, 2, y, opt).steps;
+    EXPECT_LT(std::abs(y[0] - std::sin(2.0)), 1e-4) << with;
+  }
+  std::printf("[ode] prothero-robinson adaptive ros2 tol 1e-6: %lld steps without df/dt, %lld with\n",
+              static_cast<long long>(steps[0]), static_cast<long long>(steps[1]));
+  EXPECT_LT(steps[1] * 10, steps[0]);
 }
 
 }  // namespace
