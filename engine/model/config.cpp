@@ -468,7 +468,7 @@ class Validator {
   // " (FILE line N)" for a node of the file; "" without a line, or for an override.
   std::string where_is(const toml::node& n) const {
     const auto line = n.source().begin.line;
-    if (line == 0 || n.source().path && *n.source().path == "--set") return "";
+    if (line == 0 || (n.source().path && *n.source().path == "--set")) return "";
     return " (" + origin_ + " line " + std::to_string(line) + ")";
   }
 
