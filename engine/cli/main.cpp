@@ -554,7 +554,7 @@ Command add_study_command(CLI::App& app) {
     si.curve = !a->si_no_curve;
     si.exact_dense_rows = !a->si_approx;
     si.freeze_friction = !a->si_plain_friction;
-    si.w_secant = !a->si_exact_slope;
+    if (a->si_exact_slope) si.w_secant = 0;
     si.schedule = a->si_sched.options();
     const cvt::Model model = cvt::build_model(cvt::load_config(a->si_config, a->si_overrides));
     if (!a->si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(a->si_w_steps);

@@ -254,11 +254,12 @@ Study::Study(const Model& model, const IntegratorStudyOptions& opt)
 
 // The solvers' options: Newton's, and the model's as an ODE system, scaled and shifted
 // (ModelOdeOptions::scaled: tolerances in units of 1 um, 1 mm/s, 1 mJ), with the study's
-// matrix settings, the configuration's where the study gives none.
+// matrix settings over the configuration's (w_run_options: the one mapping of [integrator]).
 void Study::matrix_options() {
   base_.newton_max_iter = opt_.newton_max_iter;
   base_.jac_theta = opt_.jac_theta;
   base_.max_norm = opt_.max_norm;
+  jac_opt_ = w_run_options(m_.cfg, m_.cfg.integrator.step, false).jac;
   jac_opt_.exact_dense_rows = opt_.exact_dense_rows;
   jac_opt_.scaled = true;
   jac_opt_.freeze_friction = opt_.freeze_friction;
@@ -267,9 +268,9 @@ void Study::matrix_options() {
   jac_opt_.w_every = opt_.w_every;
   jac_opt_.w_k_every = opt_.w_k_every;
   jac_opt_.w_stiffness = !opt_.w_no_stiffness;
-  jac_opt_.w_secant = opt_.w_secant;
-  jac_opt_.w_fresh = opt_.w_fresh < 0 ? m_.cfg.integrator.w_fresh : opt_.w_fresh;
-  jac_opt_.w_fresh_max = opt_.w_fresh_max > 0 ? opt_.w_fresh_max : m_.cfg.integrator.w_fresh_max;
+  if (opt_.w_secant >= 0) jac_opt_.w_secant = opt_.w_secant != 0;
+  if (opt_.w_fresh >= 0) jac_opt_.w_fresh = opt_.w_fresh;
+  if (opt_.w_fresh_max > 0) jac_opt_.w_fresh_max = opt_.w_fresh_max;
   jac_opt_.w_status_rebuild = opt_.w_status_rebuild;
   jac_opt_.w_blocks = !opt_.ros2_full_jacobian;
 }

@@ -61,7 +61,7 @@ struct IntegratorStudyOptions {
   int w_k_every = 0;            // ModelOdeOptions::w_k_every (ROS2; 0: the config's integrator.w_k_every)
   bool w_no_stiffness = false;  // ModelOdeOptions::w_stiffness = false (ROS2)
   bool w_status_rebuild = false;  // ModelOdeOptions::w_status_rebuild (ROS2)
-  bool w_secant = true;         // ModelOdeOptions::w_secant (ROS2)
+  int w_secant = -1;            // ModelOdeOptions::w_secant (W-methods; 1, 0, or -1: integrator.w_secant)
   double w_fresh = -1;          // ModelOdeOptions::w_fresh (W-methods; < 0: integrator.w_fresh)
   int w_fresh_max = 0;          // ModelOdeOptions::w_fresh_max (0: integrator.w_fresh_max)
   bool ros2_full_jacobian = false;  // ROS2 with the full finite-difference Jacobian (!ModelOdeOptions::w_blocks)
