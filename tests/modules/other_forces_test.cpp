@@ -159,6 +159,7 @@ TEST(OtherForcesTest, LoadTorqueAndClampingFollowTheRamp) {
   const double tr = c.ramp.time, F[2] = {c.clamping.driving, c.clamping.driven};
   Eigen::VectorXd y = m.y0;
   y[ishaft(m, 0) + W] = 1e-5, y[ishaft(m, 1) + W] = -2e-5;
+  y[m.ndof + iload(m)] += 7.0;  // the load turning faster than the driven pulley
   const double wL = y[m.ndof + iload(m)];
   ASSERT_GT(wL, 100.0);
   for (double t : {0.0, 0.25 * tr, 0.5 * tr, 0.75 * tr, tr, 2 * tr}) {
