@@ -1,12 +1,14 @@
-// other_forces (docs/model.md 4.6: shaft supports, drive, load, clamping) against its own
-// invariants: its conservative forces are minus the gradient of its energy, the loads and
-// clamping forces follow the ramp, the powers it reports are force times velocity, the
-// explicit time dependence of its potential is the drive's and the clamping's power, and
-// its dissipative forces dissipate what it reports.
+// Other forces (docs/model.md 4.6): shaft supports, drive, load, clamping, controller,
+// against their own invariants: the conservative forces are minus the gradient of the
+// documented energies; load torque and clamping follow the ramp rho(t); the reported powers
+// are force times velocity and close the energy balance of the module.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
+#include <random>
+#include <string>
 
 #include "engine/rhs/rhs.hpp"
 #include "modules/other_forces.hpp"
@@ -15,128 +17,256 @@
 namespace cvt {
 namespace {
 
-// The shafts and the load of a state in motion (the chain's coordinates do not enter).
-Eigen::VectorXd moving_state(const Model& m, unsigned seed) { return test::perturbed_state(m, seed, 2e-5, 1e-3, 0.3); }
+int ishaft(const Model& m, int k) { return 21 * m.links + 7 * k; }
+int iload(const Model& m) { return 21 * m.links + 14; }
+enum { Ux, Uy, Uz, Tx, Ty, Phi, W };
 
-// other_forces at (t, y): ws.other (its f: both shafts' 7 coordinates, then the load angle).
-const OtherForces& evaluate(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y) {
+// The ramp of docs/model.md 4.6.4.
+double rho(double t, double tr) {
+  if (tr <= 0 || t >= tr) return 1.0;
+  if (t <= 0) return 0.0;
+  return 0.5 * (1 - std::cos(M_PI * t / tr));
+}
+double rho_dot(double t, double tr) { return tr > 0 && t > 0 && t < tr ? M_PI / (2 * tr) * std::sin(M_PI * t / tr) : 0.0; }
+
+// The module's energy (docs/model.md 6): bearings (1/2 k1 |delta|^2 + 1/4 k3 |delta|^4 at
+// z_b = -+l_b), axial bearing, clamping potential sigma_m F rho w, drive and load springs.
+double documented_energy(const Model& m, double t, const double* q) {
+  const Config& c = m.cfg;
+  double E = 0;
+  for (int k = 0; k < 2; ++k) {
+    const double* s = q + ishaft(m, k);
+    for (double zb : {-c.bearing.half_span, c.bearing.half_span}) {
+      const double dx = s[Ux] + s[Ty] * zb, dy = s[Uy] - s[Tx] * zb, d2 = dx * dx + dy * dy;
+      E += 0.5 * c.bearing.k1 * d2 + 0.25 * c.bearing.k3 * d2 * d2;
+    }
+    E += 0.5 * c.bearing.axial_stiffness * s[Uz] * s[Uz];
+    E += m.pulley[k].moving_side * (k == 0 ? c.clamping.driving : c.clamping.driven) * rho(t, c.ramp.time) * s[W];
+  }
+  const double din = c.drive.speed * t - q[ishaft(m, 0) + Phi], dl = q[ishaft(m, 1) + Phi] - q[iload(m)];
+  return E + 0.5 * c.drive.stiffness * din * din + 0.5 * c.load.stiffness * dl * dl;
+}
+
+OtherForces run_other(const Model& m, double t, const Eigen::VectorXd& y) {
+  Workspace ws(m);
   set_stage_input(m, ws, t, y.data());
   other_forces(m, ws);
   return ws.other;
 }
 
-// The coordinates other_forces acts on: the two shafts and the load angle.
-int coordinate(const Model& m, int i) { return m.shaft(0) + i; }
-constexpr int kOther = 2 * kShaftSize + 1;
-
-TEST(OtherForces, ConservativeForcesAreMinusTheirEnergyGradient) {
-  // No damping, at rest, the load torque (external work, not a potential) off; mid-ramp, so
-  // that the clamping potential and the drive spring's prescribed angle are both live.
-  const Model m = test::model("mini", {"damping.scale=0", "load.torque=0"});
-  Eigen::VectorXd y = moving_state(m, 31);
-  y.segment(m.ndof, m.ndof).setZero();
-  for (int k = 0; k < 2; ++k) y[m.shaft(k) + kUx] += 3e-5, y[m.shaft(k) + kUy] -= 2e-5;  // bearings loaded
-  const double t = 0.5 * m.cfg.ramp.time;
-  Workspace ws(m);
-  const OtherForces o = evaluate(m, ws, t, y);
-  double worst = 0, scale = 0;
-  for (int i = 0; i < kOther; ++i) {
-    const int c = coordinate(m, i);
-    const int r = i % kShaftSize;
-    const bool angle = i == kOther - 1 || r == kTx || r == kTy || r == kPhi;
-    const double h = angle ? 1e-7 : 1e-9;
-    auto at = [&](double d) {
-      Eigen::VectorXd z = y;
-      z[c] += d;
-      return other_energy(m, t, z.data());
-    };
-    const double g = (-at(2 * h) + 8 * at(h) - 8 * at(-h) + at(-2 * h)) / (12 * h);
-    worst = std::max(worst, std::abs(o.f[i] + g));
-    scale = std::max(scale, std::abs(o.f[i]));
+// A state with loaded supports and springs: shafts displaced by up to 1.5e-4 m and tilted
+// by up to 2e-3 rad (where the cubic bearing term is as large as the linear one), the
+// drive and load springs wound by up to 0.02 rad, the sheaves moved by up to 2e-5 m.
+Eigen::VectorXd loaded_state(const Model& m, unsigned seed, double t, double dv) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Eigen::VectorXd y = m.y0;
+  for (int k = 0; k < 2; ++k) {
+    double* s = y.data() + ishaft(m, k);
+    double* sv = s + m.ndof;
+    s[Ux] = 1.5e-4 * u(rng), s[Uy] = 1.5e-4 * u(rng), s[Uz] = 1e-5 * u(rng);
+    s[Tx] = 2e-3 * u(rng), s[Ty] = 2e-3 * u(rng), s[W] = 2e-5 * u(rng);
+    for (int i = 0; i < 7; ++i) sv[i] += (i == Phi ? 50.0 : 1.0) * dv * u(rng);
   }
-  std::printf("[other_forces] max |f + grad E_other| / max |f| = %.3g (max |f| %.3g)\n", worst / scale, scale);
-  EXPECT_GT(scale, 1.0);
-  // 4th-order differences, steps of 1e-9 m and 1e-7 rad, the cubic bearing springs.
-  EXPECT_LE(worst / scale, 1e-6);
+  y[ishaft(m, 0) + Phi] = m.cfg.drive.speed * t + 0.02 * u(rng);
+  y[ishaft(m, 1) + Phi] = 0.3 + 0.02 * u(rng);
+  y[iload(m)] = 0.3 + 0.02 * u(rng);
+  y[m.ndof + iload(m)] += 50.0 * dv * u(rng);
+  return y;
 }
 
-TEST(OtherForces, LoadsAndClampingFollowTheRamp) {
-  const Model m = test::model("mini", {"damping.scale=0"});
-  const double tr = m.cfg.ramp.time, M0 = m.cfg.load.torque;
-  const double F[2] = {m.cfg.clamping.driving, m.cfg.clamping.driven};
+enum class Part { bearings_linear, bearings_cubic, axial, drive, load, clamping };
+const char* name(Part p) {
+  switch (p) {
+    case Part::bearings_linear: return "bearings_linear";
+    case Part::bearings_cubic: return "bearings_cubic";
+    case Part::axial: return "axial";
+    case Part::drive: return "drive";
+    case Part::load: return "load";
+    case Part::clamping: return "clamping";
+  }
+  return "?";
+}
+
+// ---- Tests.
+
+TEST(OtherForcesTest, OtherEnergyIsTheDocumentedSum) {
+  const Model m = test::model("mini");
+  const double tr = m.cfg.ramp.time;
+  for (double t : {0.0, 0.3 * tr, 2 * tr}) {
+    const Eigen::VectorXd y = loaded_state(m, 1, t, 0.0);
+    const double E = documented_energy(m, t, y.data());
+    // Same terms, round-off only.
+    EXPECT_NEAR(other_energy(m, t, y.data()), E, 1e-13 * std::abs(E)) << "t " << t;
+  }
+}
+
+class OtherPartGradientTest : public ::testing::TestWithParam<Part> {};
+
+// At rest, without damping and load torque, each element's forces on the shafts and the
+// load are -grad of its energy (the others' stiffnesses zeroed in the model's configuration).
+TEST_P(OtherPartGradientTest, ConservativeForcesAreMinusTheEnergyGradient) {
+  const Part p = GetParam();
+  Model m = test::model("mini", {"damping.scale=0", "load.torque=0"});
+  Config& c = m.cfg;
+  if (p != Part::bearings_linear) c.bearing.k1 = 0;
+  if (p != Part::bearings_cubic) c.bearing.k3 = 0;
+  if (p != Part::axial) c.bearing.axial_stiffness = 0;
+  if (p != Part::drive) c.drive.stiffness = 0;
+  if (p != Part::load) c.load.stiffness = 0;
+  if (p != Part::clamping) c.clamping.driving = c.clamping.driven = 0;
+  const double t = 0.4 * c.ramp.time;  // clamping partly ramped, drive angle nonzero
+  for (unsigned seed : {1u, 2u}) {
+    Eigen::VectorXd y = loaded_state(m, seed, t, 0.0);
+    y.segment(m.ndof, m.ndof).setZero();
+    const OtherForces o = run_other(m, t, y);
+    double worst = 0, scale = 0;
+    Eigen::VectorXd z = y;
+    for (int i = 0; i < 15; ++i) {
+      const int qi = ishaft(m, 0) + i;
+      const int r = i % 7;
+      const double h = (i == 14 || r == Tx || r == Ty || r == Phi) ? 1e-7 : 1e-9;  // angles, lengths
+      const auto at = [&](double d) {
+        z[qi] = y[qi] + d;
+        const double e = documented_energy(m, t, z.data());
+        z[qi] = y[qi];
+        return e;
+      };
+      const double g = (-at(2 * h) + 8 * at(h) - 8 * at(-h) + at(-2 * h)) / (12 * h);
+      worst = std::max(worst, std::abs(o.f[i] + g));
+      scale = std::max(scale, std::abs(o.f[i]));
+    }
+    std::printf("[%s, seed %u] max |F| = %.4g, max |F + grad E| / max |F| = %.3g\n", name(p), seed, scale,
+                worst / scale);
+    EXPECT_GT(scale, 10.0);
+    // The energies are polynomials of degree <= 4 in q, which the 4th-order stencil
+    // differentiates exactly: round-off only, ~1e-16 E/h (E < 1e3 J) against forces > 10 N.
+    EXPECT_LE(worst, 1e-8 * scale);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Parts, OtherPartGradientTest,
+                         ::testing::Values(Part::bearings_linear, Part::bearings_cubic, Part::axial, Part::drive,
+                                           Part::load, Part::clamping),
+                         [](const ::testing::TestParamInfo<Part>& i) { return std::string(name(i.param)); });
+
+// M_load = M0 rho(t) + c_w phi_L', clamping forces F_k rho(t) on the moving sheaves (towards
+// the chain: -sigma_m F rho on w), P_clamp = sum sigma_m F_k rho'(t) w_k: at the start,
+// during and after the ramp.
+TEST(OtherForcesTest, LoadTorqueAndClampingFollowTheRamp) {
+  const Model m = test::model("mini", {"load.speed_coefficient=0.01"});
+  const Config& c = m.cfg;
+  const double tr = c.ramp.time, F[2] = {c.clamping.driving, c.clamping.driven};
   Eigen::VectorXd y = m.y0;
-  Workspace ws(m);
-  double last[3] = {-1, -1, -1};
-  for (double frac : {0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0, 1.5}) {
-    const OtherForces& o = evaluate(m, ws, frac * tr, y);
-    const double r = ramp(frac * tr, tr);
-    EXPECT_DOUBLE_EQ(o.load_torque, M0 * r) << frac;
-    EXPECT_DOUBLE_EQ(o.clamp[0], F[0] * r) << frac;
-    EXPECT_DOUBLE_EQ(o.clamp[1], F[1] * r) << frac;
-    // From nothing to the nominal values, never decreasing.
-    EXPECT_GE(o.load_torque, last[0]);
-    EXPECT_GE(o.clamp[0], last[1]);
-    EXPECT_GE(o.clamp[1], last[2]);
-    last[0] = o.load_torque, last[1] = o.clamp[0], last[2] = o.clamp[1];
-    if (frac == 0.0) EXPECT_EQ(o.clamp[0] + o.clamp[1] + o.load_torque, 0.0);
-    if (frac >= 1.0) {
-      EXPECT_EQ(o.load_torque, M0);
-      EXPECT_EQ(o.clamp[0], F[0]);
-      EXPECT_EQ(o.clamp[1], F[1]);
+  y[ishaft(m, 0) + W] = 1e-5, y[ishaft(m, 1) + W] = -2e-5;
+  y[m.ndof + iload(m)] += 7.0;  // the load turning faster than the driven pulley
+  const double wL = y[m.ndof + iload(m)];
+  ASSERT_GT(wL, 100.0);
+  for (double t : {0.0, 0.25 * tr, 0.5 * tr, 0.75 * tr, tr, 2 * tr}) {
+    const OtherForces o = run_other(m, t, y);
+    const double r = rho(t, tr), rd = rho_dot(t, tr);
+    const double Mload = c.load.torque * r + c.load.speed_coefficient * wL;
+    // Round-off of a few operations.
+    EXPECT_NEAR(o.load_torque, Mload, 1e-14 * c.load.torque) << "t " << t;
+    // The load angle takes M_s - M_load, the driven pulley -M_s.
+    EXPECT_NEAR(o.f[14] + o.f[7 + Phi], -Mload, 1e-12 * c.load.torque) << "t " << t;
+    double p_clamp = 0;
+    for (int k = 0; k < 2; ++k) {
+      const int s = m.pulley[k].moving_side;
+      EXPECT_NEAR(o.clamp[k], F[k] * r, 1e-14 * F[k]) << "t " << t << " pulley " << k;
+      EXPECT_NEAR(o.f[7 * k + W], -s * F[k] * r, 1e-14 * F[k]) << "t " << t << " pulley " << k;
+      p_clamp += s * F[k] * rd * y[ishaft(m, k) + W];
+    }
+    EXPECT_NEAR(o.p_clamp, p_clamp, 1e-14 * (F[0] + F[1]) * 2e-5 * M_PI / tr) << "t " << t;
+  }
+  // The documented values themselves: nothing at t = 0, half at mid-ramp, all from t_r on,
+  // and a C1 ramp (no jump in rho nor in rho' at either end).
+  const auto at = [&](double t) { return run_other(m, t, y); };
+  EXPECT_EQ(at(0.0).clamp[0], 0.0);
+  EXPECT_EQ(at(0.0).p_clamp, 0.0);
+  EXPECT_EQ(at(0.0).load_torque, c.load.speed_coefficient * wL);
+  EXPECT_NEAR(at(0.5 * tr).clamp[1], 0.5 * F[1], 1e-12 * F[1]);  // cos(pi / 2) ~ 6e-17, round-off
+  EXPECT_EQ(at(tr).clamp[1], F[1]);
+  EXPECT_EQ(at(3 * tr).load_torque, c.load.torque + c.load.speed_coefficient * wL);
+  EXPECT_NEAR(at(tr * (1 - 1e-7)).clamp[1], F[1], 1e-12 * F[1]);  // 1 - rho ~ (pi 1e-7)^2 / 4
+  EXPECT_NEAR(at(tr * 1e-7).clamp[1], 0.0, 1e-12 * F[1]);  // rho ~ (pi 1e-7)^2 / 4
+  EXPECT_NEAR(at(tr * (1 - 1e-7)).p_clamp, 0.0, 1e-6 * std::abs(at(0.5 * tr).p_clamp));  // rho' ~ pi 1e-7 of its peak
+  EXPECT_NEAR(at(tr * 1e-7).p_clamp, 0.0, 1e-6 * std::abs(at(0.5 * tr).p_clamp));  // rho' ~ pi 1e-7 of its peak
+  EXPECT_NE(at(0.5 * tr).p_clamp, 0.0);
+}
+
+// The powers are force times velocity (P_in = M_in omega_in, P_out = M_load phi_L'), each
+// damper dissipates (P_diss >= 0), and together they close the module's balance
+//   Q . v + dE/dq . v + dE/dt = P_in + P_clamp - P_out - P_diss
+// (docs/model.md 6: Q . v is the power the module's forces deliver to the coordinates,
+// E its energy), with and without the ratio controller.
+TEST(OtherForcesTest, PowersAreForceTimesVelocityAndCloseTheBalance) {
+  for (const bool ctrl : {false, true}) {
+    std::vector<std::string> ov = {"load.speed_coefficient=0.01"};
+    if (ctrl) ov.insert(ov.end(), {"controller.enabled=true", "controller.kp=2e3", "controller.ki=1e6",
+                                   "controller.target_ratio=1.05"});
+    const Model m = test::model("mini", ov);
+    const double tr = m.cfg.ramp.time;
+    for (unsigned seed : {3u, 4u}) {
+      const double t = 0.37 * tr;
+      Eigen::VectorXd y = loaded_state(m, seed, t, 1.0);
+      y[2 * m.ndof + kCtrlIntegral] = 3e-4;
+      const OtherForces o = run_other(m, t, y);
+      const double* v = y.data() + m.ndof;
+      const int pl = iload(m);
+      const double w_in = m.cfg.drive.speed;
+      // Round-off of one product.
+      EXPECT_NEAR(o.p_in, o.f[Phi] * w_in, 1e-14 * std::abs(o.p_in));
+      const double Mload = -(o.f[7 + Phi] + o.f[14]);
+      EXPECT_NEAR(o.p_out, Mload * v[pl], 1e-12 * std::abs(o.p_out));
+      EXPECT_GT(o.p_diss, 0.0);
+      // Power delivered to the coordinates, and the energy's rate along v and in t (4th-order
+      // differences of a polynomial in q: exact; in t: truncation ~(pi h / t_r)^4, nil).
+      double Qv = 0, size = 0;
+      for (int i = 0; i < 15; ++i) Qv += o.f[i] * v[ishaft(m, 0) + i], size += std::abs(o.f[i] * v[ishaft(m, 0) + i]);
+      const auto along = [&](double s) {
+        Eigen::VectorXd z = y;
+        for (int i = ishaft(m, 0); i < m.ndof; ++i) z[i] += s * v[i];
+        return documented_energy(m, t, z.data());
+      };
+      const auto in_time = [&](double s) { return documented_energy(m, t + s, y.data()); };
+      const double hs = 1e-7, ht = 1e-6 * tr;
+      const double dEdq_v = (-along(2 * hs) + 8 * along(hs) - 8 * along(-hs) + along(-2 * hs)) / (12 * hs);
+      const double dEdt = (-in_time(2 * ht) + 8 * in_time(ht) - 8 * in_time(-ht) + in_time(-2 * ht)) / (12 * ht);
+      const double lhs = Qv + dEdq_v + dEdt, rhs = o.p_in + o.p_clamp - o.p_out - o.p_diss;
+      std::printf("[controller %d, seed %u] Q.v = %.6g, dE/dq.v = %.6g, dE/dt = %.6g | P_in %.6g P_clamp %.4g "
+                  "P_out %.6g P_diss %.6g W | residual %.3g\n",
+                  ctrl, seed, Qv, dEdq_v, dEdt, o.p_in, o.p_clamp, o.p_out, o.p_diss, lhs - rhs);
+      // Round-off of the sums (~1e-16 of the largest power) and of the differences
+      // (~1e-16 E / h with E ~ 1e3 J, h = 1e-7 s: ~1e-6 W); powers are ~1e4-1e5 W.
+      EXPECT_NEAR(lhs, rhs, 1e-10 * (size + std::abs(o.p_in) + std::abs(o.p_out) + o.p_diss) + 1e-5);
+      if (ctrl) {
+        EXPECT_NE(o.clamp[0], m.cfg.clamping.driving * rho(t, tr)) << "the controller must act";
+      }
     }
   }
-  // The ramp is C1: its rate is 0 at both ends and matches the difference quotient inside.
-  EXPECT_EQ(ramp_rate(0.0, tr), 0.0);
-  EXPECT_EQ(ramp_rate(tr, tr), 0.0);
-  const double t = 0.3 * tr, d = 1e-6 * tr;
-  EXPECT_NEAR(ramp_rate(t, tr), (ramp(t + d, tr) - ramp(t - d, tr)) / (2 * d), 1e-6 / tr);
 }
 
-TEST(OtherForces, ReportedPowersAreForceTimesVelocity) {
-  const Model m = test::model("mini", {"ramp.time=1e-4"});
-  const Eigen::VectorXd y = moving_state(m, 32);
-  Workspace ws(m);
-  const OtherForces& o = evaluate(m, ws, 2e-4, y);
-  // The drive turns at the prescribed speed; the load at its own.
-  EXPECT_DOUBLE_EQ(o.p_in, o.input_torque * m.cfg.drive.speed);
-  EXPECT_DOUBLE_EQ(o.p_out, o.load_torque * y[m.ndof + m.load_index()]);
-  EXPECT_GE(o.p_diss, 0.0);
-}
-
-TEST(OtherForces, TimeDependenceOfThePotentialIsTheDrivesAndClampingsPower) {
-  // At rest and without damping the drive torque is its spring's: the energy's explicit
-  // rate at fixed q, dE/dt = k (phi_in - phi_1) omega_in + sigma F r'(t) w, is p_in + p_clamp.
+// Without damping and speed-proportional load, nothing dissipates whatever the velocities.
+TEST(OtherForcesTest, NoDampingNoDissipation) {
   const Model m = test::model("mini", {"damping.scale=0"});
-  Eigen::VectorXd y = moving_state(m, 33);
-  y.segment(m.ndof, m.ndof).setZero();
-  for (int k = 0; k < 2; ++k) y[m.shaft(k) + kW] += 1e-4;  // sheaves off their rest: a clamping potential
-  const double t = 0.4 * m.cfg.ramp.time, d = 1e-6 * m.cfg.ramp.time;
-  Workspace ws(m);
-  const OtherForces o = evaluate(m, ws, t, y);
-  const double rate = (other_energy(m, t + d, y.data()) - other_energy(m, t - d, y.data())) / (2 * d);
-  std::printf("[other_forces] dE/dt at fixed q %.9g W, p_in + p_clamp %.9g W\n", rate, o.p_in + o.p_clamp);
-  EXPECT_GT(std::abs(o.p_clamp), 0.0);
-  EXPECT_NEAR(rate, o.p_in + o.p_clamp, 1e-6 * (std::abs(o.p_in) + std::abs(o.p_clamp)));
+  const Eigen::VectorXd y = loaded_state(m, 5, 0.5e-3, 1.0);
+  EXPECT_EQ(run_other(m, 0.5e-3, y).p_diss, 0.0);
 }
 
-TEST(OtherForces, DissipatedPowerIsThePowerOfTheDampers) {
-  // Bearings, sheaves and the load's torsion damper: both ends of each move with the
-  // coordinates, so the power of f(q, v) - f(q, 0) is minus the dissipation. (The drive's
-  // damper has one end at the prescribed speed: its dissipation is not a power of these
-  // coordinates alone, so it is off here.)
-  const Model m = test::model("mini", {"ramp.time=1e-4", "drive.damping=0", "load.speed_coefficient=0"});
-  const Eigen::VectorXd y = moving_state(m, 34);
-  Eigen::VectorXd rest = y;
-  rest.segment(m.ndof, m.ndof).setZero();
-  Workspace ws(m);
-  const OtherForces moving = evaluate(m, ws, 2e-4, y);
-  const OtherForces still = evaluate(m, ws, 2e-4, rest);
-  double power = 0;
-  for (int i = 0; i < kOther; ++i) power += (moving.f[i] - still.f[i]) * y[m.ndof + coordinate(m, i)];
-  // The load torque M0 r(t) is the same in both: it is not in the difference.
-  std::printf("[other_forces] dissipated %.6g W, power of the dissipative forces %.6g W\n", moving.p_diss, power);
-  EXPECT_GT(moving.p_diss, 0.0);
-  EXPECT_NEAR(-power, moving.p_diss, 1e-9 * moving.p_diss);
+// The controller may lower the driving clamping force but never below zero: F1 rho + Fc >= 0.
+TEST(OtherForcesTest, ControllerNeverPullsTheDrivingSheaveOpen) {
+  const Model m = test::model("mini", {"controller.enabled=true", "controller.kp=1e6", "controller.ki=0",
+                                       "controller.target_ratio=3.0"});
+  const double tr = m.cfg.ramp.time;
+  for (double t : {0.2 * tr, 0.5 * tr, 2 * tr}) {
+    const OtherForces o = run_other(m, t, m.y0);
+    // The demand is far beyond F1 (error 2 x 1e6 N): saturated at F1 rho + Fc = 0.
+    EXPECT_GE(o.clamp[0], 0.0) << "t " << t;
+    EXPECT_NEAR(o.clamp[0], 0.0, 1e-12 * m.cfg.clamping.driving) << "t " << t;
+    EXPECT_NEAR(o.f[W], 0.0, 1e-12 * m.cfg.clamping.driving) << "t " << t;
+    EXPECT_GT(o.ctrl_rate, 1.0);
+  }
 }
 
 }  // namespace
