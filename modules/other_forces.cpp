@@ -56,7 +56,7 @@ void other_forces(const Model& m, Workspace& ws) {
   o.f[2 * kShaftSize] += Ms;
   o.output_torque = Ms;
   o.p_diss += cl * (v[p2] - v[pl]) * (v[p2] - v[pl]);
-  const double Mload = c.load.torque * ramp(ws.t, c.ramp.time) + c.load.speed_coefficient * v[pl];
+  const double Mload = ramped_load_torque(c, ws.t) + c.load.speed_coefficient * v[pl];
   o.f[2 * kShaftSize] -= Mload;
   o.load_torque = Mload;
   o.p_out = Mload * v[pl];

@@ -147,6 +147,9 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(controller, ki, real, "N/s", nonneg),
 
       CVT_KEY(ramp, time, real, "s", nonneg),
+      CVT_KEY(ramp, load_time, real, "s", nonneg),
+      CVT_KEY(ramp, load_start, real, "s", nonneg),
+      CVT_KEY(ramp, load_from, real, "N m", nonneg),
 
       CVT_KEY(damping, scale, real, "1", nonneg),
 
@@ -166,6 +169,9 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(run, tracked_pin, integer, "", nonneg),
       CVT_KEY(run, tracked_link, integer, "", nonneg),
       CVT_KEY(run, efficiency_window, real, "s", positive),
+      CVT_KEY(run, until_steady, boolean, "", Range{}),
+      CVT_KEY(run, steady_window, real, "s", nonneg),
+      CVT_KEY(run, steady_tolerance, real, "1", (Range{0, true, 1, false})),
   };
   return defs;
 }
@@ -722,6 +728,7 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
     if (const toml::node* n = sec->get(d.key)) val.collect([&] { val.read_key(d, *n, cfg); });
   }
   val.throw_collected();
+  if (cfg.ramp.load_time < 0) cfg.ramp.load_time = cfg.ramp.time;  // not given: the clamping's ramp
   val.check_relations(root, cfg);
 
   cfg.resolved_toml = resolved_toml(cfg);

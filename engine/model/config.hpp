@@ -136,7 +136,12 @@ struct Config {
     double ki = 0.0;            // [N/s]
   } controller;
   struct Ramp {
-    double time = 2.0e-3;  // t_ramp [s]; 0 applies loads at once
+    double time = 2.0e-3;  // t_ramp [s] of the clamping forces (and of the load unless load_time); 0: at once
+    // The load torque's own ramp (docs/model.md 4.6.3): from load_from at load_start to
+    // load.torque at load_start + load_time. load_time < 0 (not given): ramp.time.
+    double load_time = -1.0;  // [s]
+    double load_start = 0.0;  // [s]
+    double load_from = 0.0;   // [N m]
   } ramp;
   struct Damping {
     double scale = 1.0;  // multiplies every damping coefficient; 0 turns damping off
@@ -166,6 +171,12 @@ struct Config {
     int tracked_pin = 0;
     int tracked_link = 0;
     double efficiency_window = 1.0e-3;  // [s] of the running-mean efficiency channel
+    // Stop as soon as the operating point is steady (or grossly slipping), t_end the upper
+    // bound: the means over two consecutive windows of steady_window agree within
+    // steady_tolerance (docs/output.md, "Until steady").
+    bool until_steady = false;
+    double steady_window = 0.0;      // [s]; 0: two periods of the lowest torsion mode (torsion_period)
+    double steady_tolerance = 0.02;  // [1] of the load torque (torques) and of the speed ratio
   } run;
 
   // The fully resolved configuration as TOML text (what /parameters/config stores).

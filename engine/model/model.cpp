@@ -1,6 +1,7 @@
 // docs/model.md 2, 3, 5: derived parameters, constant inertia, initial state.
 #include "engine/model/model.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include "engine/model/geometry.hpp"
@@ -16,6 +17,39 @@ double ramp(double t, double t_ramp) {
 double ramp_rate(double t, double t_ramp) {
   if (t_ramp <= 0 || t >= t_ramp || t <= 0) return 0.0;
   return 0.5 * M_PI / t_ramp * std::sin(M_PI * t / t_ramp);
+}
+
+double ramped_load_torque(const Config& c, double t) {
+  const double from = c.ramp.load_from, to = c.load.torque, ts = t - c.ramp.load_start;
+  if (ts < 0) return from;
+  return from + (to - from) * ramp(ts, c.ramp.load_time);
+}
+
+double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }
+
+double torsion_period(const Model& m) {
+  const Config& c = m.cfg;
+  const double i = c.geometry.ratio;  // pulley 2 turns at omega_1 / i: all referred to shaft 1
+  const double Ja = c.shaft.polar_inertia * (1 + 1 / (i * i)), Jb = c.load.inertia / (i * i);
+  const double ka = c.drive.stiffness, kb = c.load.stiffness / (i * i);
+  // M x'' + K x = 0 with M = diag(Ja, Jb), K = [[ka + kb, -kb], [-kb, kb]]: the lowest
+  // root of det(K - lambda M) = Ja Jb lambda^2 - ((ka + kb) Jb + kb Ja) lambda + ka kb = 0.
+  const double A = Ja * Jb, B = (ka + kb) * Jb + kb * Ja, C = ka * kb;
+  double lambda = 0;
+  if (C > 0) lambda = (B - std::sqrt(std::max(0.0, B * B - 4 * A * C))) / (2 * A);
+  else if (kb > 0) lambda = kb * (1 / Ja + 1 / Jb);  // no drive spring: the two inertias against each other
+  else if (ka > 0) lambda = ka / (Ja + Jb);
+  return lambda > 0 ? 2 * M_PI / std::sqrt(lambda) : 0.0;
+}
+
+double steady_window(const Model& m) {
+  if (m.cfg.run.steady_window > 0) return m.cfg.run.steady_window;
+  const double v_chain = m.cfg.drive.speed * m.pulley[0].running_radius;
+  const double t_mesh = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0.0;
+  const double w = 2 * torsion_period(m);
+  if (!(t_mesh > 0)) return w;
+  // A whole number of meshing periods, at least 4: the polygon ripple averages out.
+  return std::max(4.0, std::ceil(w / t_mesh - 1e-9)) * t_mesh;
 }
 
 Model build_model(const Config& cfg) {

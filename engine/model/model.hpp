@@ -87,4 +87,22 @@ Model build_model(const Config& cfg);
 double ramp(double t, double t_ramp);
 double ramp_rate(double t, double t_ramp);
 
+// The load torque's ramped part at t (docs/model.md 4.6.3): ramp.load_from until
+// ramp.load_start, then along the ramp to load.torque over ramp.load_time.
+double ramped_load_torque(const Config& c, double t);
+
+// The period [s] of the lowest torsion mode of the drive line: the prescribed drive, its
+// torsion spring, both pulleys turning together through a rigid chain at the geometric
+// ratio, the load's torsion spring and the load inertia (docs/output.md, "Until steady");
+// 0 when neither spring holds it.
+double torsion_period(const Model& m);
+
+// The length of each of the two windows whose means an until-steady run compares:
+// run.steady_window, or two torsion periods rounded up to a whole number of meshing
+// periods (the time a link takes to pass, pitch / (omega_in R1)), at least 4 of them.
+double steady_window(const Model& m);
+
+// The time from which every ramp (clamping forces and load torque) has ended.
+double ramps_end(const Config& c);
+
 }  // namespace cvt

@@ -195,6 +195,32 @@ TEST(OtherForcesTest, LoadTorqueAndClampingFollowTheRamp) {
   EXPECT_NE(at(0.5 * tr).p_clamp, 0.0);
 }
 
+// The load torque on its own ramp (docs/model.md 4.6.3): load_from until load_start, then
+// to load.torque over load_time, while the clamping forces follow ramp.time.
+TEST(OtherForcesTest, LoadTorqueHasItsOwnRamp) {
+  const Model m = test::model("mini", {"ramp.load_time=4e-3", "ramp.load_start=2e-3", "ramp.load_from=3.0"});
+  const Config& c = m.cfg;
+  const double tr = c.ramp.time, tl = 4e-3, ts = 2e-3, M0 = c.load.torque, Mf = 3.0;
+  ASSERT_LT(tr, ts);
+  const Eigen::VectorXd y = m.y0;
+  for (double t : {0.0, 0.5 * tr, ts, ts + 0.25 * tl, ts + 0.5 * tl, ts + tl, ts + 3 * tl}) {
+    const OtherForces o = run_other(m, t, y);
+    const double want = Mf + (M0 - Mf) * rho(t - ts, tl);
+    EXPECT_NEAR(o.load_torque, want, 1e-14 * M0) << "t " << t;
+    EXPECT_NEAR(o.clamp[0], c.clamping.driving * rho(t, tr), 1e-14 * c.clamping.driving) << "t " << t;
+  }
+  const auto at = [&](double t) { return run_other(m, t, y).load_torque; };
+  EXPECT_EQ(at(0.0), Mf);
+  EXPECT_EQ(at(ts), Mf);
+  EXPECT_NEAR(at(ts + 0.5 * tl), 0.5 * (Mf + M0), 1e-12 * M0);
+  EXPECT_EQ(at(ts + tl), M0);
+  EXPECT_EQ(ramps_end(c), ts + tl);
+  // Not given, the load's ramp is the clamping's: ramp.load_time = ramp.time.
+  const Model d = test::model("mini");
+  EXPECT_EQ(d.cfg.ramp.load_time, d.cfg.ramp.time);
+  EXPECT_EQ(ramps_end(d.cfg), d.cfg.ramp.time);
+}
+
 // The powers are force times velocity (P_in = M_in omega_in, P_out = M_load phi_L'), each
 // damper dissipates (P_diss >= 0), and together they close the module's balance
 //   Q . v + dE/dq . v + dE/dt = P_in + P_clamp - P_out - P_diss
