@@ -11,6 +11,7 @@ PYTHON  ?= /usr/bin/python3
 PACKAGES = cmake g++ make pkg-config graphviz \
   libtbb-dev libtbbbind-2-5 libeigen3-dev libhwloc-dev hwloc \
   libhdf5-dev hdf5-tools libgtest-dev libbenchmark-dev libtomlplusplus-dev libcli11-dev \
+  libopenmpi-dev openmpi-bin \
   python3-h5py python3-matplotlib python3-numpy
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)

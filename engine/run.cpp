@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <numeric>
 #include <optional>
 
 #include "engine/base/timing.hpp"
@@ -86,6 +87,7 @@ class Run {
   void snapshot();
   Checkpoint checkpoint() const;
   void progress(long n, WallClock::time_point now);
+  bool steady_now();
 
   const Model& m_;
   const Config& c_;
@@ -111,6 +113,13 @@ class Run {
   const bool tty_ = isatty(fileno(stderr));
   WallClock::time_point t0_ = WallClock::now(), last_progress_ = t0_, last_flush_ = t0_;
   double step_wall_ = 0;
+  // run.until_steady: the windows' length, the first model time at which two fit after the
+  // ramps, and the steps between checks (on the sample grid, at steps a continuation
+  // repeats bit for bit).
+  const bool until_ = c_.run.until_steady;
+  double window_ = 0, first_check_ = 0;
+  long check_every_ = 1;
+  std::string stopped_ = "t_end";
 };
 
 // The checks, the simulation at its start or at the checkpoint, and the checkpoint interval: a W-method's matrix is not in a checkpoint, so a
@@ -150,7 +159,12 @@ Run::Run(const Model& m, const RunOptions& opt)
   // RK4's step against its stability limit: first when the loads have ramped up (at rest,
   // while the contacts form, the linearization overstates the limit: RK4 at 1e-8 runs the
   // mini model, whose estimate at t = 0 is 6.4e-9), then every millisecond.
-  next_stability_check_ = std::max(sim_.time(), c_.ramp.time);
+  next_stability_check_ = std::max(sim_.time(), ramps_end(c_));
+  if (until_) {
+    window_ = steady_window(m);
+    first_check_ = ramps_end(c_) + 2 * window_;
+    check_every_ = std::lcm(every_sample_, rebuild_every_);
+  }
 }
 
 void Run::warn(const std::string& w) {
@@ -186,8 +200,8 @@ void Run::open_output() {
   }
   write_parameters(*file_, m_, run_id_);
   rec_ = std::make_unique<Recorder>(*file_, m_);
-  std::printf("  schedule: %s\n", sim_.schedule().describe().c_str());
-  if (opt_.resume)
+  if (opt_.progress) std::printf("  schedule: %s\n", sim_.schedule().describe().c_str());
+  if (opt_.resume && opt_.progress)
     std::printf("  resumed at t = %.9g s, step %ld%s\n", sim_.time(), start_,
                 append_ ? (", appending to " + opt_.out_path).c_str() : "");
   std::fflush(stdout);
@@ -269,6 +283,17 @@ void Run::progress(long n, WallClock::time_point now) {
   last_progress_ = now;
 }
 
+// run.until_steady: the summary's verdicts over the last two windows; true when they say
+// steady (every criterion held) or gross slip.
+bool Run::steady_now() {
+  if (sim_.time() < first_check_ * (1 - 1e-12)) return false;
+  RunSummary probe;
+  summarize(m_, channels_, probe, SteadyCriteria::of(c_), sim_.time() - 2 * window_);
+  if (probe.status != "steady" && probe.status != "slip") return false;
+  stopped_ = probe.status;
+  return true;
+}
+
 // Each step, then its sample and snapshot, then a checkpoint (after a flush: a crash
 // leaves a file that holds every sample up to the checkpoint), then a stop on a signal
 // (at a step a continuation repeats bit for bit), then the periodic flush and progress.
@@ -288,6 +313,10 @@ void Run::steps() {
           last_flush_ = WallClock::now();
           write_checkpoint(ckpt_path_, checkpoint());
         });
+      if (until_ && n % check_every_ == 0 && steady_now()) {
+        done_ = n;
+        break;
+      }
       if (g_stop_signal && (n % rebuild_every_ == 0 || n == total_)) {
         done_ = n;  // its sample ends the series
         if (!on_grid) sim_.check_finite(), record();
@@ -331,7 +360,9 @@ RunResult Run::finish() {
   r_.wall_s = step_wall_;
   r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
   r_.model_s_per_hour = static_cast<double>(steps) * h_ / step_wall_ * 3600.0;
-  summarize(m_, channels_, r_);
+  r_.stopped = r_.interrupted ? "signal" : stopped_;
+  r_.steady_window = window_;
+  summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * window_ : -1.0);
   const Sample& last = samples_.back();
   r_.energy_residual = last.energy_residual;
   r_.work_input = last.work_input;

@@ -287,7 +287,7 @@ void Simulation::check_finite() {
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
     const Config::Integrator& in = m_.cfg.integrator;
-    if (in.method != IntegratorMethod::rk4 && t_bad <= std::max(in.startup_time, m_.cfg.ramp.time) * (1 + 1e-9)) {
+    if (in.method != IntegratorMethod::rk4 && t_bad <= std::max(in.startup_time, ramps_end(m_.cfg)) * (1 + 1e-9)) {
       const int k1 = std::max(1, in.w_k_every / 4), k2 = std::max(1, in.w_k_every / 8);
       cause += std::string(to_string(in.method)) + " could not start from rest at h = " + std::string(buf) +
                " s: while the pins settle onto the sheaves and the loads ramp up, its matrix (the stiffness "

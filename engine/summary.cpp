@@ -55,29 +55,11 @@ std::string fmt(const char* f, double a, double b = 0, double c = 0, double d = 
 
 }  // namespace
 
-void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c) {
-  const Config& cfg = m.cfg;
-  s.drive_speed = cfg.drive.speed;
-  s.load_torque_nominal = cfg.load.torque;
-  s.clamp_driving_nominal = cfg.clamping.driving;
-  s.clamp_driven_nominal = cfg.clamping.driven;
-  s.ratio_target = cfg.geometry.ratio;
-  s.method = to_string(cfg.integrator.method);
-  s.step = cfg.integrator.step;
-  s.controller = cfg.controller.enabled ? fmt("PI on F1, target speed ratio %.4g", cfg.controller.target_ratio) : "off";
-  s.reasons.clear();
-  const std::size_t n = ch.size();
-  if (n == 0) return;
-  // The window: the last window_fraction of the run, not before the ramp has ended.
-  const double t0 = ch.t.front(), t1 = ch.t.back();
-  const double ramp_end = cfg.ramp.time;
-  double w0 = t1 - c.window_fraction * (t1 - t0);
-  const bool ramping = w0 < ramp_end;
-  if (ramping && ramp_end < t1) w0 = std::max(w0, ramp_end);
-  std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
-  if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
-  const std::size_t b = n, mid = (a + b) / 2;
-  s.window_start = ch.t[a], s.window_end = t1;
+namespace {
+
+// The means over samples [a, b) into s.
+void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s) {
+  s.window_start = ch.t[a], s.window_end = ch.t[b - 1];
   s.speed_ratio = mean(ch.speed_ratio, a, b);
   s.geometric_ratio = mean_defined(ch.geometric_ratio, a, b);
   s.slip = s.speed_ratio != 0 && s.geometric_ratio > 0 ? 1.0 - s.geometric_ratio / s.speed_ratio : 0.0;
@@ -98,75 +80,169 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   // swinging in and out of the torsion springs and inertias.
   const double win = ch.work_input[b - 1] - ch.work_input[a];
   s.loss_efficiency = win > 0 ? 1.0 - (ch.work_dissipated[b - 1] - ch.work_dissipated[a]) / win : 0.0;
+}
 
-  // Verdicts. Torques are judged against the load (or the output torque without a load).
-  const double torque_scale = std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6});
-  std::vector<std::string> slip, unsteady;
-  if (ramping)
-    unsteady.push_back(fmt("load ramp: the loads and clamping forces ramp up until t = %.4g s, and the run "
-                           "ends at %.4g s",
-                           ramp_end, t1));
-  if (std::abs(s.slip) > c.gross_slip)
-    slip.push_back(fmt("gross slip: speed ratio %.4f against geometric ratio %.4f (slip %.1f %%)", s.speed_ratio,
-                       s.geometric_ratio, 100 * s.slip));
+// The verdicts over samples [a, b): each check either holds (a line in s.criteria) or not
+// (a line in slip or unsteady).
+class Judge {
+ public:
+  Judge(const Model& m, const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s, const SteadyCriteria& c)
+      : m_(m), ch_(ch), a_(a), b_(b), mid_((a + b) / 2), s_(s), c_(c),
+        torque_scale_(std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6})) {
+    const std::size_t n = ch.size();
+    const double dt = (ch.t.back() - ch.t.front()) / static_cast<double>(std::max<std::size_t>(1, n - 1));
+    const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
+    t_mesh_ = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0;
+    k_ = t_mesh_ > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh_ / dt)) : 1;
+  }
+  void all(bool ramping, double ramp_end) {
+    if (ramping)
+      unsteady.push_back(fmt("load ramp: the loads and clamping forces ramp up until t = %.4g s, and the run "
+                             "ends at %.4g s",
+                             ramp_end, ch_.t.back()));
+    slip_check();
+    // A window shorter than two meshing periods says nothing about drift, shift or ringing.
+    if (b_ - a_ < 2 * k_) {
+      unsteady.push_back(fmt("window too short: %.3g s holds fewer than two meshing periods (%.3g s)",
+                             s_.window_end - s_.window_start, t_mesh_));
+      return;
+    }
+    falling();
+    drift_check();
+    shift();
+    ringing();
+    balance();
+  }
+  std::vector<std::string> slip, unsteady, held;
+
+ private:
+  void slip_check() {
+    if (std::abs(s_.slip) > c_.gross_slip)
+      slip.push_back(fmt("gross slip: speed ratio %.4f against geometric ratio %.4f (slip %.1f %%)", s_.speed_ratio,
+                         s_.geometric_ratio, 100 * s_.slip));
+    else
+      held.push_back(fmt("no gross slip: slip %+.2f %% (limit %.3g %%)", 100 * s_.slip, 100 * c_.gross_slip));
+  }
+  void falling() {
+    const double w_a = mean(ch_.output_speed, a_, mid_), w_b = mean(ch_.output_speed, mid_, b_);
+    if (s_.output_speed != 0 && (w_b - w_a) / std::abs(s_.output_speed) < -c_.falling)
+      slip.push_back(fmt("output speed falling: %.2f -> %.2f rad/s across the window", w_a, w_b));
+  }
+  // The means over the window's two halves (two consecutive windows) agree.
+  void drift_check() {
+    std::string agree;
+    bool held = true;
+    const auto drift = [&](const char* name, const char* unit, const std::vector<double>& v, double scale) {
+      const double x = mean(v, a_, mid_), y = mean(v, mid_, b_);
+      char buf[256];
+      std::snprintf(buf, sizeof buf, "%s %.4g -> %.4g%s%s", name, x, y, *unit ? " " : "", unit);
+      if (std::abs(y - x) > c_.drift * scale) {
+        unsteady.push_back(std::string("drift of the means: ") + buf + " over the window's halves (limit " +
+                           fmt("%.2g", 100 * c_.drift) + " %)");
+        held = false;
+      } else {
+        agree += (agree.empty() ? "" : ", ") + std::string(buf);
+      }
+    };
+    drift("output torque", "N m", ch_.output_torque, torque_scale_);
+    drift("input torque", "N m", ch_.input_torque, torque_scale_);
+    drift("speed ratio", "", ch_.speed_ratio, std::abs(s_.speed_ratio));
+    if (held)
+      this->held.push_back(fmt("means over t = %.5g .. %.5g s and %.5g .. %.5g s agree within ", s_.window_start,
+                               ch_.t[mid_], ch_.t[mid_], s_.window_end) +
+                           fmt("%.2g %%: ", 100 * c_.drift) + agree);
+  }
+  // A shift: the geometric ratio moving (the clamping forces do not hold this ratio at this
+  // load), reported as a rate.
+  void shift() {
+    const double x = mean_defined(ch_.geometric_ratio, a_, mid_), y = mean_defined(ch_.geometric_ratio, mid_, b_);
+    const double dt_halves = 0.5 * (s_.window_end - s_.window_start);
+    if (!(x > 0 && y > 0 && dt_halves > 0)) return;
+    const double rate = 100 * (y - x) / s_.geometric_ratio / dt_halves * 0.01;  // % per 10 ms
+    if (std::abs(rate) > c_.shift)
+      unsteady.push_back(fmt("shifting: the geometric ratio moves %.5f -> %.5f over the window's halves (%+.2g %% per "
+                             "10 ms; limit %.2g): the clamping forces do not hold this ratio at this load",
+                             x, y, rate, c_.shift));
+    else
+      held.push_back(fmt("ratio held: the geometric ratio moves %+.2g %% per 10 ms (limit %.2g)", rate, c_.shift));
+  }
   // The slow swing of the output torque: a moving average over one meshing period (the time
   // a link takes to pass, pitch / (omega_in R1)) removes the polygon ripple and leaves the
   // torsion modes of shafts and load.
-  const double dt = (t1 - t0) / static_cast<double>(std::max<std::size_t>(1, n - 1));
-  const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
-  const double t_mesh = v_chain > 0 ? cfg.chain.pitch / v_chain : 0;
-  const std::size_t k = t_mesh > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh / dt)) : 1;
-  // A window shorter than two meshing periods says nothing about drift, shift or ringing.
-  const bool short_window = b - a < 2 * k;
-  if (short_window)
-    unsteady.push_back(fmt("window too short: %.3g s holds fewer than two meshing periods (%.3g s)",
-                           s.window_end - s.window_start, t_mesh));
-  const double w_a = mean(ch.output_speed, a, mid), w_b = mean(ch.output_speed, mid, b);
-  if (!short_window && s.output_speed != 0 && (w_b - w_a) / std::abs(s.output_speed) < -c.falling)
-    slip.push_back(fmt("output speed falling: %.2f -> %.2f rad/s across the window", w_a, w_b));
-  // Drift of the means between the window's two halves.
-  const auto drift = [&](const char* name, const char* unit, const std::vector<double>& v, double scale) {
-    const double x = mean(v, a, mid), y = mean(v, mid, b);
-    if (std::abs(y - x) > c.drift * scale) {
-      char buf[256];
-      std::snprintf(buf, sizeof buf, "drift of the means: %s %.4g -> %.4g%s%s over the window's halves (limit %.2g %%)",
-                    name, x, y, *unit ? " " : "", unit, 100 * c.drift);
-      unsteady.push_back(buf);
-    }
-  };
-  if (!short_window) drift("output torque", "N m", ch.output_torque, torque_scale);
-  if (!short_window) drift("input torque", "N m", ch.input_torque, torque_scale);
-  if (!short_window) drift("speed ratio", "", ch.speed_ratio, std::abs(s.speed_ratio));
-  // A shift: the geometric ratio moving (the clamping forces do not hold this ratio at this
-  // load), reported as a rate.
-  {
-    const double x = mean_defined(ch.geometric_ratio, a, mid), y = mean_defined(ch.geometric_ratio, mid, b);
-    const double dt_halves = 0.5 * (s.window_end - s.window_start);
-    if (!short_window && x > 0 && y > 0 && dt_halves > 0 && std::abs(y - x) / std::abs(s.geometric_ratio) / dt_halves > c.shift)
-      unsteady.push_back(fmt("shifting: the geometric ratio moves %.5f -> %.5f over the window's halves (%+.2g %% per "
-                             "10 ms; limit %.2g): the clamping forces do not hold this ratio at this load",
-                             x, y, 100 * (y - x) / s.geometric_ratio / dt_halves * 0.01, c.shift));
-  }
-  if (!short_window) {
+  void ringing() {
     double lo = 1e300, hi = -1e300, run = 0;
-    for (std::size_t i = a; i < b; ++i) {
-      run += ch.output_torque[i];
-      if (i >= a + k) run -= ch.output_torque[i - k];
-      if (i + 1 >= a + k) lo = std::min(lo, run / k), hi = std::max(hi, run / k);
+    for (std::size_t i = a_; i < b_; ++i) {
+      run += ch_.output_torque[i];
+      if (i >= a_ + k_) run -= ch_.output_torque[i - k_];
+      if (i + 1 >= a_ + k_) lo = std::min(lo, run / k_), hi = std::max(hi, run / k_);
     }
     const double swing = 0.5 * (hi - lo);
-    if (swing > c.ringing * torque_scale)
+    if (swing > c_.ringing * torque_scale_)
       unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
                              "load) with the meshing ripple removed",
-                             swing, 100 * swing / torque_scale));
+                             swing, 100 * swing / torque_scale_));
+    else
+      held.push_back(fmt("torsion settled: the output torque swings +-%.3g N m (%.1f %% of the load; limit %.3g %%)",
+                         swing, 100 * swing / torque_scale_, 100 * c_.ringing));
   }
-  if (!short_window && std::abs(s.load_torque) > 0 &&
-      std::abs(s.output_torque - s.load_torque) > c.balance * torque_scale)
-    unsteady.push_back(fmt("torque balance: mean output torque %.4g N m against the load's %.4g N m (%.1f %%)",
-                           s.output_torque, s.load_torque, 100 * (s.output_torque / s.load_torque - 1)));
-  s.status = !slip.empty() ? "slip" : unsteady.empty() ? "steady" : "not_steady";
-  s.reasons = slip;
-  s.reasons.insert(s.reasons.end(), unsteady.begin(), unsteady.end());
+  void balance() {
+    if (!(std::abs(s_.load_torque) > 0)) return;
+    const double off = std::abs(s_.output_torque - s_.load_torque);
+    const std::string text = fmt("mean output torque %.4g N m against the load's %.4g N m (%+.1f %%", s_.output_torque,
+                                 s_.load_torque, 100 * (s_.output_torque / s_.load_torque - 1));
+    if (off > c_.balance * torque_scale_) unsteady.push_back("torque balance: " + text + ")");
+    else held.push_back("torque balance: " + text + fmt("; limit %.2g %%)", 100 * c_.balance));
+  }
+
+  const Model& m_;
+  const SummaryChannels& ch_;
+  const std::size_t a_, b_, mid_;
+  RunSummary& s_;
+  const SteadyCriteria& c_;
+  const double torque_scale_;
+  double t_mesh_ = 0;
+  std::size_t k_ = 1;
+};
+
+}  // namespace
+
+SteadyCriteria SteadyCriteria::of(const Config& cfg) {
+  SteadyCriteria c;
+  c.drift = c.balance = cfg.run.steady_tolerance;
+  return c;
+}
+
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
+               double window_start) {
+  const Config& cfg = m.cfg;
+  s.drive_speed = cfg.drive.speed;
+  s.load_torque_nominal = cfg.load.torque;
+  s.clamp_driving_nominal = cfg.clamping.driving;
+  s.clamp_driven_nominal = cfg.clamping.driven;
+  s.ratio_target = cfg.geometry.ratio;
+  s.method = to_string(cfg.integrator.method);
+  s.step = cfg.integrator.step;
+  s.controller = cfg.controller.enabled ? fmt("PI on F1, target speed ratio %.4g", cfg.controller.target_ratio) : "off";
+  s.reasons.clear();
+  s.criteria.clear();
+  const std::size_t n = ch.size();
+  if (n == 0) return;
+  // The window: the last window_fraction of the run (or from window_start), not before
+  // the ramps have ended.
+  const double t0 = ch.t.front(), t1 = ch.t.back();
+  const double ramp_end = ramps_end(cfg);
+  double w0 = window_start >= 0 ? window_start : t1 - c.window_fraction * (t1 - t0);
+  const bool ramping = w0 < ramp_end;
+  if (ramping && ramp_end < t1) w0 = std::max(w0, ramp_end);
+  std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
+  if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
+  fill_means(ch, a, n, s);
+  Judge judge(m, ch, a, n, s, c);
+  judge.all(ramping, ramp_end);
+  s.status = !judge.slip.empty() ? "slip" : judge.unsteady.empty() ? "steady" : "not_steady";
+  s.reasons = judge.slip;
+  s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
+  s.criteria = judge.held;
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
@@ -182,7 +258,13 @@ std::string format_summary(const RunSummary& s) {
        s.ratio_target);
   line("                   %s, step %.4g s, controller %s\n", s.method.c_str(), s.step, s.controller.c_str());
   line("  status: %s\n", s.status == "not_steady" ? "not yet steady" : s.status.c_str());
+  if (s.stopped == "steady" || s.stopped == "slip")
+    line("    (run.until_steady: stopped at t = %.5g s, %s; windows of %.4g s)\n", s.model_time,
+         s.stopped == "steady" ? "every criterion held" : "gross slip", s.steady_window);
+  else if (s.steady_window > 0 && s.stopped == "t_end")
+    line("    (run.until_steady: not steady by t_end = %.5g s; windows of %.4g s)\n", s.model_time, s.steady_window);
   for (const auto& r : s.reasons) line("    - %s\n", r.c_str());
+  for (const auto& r : s.criteria) line("    held: %s\n", r.c_str());
   line("  means over t = %.5g .. %.5g s:\n", s.window_start, s.window_end);
   line("    speed ratio              %.5f   (geometric ratio %.5f, slip %+.2f %%)\n", s.speed_ratio, s.geometric_ratio,
        100 * s.slip);
@@ -224,6 +306,9 @@ std::string summary_json(const RunSummary& s) {
   os << "{\n";
   str("status", s.status);
   list("reasons", s.reasons);
+  list("criteria", s.criteria);
+  str("stopped", s.stopped);
+  num("steady_window", s.steady_window);
   list("warnings", s.warnings);
   os << "  \"efficiency_meaningful\": " << (s.efficiency_meaningful ? "true" : "false") << ",\n";
   os << "  \"interrupted\": " << (s.interrupted ? "true" : "false") << ",\n";

@@ -31,6 +31,8 @@ struct SteadyCriteria {
   double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
   double falling = 0.02;         // output speed falling by 2 % across the window: slip
+  // drift and balance from run.steady_tolerance, the rest as above.
+  static SteadyCriteria of(const Config& cfg);
 };
 
 struct RunSummary {
@@ -55,6 +57,10 @@ struct RunSummary {
   // "steady", "not_steady" or "slip"; the reasons of the last two (empty when steady).
   std::string status = "not_steady";
   std::vector<std::string> reasons;
+  std::vector<std::string> criteria;  // the checks that held, with their figures
+  // What ended the run: "t_end", "steady" or "slip" (run.until_steady), "signal".
+  std::string stopped = "t_end";
+  double steady_window = 0;  // each of the two windows compared (run.until_steady) [s]
   // Energy balance at the end: residual [J] and its fraction of the energy turned over.
   double energy_residual = 0, work_input = 0, energy_turnover = 0, residual_fraction = 0;
   // What the run warned about (also printed when it happened).
@@ -62,7 +68,10 @@ struct RunSummary {
 };
 
 // Fills the window, the means and the verdicts of s from the channels (the whole run).
-void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {});
+// The window is the last c.window_fraction of the run, or from window_start when that is
+// >= 0; never before the ramps have ended.
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {},
+               double window_start = -1);
 
 // The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json).
 std::string format_summary(const RunSummary& s);

@@ -21,6 +21,8 @@
 #include "engine/studies/modes.hpp"
 #include "engine/studies/scale.hpp"
 #include "engine/studies/integrators.hpp"
+#include "engine/studies/sweep.hpp"
+#include "engine/studies/sweep_mpi.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "graph/schedule.hpp"
@@ -141,6 +143,7 @@ struct RunArgs {
   std::string method;  // --method: integrator.method
   std::string out;     // --out (empty: results.h5, or with --resume the run's own file)
   bool profile = false, quiet = false;
+  bool until_steady = false;  // --until-steady: run.until_steady
 };
 
 // "1.4 min per model second" for a throughput in model seconds per wall hour.
@@ -162,6 +165,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
   if (!step.empty()) overrides.push_back("integrator.step=" + step);
   if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
+  if (ra.until_steady) overrides.push_back("run.until_steady=true");
   // A resumed run takes its configuration from the checkpoint (overrides still apply:
   // --t-end to go further; changing the physics would break the continuation).
   std::optional<Checkpoint> ckpt;
@@ -175,6 +179,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!t_end.empty()) shortcuts["run.t_end"] = "--t-end";
   if (!step.empty()) shortcuts["integrator.step"] = "--step";
   if (!ra.method.empty()) shortcuts["integrator.method"] = "--method";
+  if (ra.until_steady) shortcuts["run.until_steady"] = "--until-steady";
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
                           : load_config(config_path, overrides, shortcuts);
   const Model model = build_model(cfg);
@@ -205,8 +210,10 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
              fmt_g(cfg.integrator.startup_time) + " s";
       w += ")";
     }
-    std::printf("  t_end = %g s, %s step = %g s%s, friction %s\n", cfg.run.t_end, to_string(cfg.integrator.method),
-                cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
+    std::printf("  t_end = %g s%s, %s step = %g s%s, friction %s\n", cfg.run.t_end,
+                cfg.run.until_steady ? (" (or until steady: two windows of " + fmt_g(steady_window(model)) + " s)").c_str()
+                                     : "",
+                to_string(cfg.integrator.method), cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
     std::fflush(stdout);
   }
   RunOptions opt;
@@ -352,6 +359,9 @@ Command add_run_command(CLI::App& app) {
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
+  run->add_flag("--until-steady", run_args.until_steady,
+                "stop once the operating point is steady or grossly slips, t_end the upper bound (run.until_steady; "
+                "docs/output.md)");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
   run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
   run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
@@ -566,6 +576,69 @@ Command add_study_command(CLI::App& app) {
   }};
 }
 
+// cvt-engine sweep: operating points until steady, one CSV and HDF5 row each
+// (engine/studies/sweep.cpp); under mpirun or srun the points go out to the ranks.
+int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points) {
+  using namespace cvt;
+  if (axes.empty() == points.empty())
+    throw ConfigError("--axis", "", "give the points: one or more --axis KEY=V1,V2,... or --points FILE, not both");
+  std::vector<SweepAxis> ax;
+  for (const auto& a : axes) ax.push_back(parse_axis(a));
+  const SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
+  if (plan.points.empty()) throw ConfigError("--points", points, "no points");
+  // Every point's configuration is checked before the first runs: a typo fails now.
+  for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
+    std::vector<std::string> ov = o.overrides;
+    const auto own = plan.overrides(i);
+    ov.insert(ov.end(), own.begin(), own.end());
+    load_config(o.config_path, ov);
+  }
+  const MpiWorld world;
+  if (world.rank() == 0) {
+    std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady\n", CVT_VERSION,
+                o.config_path.c_str(), plan.points.size(), [&] {
+                  std::string k;
+                  for (const auto& x : plan.keys) k += (k.empty() ? "" : ", ") + x;
+                  return k;
+                }().c_str(),
+                world.size() > 1 ? (", " + std::to_string(world.size()) + " MPI ranks").c_str() : "");
+    std::fflush(stdout);
+  }
+  const long unsteady = world.size() > 1 ? run_sweep_mpi(o, plan, world) : run_sweep(o, plan);
+  if (world.rank() == 0) {
+    std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
+                plan.points.size(), unsteady);
+  }
+  return kExitOk;
+}
+
+Command add_sweep_command(CLI::App& app) {
+  struct Args {
+    cvt::SweepOptions o;
+    std::vector<std::string> axes;
+    std::string points;
+    ScheduleArgs sched;
+  };
+  auto a = std::make_shared<Args>();
+  auto* sw = app.add_subcommand("sweep", "operating points, each run until steady, into OUT.csv and OUT.h5 (one row "
+                                         "per point; with mpirun the points go out to the ranks)");
+  sw->footer("Example: cvt-engine sweep configs/mini.toml --axis load.torque=5,10 --axis clamping.driving=1.1e4,1.2e4 "
+             "--out sweep\n         mpirun -np 3 cvt-engine sweep ... (rank 0 hands out points and writes)");
+  sw->add_option("CONFIG", a->o.config_path, "TOML configuration (the base of every point)")->required();
+  sw->add_option("--axis", a->axes, "KEY=V1,V2,...: an axis of the full grid (repeatable; the first varies slowest)");
+  sw->add_option("--points", a->points, "CSV file: a header of keys, then a row of values per point");
+  sw->add_option("-o,--out", a->o.out, "OUT.csv and OUT.h5; a sweep started again with the same OUT skips the "
+                                       "points OUT.csv holds")
+      ->capture_default_str();
+  sw->add_flag("--keep-runs", a->o.keep_runs, "keep each point's run file, OUT.runs/point-NNNN.h5");
+  sw->add_option("--set", a->o.overrides, "override a key for every point: section.key=value (repeatable)");
+  add_schedule_options(sw, a->sched);
+  return {sw, [a] {
+    a->o.schedule = a->sched.options();
+    return cmd_sweep(a->o, a->axes, a->points);
+  }};
+}
+
 // cvt-engine topology: NUMA nodes, cores and the pins per node.
 Command add_topology_command(CLI::App& app) {
   struct Args {
@@ -624,7 +697,8 @@ int main(int argc, char** argv) {
   app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
              "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
   const Command commands[] = {add_run_command(app),      add_graph_command(app),    add_scale_command(app),
-                              add_study_command(app),    add_topology_command(app), add_modes_command(app)};
+                              add_study_command(app),    add_topology_command(app), add_modes_command(app),
+                              add_sweep_command(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {  // --help, --version

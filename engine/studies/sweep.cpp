@@ -1,0 +1,387 @@
+#include "engine/studies/sweep.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include "engine/base/timing.hpp"
+#include "engine/guards.hpp"
+#include "engine/io/h5_writer.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/model.hpp"
+#include "engine/run.hpp"
+#include "engine/simulation.hpp"
+
+namespace cvt {
+
+namespace {
+
+std::string trim(const std::string& s) {
+  const auto b = s.find_first_not_of(" \t\r\n");
+  if (b == std::string::npos) return {};
+  return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
+}
+
+// Splits a CSV line into its fields; a field in double quotes may hold commas and doubled
+// quotes.
+std::vector<std::string> split_csv(const std::string& line) {
+  std::vector<std::string> out;
+  std::string f;
+  bool quoted = false;
+  for (std::size_t i = 0; i < line.size(); ++i) {
+    const char ch = line[i];
+    if (quoted) {
+      if (ch == '"' && i + 1 < line.size() && line[i + 1] == '"') f += '"', ++i;
+      else if (ch == '"') quoted = false;
+      else f += ch;
+    } else if (ch == '"') {
+      quoted = true;
+    } else if (ch == ',') {
+      out.push_back(f), f.clear();
+    } else {
+      f += ch;
+    }
+  }
+  if (quoted) throw std::runtime_error("unterminated quote");
+  out.push_back(f);
+  return out;
+}
+
+std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string q = "\"";
+  for (char ch : s) q += ch == '"' ? std::string("\"\"") : std::string(1, ch == '\n' ? ' ' : ch);
+  return q + "\"";
+}
+
+std::string num(double x) {
+  char b[40];
+  std::snprintf(b, sizeof b, "%.17g", x);
+  return b;
+}
+
+// The result columns after the keys, each with its member.
+struct Column {
+  const char* name;
+  double SweepRow::*field;
+};
+const std::vector<Column>& result_columns() {
+  static const std::vector<Column> cols = {
+      {"speed_ratio", &SweepRow::speed_ratio},
+      {"geometric_ratio", &SweepRow::geometric_ratio},
+      {"slip", &SweepRow::slip},
+      {"input_torque", &SweepRow::input_torque},
+      {"output_torque", &SweepRow::output_torque},
+      {"efficiency", &SweepRow::efficiency},
+      {"input_speed", &SweepRow::input_speed},
+      {"output_speed", &SweepRow::output_speed},
+      {"load_torque", &SweepRow::load_torque},
+      {"clamping_force_driving", &SweepRow::clamping_force_driving},
+      {"clamping_force_driven", &SweepRow::clamping_force_driven},
+      {"model_time", &SweepRow::model_time},
+  };
+  return cols;
+}
+
+const std::vector<std::string>& statuses() {
+  static const std::vector<std::string> s = {"steady", "not_steady", "slip", "blow_up", "error"};
+  return s;
+}
+
+// Writes text and forces it to the disk: a kill after this loses nothing of it.
+void append_durably(const std::string& path, const std::string& text) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
+  if (fd < 0) throw OutputError("cannot write '" + path + "'");
+  const ssize_t n = ::write(fd, text.data(), text.size());
+  const bool ok = n == static_cast<ssize_t>(text.size()) && ::fsync(fd) == 0;
+  ::close(fd);
+  if (!ok) throw OutputError("cannot write '" + path + "'");
+}
+
+std::string point_file(const SweepOptions& o, long i) {
+  char b[32];
+  std::snprintf(b, sizeof b, "point-%04ld.h5", i);
+  return o.out + ".runs/" + b;
+}
+
+}  // namespace
+
+SweepAxis parse_axis(const std::string& text) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
+    throw ConfigError("--axis", "'" + text + "'", "expected KEY=V1,V2,... (section.key=values)");
+  SweepAxis a;
+  a.key = trim(text.substr(0, eq));
+  for (const std::string& v : split_csv(text.substr(eq + 1))) {
+    if (trim(v).empty()) throw ConfigError("--axis", "'" + text + "'", "an empty value");
+    a.values.push_back(trim(v));
+  }
+  return a;
+}
+
+SweepPlan SweepPlan::grid(const std::vector<SweepAxis>& axes) {
+  SweepPlan p;
+  for (const auto& a : axes) {
+    if (std::find(p.keys.begin(), p.keys.end(), a.key) != p.keys.end())
+      throw ConfigError("--axis", a.key, "given twice");
+    p.keys.push_back(a.key);
+  }
+  p.points.push_back({});
+  for (const auto& a : axes) {
+    std::vector<std::vector<std::string>> next;
+    for (const auto& pt : p.points)
+      for (const auto& v : a.values) {
+        next.push_back(pt);
+        next.back().push_back(v);
+      }
+    p.points = std::move(next);
+  }
+  if (axes.empty()) p.points.clear();
+  return p;
+}
+
+SweepPlan SweepPlan::from_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError::unreadable(path, "no such file");
+  SweepPlan p;
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (const auto h = line.find('#'); h != std::string::npos) line.resize(h);
+    if (trim(line).empty()) continue;
+    std::vector<std::string> f = split_csv(line);
+    for (auto& x : f) x = trim(x);
+    if (p.keys.empty()) {
+      p.keys = f;
+      continue;
+    }
+    if (f.size() != p.keys.size())
+      throw ConfigError(path, "line " + std::to_string(n),
+                        std::to_string(f.size()) + " values for " + std::to_string(p.keys.size()) + " keys");
+    p.points.push_back(f);
+  }
+  if (p.keys.empty()) throw ConfigError(path, "", "no header line of keys");
+  return p;
+}
+
+std::vector<std::string> SweepPlan::overrides(long i) const {
+  std::vector<std::string> o;
+  for (std::size_t k = 0; k < keys.size(); ++k) o.push_back(keys[k] + "=" + points[static_cast<std::size_t>(i)][k]);
+  return o;
+}
+
+std::string SweepPlan::label(long i) const {
+  std::string s;
+  for (const std::string& o : overrides(i)) s += (s.empty() ? "" : ", ") + o;
+  return s;
+}
+
+std::string sweep_csv_header(const SweepPlan& plan) {
+  std::string s;
+  for (const auto& k : plan.keys) s += csv_field(k) + ",";
+  s += "status";
+  for (const auto& c : result_columns()) s += std::string(",") + c.name;
+  return s + ",point,reason,wall_s\n";
+}
+
+std::string sweep_csv_row(const SweepRow& r) {
+  std::string s;
+  for (const auto& v : r.values) s += csv_field(v) + ",";
+  s += r.status;
+  for (const auto& c : result_columns()) s += "," + num(r.*c.field);
+  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + num(r.wall_s) + "\n";
+}
+
+SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
+  const std::vector<std::string> f = split_csv(line);
+  const std::size_t nk = plan.keys.size(), nr = result_columns().size();
+  if (f.size() != nk + 1 + nr + 3) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
+  SweepRow r;
+  r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
+  r.status = f[nk];
+  if (std::find(statuses().begin(), statuses().end(), r.status) == statuses().end())
+    throw std::runtime_error("unknown status '" + r.status + "'");
+  std::size_t at = nk + 1;
+  for (const auto& c : result_columns()) r.*c.field = std::stod(f[at++]);
+  r.point = std::stol(f[at++]);
+  r.reason = f[at++];
+  r.wall_s = std::stod(f[at]);
+  return r;
+}
+
+// The point's configuration (the base, --set, the point's keys, run.until_steady), run into
+// its own file; the row from its summary.
+SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
+  SweepRow r;
+  r.point = i;
+  r.values = plan.points[static_cast<std::size_t>(i)];
+  const auto t0 = WallClock::now();
+  const std::string path = point_file(o, i);
+  try {
+    std::vector<std::string> ov = o.overrides;
+    const std::vector<std::string> own = plan.overrides(i);
+    ov.insert(ov.end(), own.begin(), own.end());
+    ov.push_back("run.until_steady=true");
+    const Model m = build_model(load_config(o.config_path, ov));
+    RunOptions ro;
+    ro.out_path = path;
+    ro.progress = false;
+    ro.schedule = o.schedule;
+    ro.checkpoint_every = 0;
+    ro.warn = [](const std::string&) {};
+    const RunResult s = run_simulation(m, ro);
+    r.status = s.status;
+    for (const auto& x : s.reasons) r.reason += (r.reason.empty() ? "" : "; ") + x;
+    r.speed_ratio = s.speed_ratio, r.geometric_ratio = s.geometric_ratio, r.slip = s.slip;
+    r.input_torque = s.input_torque, r.output_torque = s.output_torque, r.efficiency = s.efficiency;
+    r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
+    r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
+    r.model_time = s.model_time;
+  } catch (const BlowUpError& e) {
+    r.status = "blow_up", r.reason = e.what();
+  } catch (const std::exception& e) {
+    r.status = "error", r.reason = e.what();
+  }
+  r.wall_s = seconds_since(t0);
+  if (!o.keep_runs) {
+    std::error_code ec;
+    for (const std::string& f : {path, path + ".ckpt", path + ".partial"}) std::filesystem::remove(f, ec);
+  }
+  return r;
+}
+
+SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
+    : o_(o), plan_(plan), csv_(o.out + ".csv"), done_(plan.points.size(), false) {
+  const std::string header = sweep_csv_header(plan);
+  std::ifstream in(csv_);
+  std::string line, kept = header;
+  if (in && std::getline(in, line)) {
+    if (line + "\n" != header)
+      throw ConfigError(csv_, "", "holds another sweep (its header is not this sweep's): give another --out, "
+                                  "or remove it");
+    // Complete lines only: a kill may have torn the last one.
+    std::stringstream rest;
+    rest << in.rdbuf();
+    const std::string text = rest.str();
+    std::size_t at = 0;
+    for (std::size_t nl; (nl = text.find('\n', at)) != std::string::npos; at = nl + 1) {
+      SweepRow r;
+      try {
+        r = parse_sweep_csv_row(text.substr(at, nl - at), plan);
+      } catch (const std::exception&) {
+        continue;
+      }
+      if (r.point < 0 || r.point >= static_cast<long>(done_.size()) ||
+          r.values != plan.points[static_cast<std::size_t>(r.point)])
+        throw ConfigError(csv_, "point " + std::to_string(r.point),
+                          "holds another sweep (other values): give another --out, or remove it");
+      if (done_[static_cast<std::size_t>(r.point)]) continue;
+      done_[static_cast<std::size_t>(r.point)] = true;
+      rows_.push_back(r);
+      kept += text.substr(at, nl - at + 1);
+    }
+  }
+  in.close();
+  check_writable(csv_, "CSV file");
+  // The file again from its whole rows (the torn line gone), under a temporary name.
+  const std::string tmp = csv_ + ".tmp";
+  std::filesystem::remove(tmp);
+  append_durably(tmp, kept);
+  std::filesystem::rename(tmp, csv_);
+}
+
+void SweepLedger::add(const SweepRow& r) {
+  if (done_[static_cast<std::size_t>(r.point)]) return;
+  append_durably(csv_, sweep_csv_row(r));
+  done_[static_cast<std::size_t>(r.point)] = true;
+  rows_.push_back(r);
+}
+
+void SweepLedger::finish(const std::string& config_text) const {
+  std::vector<SweepRow> rows = rows_;
+  std::sort(rows.begin(), rows.end(), [](const SweepRow& a, const SweepRow& b) { return a.point < b.point; });
+  std::string text = sweep_csv_header(plan_);
+  for (const auto& r : rows) text += sweep_csv_row(r);
+  const std::string tmp = csv_ + ".tmp";
+  std::filesystem::remove(tmp);
+  append_durably(tmp, text);
+  std::filesystem::rename(tmp, csv_);
+  // OUT.h5: /points/KEY (values as written), /results/COLUMN, the base configuration.
+  const std::string h5 = o_.out + ".h5", h5tmp = h5 + ".partial";
+  H5File f = H5File::create(h5tmp);
+  for (std::size_t k = 0; k < plan_.keys.size(); ++k) {
+    std::vector<std::string> v;
+    for (const auto& r : rows) v.push_back(r.values[k]);
+    f.write_strings("/points/" + plan_.keys[k], v);
+  }
+  std::vector<double> idx, wall;
+  std::vector<std::string> st, why;
+  for (const auto& r : rows)
+    idx.push_back(static_cast<double>(r.point)), wall.push_back(r.wall_s), st.push_back(r.status),
+        why.push_back(r.reason);
+  f.write_vector("/results/point", idx);
+  f.write_strings("/results/status", st);
+  f.write_strings("/results/reason", why);
+  for (const auto& c : result_columns()) {
+    std::vector<double> v;
+    for (const auto& r : rows) v.push_back(r.*c.field);
+    f.write_vector(std::string("/results/") + c.name, v);
+  }
+  f.write_vector("/results/wall_s", wall);
+  f.write_string("/config", config_text);
+  f.set_strings_attribute("/points", "keys", plan_.keys);
+  f.close();
+  std::filesystem::rename(h5tmp, h5);
+}
+
+std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total) {
+  char b[256];
+  std::snprintf(b, sizeof b, "point %ld/%ld  %s: %s", r.point + 1, total, plan.label(r.point).c_str(),
+                r.status.c_str());
+  std::string s = b;
+  if (r.status == "blow_up" || r.status == "error") s += " (" + r.reason.substr(0, 160) + ")";
+  else {
+    std::snprintf(b, sizeof b, ", speed ratio %.4f, slip %+.2f %%, efficiency %.4f, t = %.4g s", r.speed_ratio,
+                  100 * r.slip, r.efficiency, r.model_time);
+    s += b;
+  }
+  std::snprintf(b, sizeof b, ", %.1f s", r.wall_s);
+  return s + b;
+}
+
+long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
+  SweepLedger ledger(o, plan);
+  const long total = static_cast<long>(plan.points.size());
+  const auto log = o.log ? o.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
+  if (ledger.finished() > 0)
+    log("  " + std::to_string(ledger.finished()) + " of " + std::to_string(total) + " points already in " + o.out +
+        ".csv: skipped");
+  std::filesystem::create_directories(o.out + ".runs");
+  for (long i = 0; i < total; ++i) {
+    if (ledger.done(i)) continue;
+    const SweepRow r = run_sweep_point(o, plan, i);
+    ledger.add(r);
+    log("  " + sweep_point_line(plan, r, total));
+  }
+  std::ifstream in(o.config_path);
+  std::stringstream cfg;
+  cfg << in.rdbuf();
+  ledger.finish(cfg.str());
+  if (!o.keep_runs) {
+    std::error_code ec;
+    std::filesystem::remove(o.out + ".runs", ec);  // only if empty
+  }
+  long unsteady = 0;
+  for (const auto& r : ledger.rows()) unsteady += r.status != "steady";
+  return unsteady;
+}
+
+}  // namespace cvt

@@ -1,0 +1,101 @@
+// cvt-engine sweep (docs/studies.md): a set of operating points, each a run until steady,
+// into one CSV and one HDF5 file, one row per point. The points are a full grid over config
+// keys or the rows of a points file. A point that blows up or fails is a row with its
+// reason; the sweep goes on. A sweep started again with the same command skips the points
+// its CSV already holds. With MPI (engine/studies/sweep_mpi.cpp) rank 0 hands the points
+// out and writes; every point's numbers are the same bits whatever the number of ranks
+// and threads.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "graph/schedule.hpp"
+
+namespace cvt {
+
+// One axis of a grid: a config key and its values as written ("load.torque=50,100,150").
+struct SweepAxis {
+  std::string key;
+  std::vector<std::string> values;
+};
+SweepAxis parse_axis(const std::string& text);
+
+// The points: the keys (the CSV's first columns) and each point's values as written.
+struct SweepPlan {
+  std::vector<std::string> keys;
+  std::vector<std::vector<std::string>> points;
+  // The full grid; the first axis varies slowest.
+  static SweepPlan grid(const std::vector<SweepAxis>& axes);
+  // A CSV file: a header of keys, then one row of values per point ('#' starts a comment).
+  static SweepPlan from_file(const std::string& path);
+  // The --set overrides of point i.
+  std::vector<std::string> overrides(long i) const;
+  // "load.torque=100, clamping.driving=3.7e4"
+  std::string label(long i) const;
+};
+
+// What a point gave: the run summary's status (steady, not_steady, slip) and its means over
+// the last two windows, or blow_up / error with the reason.
+struct SweepRow {
+  long point = -1;
+  std::vector<std::string> values;
+  std::string status = "error", reason;
+  double speed_ratio = 0, geometric_ratio = 0, slip = 0, input_torque = 0, output_torque = 0, efficiency = 0,
+         input_speed = 0, output_speed = 0, load_torque = 0, clamping_force_driving = 0, clamping_force_driven = 0,
+         model_time = 0, wall_s = 0;
+};
+
+// The CSV (docs/studies.md): the keys, then the results, then point, reason and wall_s.
+// Numbers are written to 17 significant digits: they read back to the same bits.
+std::string sweep_csv_header(const SweepPlan& plan);
+std::string sweep_csv_row(const SweepRow& r);
+// A row read back; throws std::runtime_error when the line does not hold one.
+SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan);
+
+struct SweepOptions {
+  std::string config_path;
+  std::vector<std::string> overrides;  // --set, for every point (before the point's own keys)
+  std::string out = "sweep";           // OUT.csv and OUT.h5
+  bool keep_runs = false;              // keep each point's run file in OUT.runs/
+  ScheduleOptions schedule;
+  // Lines of progress (default: stdout).
+  std::function<void(const std::string&)> log;
+};
+
+// Runs point i until steady, its run file in OUT.runs/; never throws for the point's own
+// failure (a blow-up, a bad value): the row says it.
+SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i);
+
+// The rows of a sweep on disk: OUT.csv grows a row per finished point (flushed to the
+// disk at once, so a kill loses no finished point); at the end it is rewritten in point
+// order and OUT.h5 written.
+class SweepLedger {
+ public:
+  // Reads the rows of an earlier, interrupted run of the same sweep (a torn last line is
+  // dropped); throws if OUT.csv belongs to another sweep (other keys or values).
+  SweepLedger(const SweepOptions& o, const SweepPlan& plan);
+  bool done(long i) const { return done_[static_cast<std::size_t>(i)]; }
+  long finished() const { return static_cast<long>(rows_.size()); }
+  void add(const SweepRow& r);
+  // OUT.csv in point order, and OUT.h5.
+  void finish(const std::string& config_text) const;
+  const std::vector<SweepRow>& rows() const { return rows_; }
+
+ private:
+  const SweepOptions& o_;
+  const SweepPlan& plan_;
+  std::string csv_;
+  std::vector<SweepRow> rows_;
+  std::vector<bool> done_;
+};
+
+// The whole sweep in this process: the points the ledger lacks, in order. Returns the
+// number of points that did not end steady.
+long run_sweep(const SweepOptions& o, const SweepPlan& plan);
+
+// The line a finished point prints.
+std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total);
+
+}  // namespace cvt
