@@ -1,6 +1,7 @@
 #include "engine/studies/sweep.hpp"
 
 #include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -247,6 +248,9 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.model_time = s.model_time;
   } catch (const BlowUpError& e) {
     r.status = "blow_up", r.reason = e.what();
+    // The run file goes unless kept: so does the sentence that points to it.
+    if (const auto at = r.reason.find(". Every sample before the blow-up is in"); at != std::string::npos && !o.keep_runs)
+      r.reason.resize(at);
   } catch (const std::exception& e) {
     r.status = "error", r.reason = e.what();
   }
@@ -260,6 +264,12 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
 
 SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
     : o_(o), plan_(plan), csv_(o.out + ".csv"), done_(plan.points.size(), false) {
+  // One writer per sweep: a lock the kernel lets go of when the process ends, kill -9
+  // included.
+  check_writable(csv_, "CSV file");
+  lock_.fd = ::open((csv_ + ".lock").c_str(), O_RDWR | O_CREAT, 0644);
+  if (lock_.fd < 0 || ::flock(lock_.fd, LOCK_EX | LOCK_NB) != 0)
+    throw OutputError("another cvt-engine sweep is writing " + csv_ + " (" + csv_ + ".lock is held)");
   const std::string header = sweep_csv_header(plan);
   std::ifstream in(csv_);
   std::string line, kept = header;
@@ -290,12 +300,15 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
     }
   }
   in.close();
-  check_writable(csv_, "CSV file");
   // The file again from its whole rows (the torn line gone), under a temporary name.
   const std::string tmp = csv_ + ".tmp";
   std::filesystem::remove(tmp);
   append_durably(tmp, kept);
   std::filesystem::rename(tmp, csv_);
+}
+
+SweepLedger::Lock::~Lock() {
+  if (fd >= 0) ::close(fd);
 }
 
 void SweepLedger::add(const SweepRow& r) {
@@ -340,6 +353,8 @@ void SweepLedger::finish(const std::string& config_text) const {
   f.set_strings_attribute("/points", "keys", plan_.keys);
   f.close();
   std::filesystem::rename(h5tmp, h5);
+  std::error_code ec;
+  std::filesystem::remove(csv_ + ".lock", ec);
 }
 
 std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total) {

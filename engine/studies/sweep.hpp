@@ -70,12 +70,15 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i);
 
 // The rows of a sweep on disk: OUT.csv grows a row per finished point (flushed to the
 // disk at once, so a kill loses no finished point); at the end it is rewritten in point
-// order and OUT.h5 written.
+// order and OUT.h5 written. OUT.csv.lock keeps a second sweep from writing the same
+// files at the same time.
 class SweepLedger {
  public:
   // Reads the rows of an earlier, interrupted run of the same sweep (a torn last line is
   // dropped); throws if OUT.csv belongs to another sweep (other keys or values).
   SweepLedger(const SweepOptions& o, const SweepPlan& plan);
+  SweepLedger(const SweepLedger&) = delete;
+  SweepLedger& operator=(const SweepLedger&) = delete;
   bool done(long i) const { return done_[static_cast<std::size_t>(i)]; }
   long finished() const { return static_cast<long>(rows_.size()); }
   void add(const SweepRow& r);
@@ -89,6 +92,11 @@ class SweepLedger {
   std::string csv_;
   std::vector<SweepRow> rows_;
   std::vector<bool> done_;
+  // OUT.csv.lock, held while the sweep runs (and let go of if the constructor throws).
+  struct Lock {
+    int fd = -1;
+    ~Lock();
+  } lock_;
 };
 
 // The whole sweep in this process: the points the ledger lacks, in order. Returns the
