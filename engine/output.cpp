@@ -60,7 +60,10 @@ void write_summary(H5File& f, const RunSummary& s) {
   f.remove("/summary");
   f.set_strings_attribute("/summary", "reasons", s.reasons);
   f.set_strings_attribute("/summary", "warnings", s.warnings);
+  f.set_strings_attribute("/summary", "criteria", s.criteria);
   f.set_string_attribute("/summary", "status", s.status);
+  f.set_string_attribute("/summary", "stopped", s.stopped);
+  f.set_double_attribute("/summary", "steady_window", s.steady_window);
   f.set_string_attribute("/summary", "method", s.method);
   f.set_string_attribute("/summary", "controller", s.controller);
   f.set_int_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? 1 : 0);

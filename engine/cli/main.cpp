@@ -21,6 +21,7 @@
 #include "engine/studies/modes.hpp"
 #include "engine/studies/scale.hpp"
 #include "engine/studies/integrators.hpp"
+#include "engine/studies/slip.hpp"
 #include "engine/studies/sweep.hpp"
 #include "engine/studies/sweep_mpi.hpp"
 #include "engine/run.hpp"
@@ -639,6 +640,48 @@ Command add_sweep_command(CLI::App& app) {
   }};
 }
 
+// cvt-engine study slip: the slip limit by bisection (engine/studies/slip.cpp).
+Command add_slip_command(CLI::App& app) {
+  struct Args {
+    cvt::SlipStudyOptions o;
+    ScheduleArgs sched;
+  };
+  auto a = std::make_shared<Args>();
+  a->o.csv = "slip.csv";
+  a->o.sweep.out = "slip";
+  auto* sl = app.get_subcommand("study")->add_subcommand(
+      "slip", "slip limit: for each clamping force (and ratio) the largest load torque held without gross slip, by "
+              "bisection, beside 2 f0 min(F1, F2) R2 / cos(beta)");
+  sl->footer("Example: cvt-engine study slip configs/reference-steady.toml --clamping 2.5e4,3.7e4 --out slip.csv "
+             "--threads 2");
+  sl->add_option("CONFIG", a->o.sweep.config_path, "TOML configuration")->required();
+  sl->add_option("--clamping", a->o.clamping, "clamping.driving values F1 [N], comma-separated")
+      ->delimiter(',')->required()->check(CLI::PositiveNumber);
+  sl->add_option("--thrust-ratio", a->o.thrust_ratio, "F1 / F2 of every point (default: the configuration's)")
+      ->check(CLI::PositiveNumber);
+  sl->add_option("--ratios", a->o.ratios, "geometry.ratio values (default: the configuration's)")->delimiter(',');
+  sl->add_option("--tol", a->o.tolerance, "bisection until (slips_at - slip_torque) / slip_torque <= TOL")
+      ->check(CLI::Range(1e-4, 0.5))->capture_default_str();
+  sl->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str();
+  sl->add_option("--set", a->o.sweep.overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(sl, a->sched);
+  return {sl, [a] {
+    a->o.sweep.schedule = a->sched.options();
+    a->o.sweep.out = a->o.csv;
+    std::printf("cvt-engine %s study slip: %s, F1 = ", CVT_VERSION, a->o.sweep.config_path.c_str());
+    for (double f : a->o.clamping) std::printf("%s%g", f == a->o.clamping.front() ? "" : ", ", f);
+    std::printf(" N; each load until steady, bisection to %g %%\n", 100 * a->o.tolerance);
+    std::fflush(stdout);
+    for (const auto& r : cvt::run_slip_study(a->o))
+      std::printf("  F1 = %.4g N, F2 = %.4g N, ratio %.3g: holds %.4g N m, slips at %.4g N m; theory %.4g N m "
+                  "(%.1f %%), %d runs, %.0f s%s%s\n",
+                  r.clamping_driving, r.clamping_driven, r.ratio, r.slip_torque, r.slips_at, r.theory_torque,
+                  100 * r.slip_torque / r.theory_torque, r.runs, r.wall_s, r.note.empty() ? "" : "; ", r.note.c_str());
+    std::printf("wrote %s\n", a->o.csv.c_str());
+    return cvt::kExitOk;
+  }};
+}
+
 // cvt-engine topology: NUMA nodes, cores and the pins per node.
 Command add_topology_command(CLI::App& app) {
   struct Args {
@@ -698,7 +741,7 @@ int main(int argc, char** argv) {
              "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
   const Command commands[] = {add_run_command(app),      add_graph_command(app),    add_scale_command(app),
                               add_study_command(app),    add_topology_command(app), add_modes_command(app),
-                              add_sweep_command(app)};
+                              add_sweep_command(app),    add_slip_command(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {  // --help, --version
