@@ -21,6 +21,7 @@
 #include "engine/studies/modes.hpp"
 #include "engine/studies/scale.hpp"
 #include "engine/studies/integrators.hpp"
+#include "engine/studies/shift.hpp"
 #include "engine/studies/slip.hpp"
 #include "engine/studies/sweep.hpp"
 #include "engine/studies/sweep_mpi.hpp"
@@ -682,6 +683,44 @@ Command add_slip_command(CLI::App& app) {
   }};
 }
 
+// cvt-engine study shift: the shift rate after a step in the thrust ratio
+// (engine/studies/shift.cpp).
+Command add_shift_command(CLI::App& app) {
+  struct Args {
+    cvt::ShiftStudyOptions o;
+    ScheduleArgs sched;
+  };
+  auto a = std::make_shared<Args>();
+  a->o.csv = "shift.csv";
+  auto* sh = app.get_subcommand("study")->add_subcommand(
+      "shift", "shift rate: from the steady state at each input speed, a step in the thrust ratio F1/F2; "
+               "d(geometric ratio)/dt against ln(F1/F2)");
+  sh->footer("Example: cvt-engine study shift configs/reference-steady.toml --thrust-ratios 1.0,1.1,1.233,1.4,1.6 "
+             "--speeds 104.7,209.4 --out shift.csv --threads 2");
+  sh->add_option("CONFIG", a->o.sweep.config_path, "TOML configuration")->required();
+  sh->add_option("--thrust-ratios", a->o.thrust_ratios, "F1/F2 after the step (F2 kept), comma-separated")
+      ->delimiter(',')->required()->check(CLI::PositiveNumber);
+  sh->add_option("--speeds", a->o.speeds, "drive.speed values [rad/s] (default: the configuration's)")
+      ->delimiter(',')->check(CLI::PositiveNumber);
+  sh->add_option("--settle", a->o.settle, "after the step, left out of the fit [s]")->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  sh->add_option("--window", a->o.window, "the fit's window [s]")->check(CLI::PositiveNumber)->capture_default_str();
+  sh->add_option("--steady-bound", a->o.steady_bound, "t_end of the runs to the steady state [s]")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  sh->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str();
+  sh->add_option("--set", a->o.sweep.overrides, "override a key: section.key=value (repeatable)");
+  add_schedule_options(sh, a->sched);
+  return {sh, [a] {
+    a->o.sweep.schedule = a->sched.options();
+    std::printf("cvt-engine %s study shift: %s; each speed until steady, then a step in F1/F2, the rate over %g s "
+                "after %g s\n", CVT_VERSION, a->o.sweep.config_path.c_str(), a->o.window, a->o.settle);
+    std::fflush(stdout);
+    cvt::run_shift_study(a->o);
+    std::printf("wrote %s\n", a->o.csv.c_str());
+    return cvt::kExitOk;
+  }};
+}
+
 // cvt-engine topology: NUMA nodes, cores and the pins per node.
 Command add_topology_command(CLI::App& app) {
   struct Args {
@@ -741,7 +780,8 @@ int main(int argc, char** argv) {
              "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
   const Command commands[] = {add_run_command(app),      add_graph_command(app),    add_scale_command(app),
                               add_study_command(app),    add_topology_command(app), add_modes_command(app),
-                              add_sweep_command(app),    add_slip_command(app)};
+                              add_sweep_command(app),    add_slip_command(app),
+                              add_shift_command(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {  // --help, --version
