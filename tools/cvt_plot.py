@@ -1145,6 +1145,101 @@ def cmd_integrators(a):
 
 
 
+def _read_csv(path, need):
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no such file")
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, csv.Error, UnicodeDecodeError) as e:
+        raise UserError(f"{path}: cannot read: {e}")
+    if not rows:
+        raise UserError(f"{path}: no rows")
+    miss = [k for k in need if k not in rows[0]]
+    if miss:
+        raise UserError(f"{path}: missing column(s) {', '.join(miss)}")
+    return rows
+
+
+SWEEP_RESULTS = ("status", "speed_ratio", "geometric_ratio", "slip", "input_torque", "output_torque", "efficiency")
+
+
+def cmd_sweep(a):
+    """A sweep's CSV: one axis -> the column against it; two axes -> filled contours of the
+    column over the grid (steady points only; the others marked by their status)."""
+    rows = _read_csv(a.file, SWEEP_RESULTS)
+    cols = list(rows[0].keys())
+    keys = cols[:cols.index("status")]
+    if a.column not in rows[0]:
+        raise UserError(f"{a.file}: no column {a.column}")
+    x_key = a.x or keys[0]
+    y_key = a.y or (keys[1] if len(keys) > 1 and keys[1] != x_key else None)
+    steady = [r for r in rows if r["status"] == "steady" or (a.all and r["status"] == "not_steady")]
+    fig, ax = plt.subplots(figsize=(8, 6))
+    marks = {"not_steady": ("o", "tab:orange"), "slip": ("x", "tab:red"), "blow_up": ("*", "k"), "error": ("s", "grey")}
+    if y_key is None:
+        for st, rs in [("steady", steady)] + [(k, [r for r in rows if r["status"] == k]) for k in marks]:
+            if rs:
+                m, c = marks.get(st, ("o", "tab:blue"))
+                ax.plot([_num(r[x_key]) for r in rs], [_num(r[a.column]) for r in rs], m, color=c, label=st)
+        ax.set_xlabel(x_key), ax.set_ylabel(a.column), ax.legend()
+    else:
+        xs = sorted({_num(r[x_key]) for r in rows}); ys = sorted({_num(r[y_key]) for r in rows})
+        Z = np.full((len(ys), len(xs)), np.nan)
+        for r in steady:
+            Z[ys.index(_num(r[y_key])), xs.index(_num(r[x_key]))] = _num(r[a.column])
+        if np.isfinite(Z).sum() >= 4 and len(xs) > 1 and len(ys) > 1:
+            cs = ax.contourf(xs, ys, Z, levels=12, cmap="viridis")
+            ax.clabel(ax.contour(xs, ys, Z, levels=cs.levels[::2], colors="w", linewidths=0.6), fmt="%.3g", fontsize=8)
+            fig.colorbar(cs, ax=ax, label=a.column + (" (steady and not_steady points)" if a.all else " (steady points)"))
+        for st, (m, c) in [("steady", ("o", "w"))] + list(marks.items()):
+            rs = [r for r in rows if r["status"] == st]
+            if rs:
+                ax.plot([_num(r[x_key]) for r in rs], [_num(r[y_key]) for r in rs], m, color=c, mec="k", label=st)
+        ax.set_xlabel(x_key), ax.set_ylabel(y_key), ax.legend(loc="best", fontsize=8)
+    n_steady = sum(r["status"] == "steady" for r in rows)
+    ax.set_title(f"{a.column} over {len(rows)} points ({n_steady} steady): {os.path.basename(a.file)}")
+    save(fig, a.out)
+
+
+def cmd_slip(a):
+    """study slip: the slip torque against the clamping force, beside 2 f0 min(F1, F2) R2 / cos(beta)."""
+    rows = _read_csv(a.file, ("clamping_force_driving", "ratio", "slip_torque", "theory_torque", "slips_at"))
+    fig, ax = plt.subplots(figsize=(8, 6))
+    for ratio in sorted({_num(r["ratio"]) for r in rows}):
+        rs = sorted([r for r in rows if _num(r["ratio"]) == ratio], key=lambda r: _num(r["clamping_force_driving"]))
+        F = np.array([_num(r["clamping_force_driving"]) for r in rs]) / 1e3
+        lo = np.array([_num(r["slip_torque"]) for r in rs]); hi = np.array([_num(r["slips_at"]) for r in rs])
+        th = np.array([_num(r["theory_torque"]) for r in rs])
+        ax.errorbar(F, 0.5 * (lo + hi), yerr=0.5 * (hi - lo), fmt="o-", capsize=4,
+                    label=f"simulated slip limit, ratio {ratio:g} (held .. slipped)")
+        ax.plot(F, th, "k--", label=f"2 f0 min(F1, F2) R2 / cos(beta), ratio {ratio:g}")
+    ax.set_xlabel("clamping force F1 [kN]"), ax.set_ylabel("load torque [N m]")
+    ax.set_ylim(bottom=0), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.set_title("slip limit: largest load torque without gross slip")
+    save(fig, a.out)
+
+
+def cmd_shift(a):
+    """study shift: d(ratio)/dt against ln(F1/F2) at each input speed; and divided by the speed."""
+    rows = _read_csv(a.file, ("input_speed", "ln_thrust_ratio", "shift_rate", "steady_thrust_ratio"))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 5.5))
+    for w in sorted({_num(r["input_speed"]) for r in rows}):
+        rs = sorted([r for r in rows if _num(r["input_speed"]) == w], key=lambda r: _num(r["ln_thrust_ratio"]))
+        x = np.array([_num(r["ln_thrust_ratio"]) for r in rs]); y = np.array([_num(r["shift_rate"]) for r in rs])
+        ax1.plot(x, y, "o-", label=f"input speed {w:g} rad/s")
+        ax2.plot(x, y / w, "o-", label=f"input speed {w:g} rad/s")
+    for ax in (ax1, ax2):
+        ax.axhline(0, color="k", lw=0.5), ax.grid(alpha=0.3), ax.legend(fontsize=8)
+        ax.set_xlabel("ln(F1 / F2) after the step")
+    ln0 = np.log(_num(rows[0]["steady_thrust_ratio"]))
+    ax1.axvline(ln0, color="grey", ls=":", label="steady F1/F2")
+    ax1.set_ylabel("d(geometric ratio)/dt [1/s]"), ax2.set_ylabel("d(ratio)/dt / input speed [1/rad]")
+    ax1.set_title("shift rate after a step in the thrust ratio")
+    ax2.set_title("divided by the input speed (published: one line)")
+    save(fig, a.out)
+
+
 def build_parser():
     ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0],
                 epilog="See docs/plots.md for what every panel shows.")
@@ -1204,6 +1299,25 @@ def build_parser():
     p.add_argument("--curves", default=None, help="the curves CSV (default: STUDY-curves.csv)")
     p.add_argument("-o", "--out", default="integrators.png", help="output image (default integrators.png)")
     p.set_defaults(func=cmd_integrators)
+
+    p = sub.add_parser("sweep", help="a sweep's CSV: a column against one axis, or contours over two (efficiency map)")
+    p.add_argument("file", metavar="SWEEP.csv")
+    p.add_argument("--column", default="efficiency", help="the column drawn (default efficiency)")
+    p.add_argument("--x", default=None, metavar="KEY", help="the x axis key (default the first)")
+    p.add_argument("--y", default=None, metavar="KEY", help="the y axis key (default the second, if any)")
+    p.add_argument("--all", action="store_true", help="contour the not_steady points too (default: steady only)")
+    p.add_argument("-o", "--out", default="sweep.png", help="output image (default sweep.png)")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("slip", help="study slip: slip torque against clamping force, beside the Coulomb limit")
+    p.add_argument("file", metavar="SLIP.csv")
+    p.add_argument("-o", "--out", default="slip.png", help="output image (default slip.png)")
+    p.set_defaults(func=cmd_slip)
+
+    p = sub.add_parser("shift", help="study shift: shift rate against ln(F1/F2) at each input speed")
+    p.add_argument("file", metavar="SHIFT.csv")
+    p.add_argument("-o", "--out", default="shift.png", help="output image (default shift.png)")
+    p.set_defaults(func=cmd_shift)
     return ap
 
 
