@@ -62,8 +62,9 @@ void other_forces(const Model& m, Workspace& ws) {
   o.p_out = Mload * v[pl];
   // 4.6.4 clamping: F_k(t) pushes the moving sheave towards the chain; the ramped part is
   // the potential sigma_m F w with explicit time dependence, the controller part external.
-  const double r = ramp(ws.t, c.ramp.time), rd = ramp_rate(ws.t, c.ramp.time);
-  const double F[2] = {c.clamping.driving, c.clamping.driven};
+  const double r = ramp(ws.t, c.ramp.time);
+  double F[2], Fd[2];
+  clamping_schedule(m, ws.t, F, Fd);
   double ctrl = 0;
   o.ctrl_rate = 0;
   if (c.controller.enabled) {
@@ -72,22 +73,23 @@ void other_forces(const Model& m, Workspace& ws) {
     o.ctrl_rate = err;
     // Larger ratio wanted -> smaller driving radius -> less driving clamping force.
     ctrl = -(c.controller.kp * err + c.controller.ki * ws.aux[kCtrlIntegral]) * r;
-    ctrl = std::max(ctrl, -F[0] * r);
+    ctrl = std::max(ctrl, -F[0]);
   }
   for (int k = 0; k < 2; ++k) {
     const int sm = m.pulley[k].moving_side;
     const double w = q[m.shaft(k) + kW], wd = v[m.shaft(k) + kW];
-    const double Framp = F[k] * r;
+    const double Framp = F[k];
     const double Fc = k == 0 ? ctrl : 0.0;
     o.f[kShaftSize * k + kW] -= sm * (Framp + Fc);
     o.clamp[k] = Framp + Fc;
-    o.p_clamp += sm * F[k] * rd * w - sm * Fc * wd;
+    o.p_clamp += sm * Fd[k] * w - sm * Fc * wd;
   }
 }
 
 double other_energy(const Model& m, double t, const double* q) {
   const Config& c = m.cfg;
-  double E = 0;
+  double E = 0, F[2], Fd[2];
+  clamping_schedule(m, t, F, Fd);
   for (int k = 0; k < 2; ++k) {
     const double* s = q + m.shaft(k);
     for (int b = 0; b < 2; ++b) {
@@ -97,8 +99,7 @@ double other_energy(const Model& m, double t, const double* q) {
       E += 0.5 * c.bearing.k1 * d2 + 0.25 * c.bearing.k3 * d2 * d2;
     }
     E += 0.5 * c.bearing.axial_stiffness * s[kUz] * s[kUz];
-    const double F = k == 0 ? c.clamping.driving : c.clamping.driven;
-    E += m.pulley[k].moving_side * F * ramp(t, c.ramp.time) * s[kW];
+    E += m.pulley[k].moving_side * F[k] * s[kW];
   }
   const double dphi_in = input_angle(m, t) - q[m.shaft(0) + kPhi];
   E += 0.5 * c.drive.stiffness * dphi_in * dphi_in;

@@ -145,6 +145,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(controller, target_ratio, real, "1", positive),
       CVT_KEY(controller, kp, real, "N", nonneg),
       CVT_KEY(controller, ki, real, "N/s", nonneg),
+      CVT_KEY(controller, clamping_safety, real, "1", nonneg),
 
       CVT_KEY(ramp, time, real, "s", nonneg),
       CVT_KEY(ramp, load_time, real, "s", nonneg),

@@ -134,6 +134,10 @@ struct Config {
     double target_ratio = 1.0;  // speed ratio omega_in/omega_out to hold
     double kp = 0.0;            // [N]
     double ki = 0.0;            // [N/s]
+    // > 0: the clamping forces set from the transmitted torque (docs/model.md 4.6.4): F2 =
+    // max(clamping.driven rho, S M_load cos(beta) / (2 f0 R2*)), F1 = (clamping.driving /
+    // clamping.driven) F2 plus the PI's correction. 0: the configured forces.
+    double clamping_safety = 0.0;  // S [1]
   } controller;
   struct Ramp {
     double time = 2.0e-3;  // t_ramp [s] of the clamping forces (and of the load unless load_time); 0: at once

@@ -25,6 +25,24 @@ double ramped_load_torque(const Config& c, double t) {
   return from + (to - from) * ramp(ts, c.ramp.load_time);
 }
 
+void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]) {
+  const Config& c = m.cfg;
+  const double r = ramp(t, c.ramp.time), rd = ramp_rate(t, c.ramp.time);
+  const double F0[2] = {c.clamping.driving, c.clamping.driven};
+  for (int k = 0; k < 2; ++k) F[k] = F0[k] * r, Fdot[k] = F0[k] * rd;
+  const double S = c.controller.clamping_safety;
+  if (!c.controller.enabled || !(S > 0)) return;
+  // The driven force from the load torque with the safety factor, the configured force
+  // (times the ramp) its floor; the driving force the configured thrust ratio of it.
+  const double g = S * m.cos_beta / (2 * c.friction.f0 * m.controller_radius);
+  const double ts = t - c.ramp.load_start;
+  const double M = ramped_load_torque(c, t);
+  const double Md = ts > 0 ? (c.load.torque - c.ramp.load_from) * ramp_rate(ts, c.ramp.load_time) : 0.0;
+  if (g * M > F[1]) F[1] = g * M, Fdot[1] = g * Md;
+  const double thrust = c.clamping.driving / c.clamping.driven;
+  F[0] = thrust * F[1], Fdot[0] = thrust * Fdot[1];
+}
+
 double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }
 
 double torsion_period(const Model& m) {
@@ -119,6 +137,10 @@ Model build_model(const Config& cfg) {
   m.pulley[1].moving_side = -1;
   m.pulley[0].running_radius = pl.R1;
   m.pulley[1].running_radius = pl.R2;
+  if (cfg.controller.enabled && cfg.controller.clamping_safety > 0) {
+    gp.ratio = cfg.controller.target_ratio;  // the driven radius at the ratio the controller holds
+    m.controller_radius = place_chain(gp).R2;
+  }
   // Faces placed so that the crowned ends of wrapped pins just touch them (5.3): the
   // half centre lines of a regular arc sit at radius r_h.
   const double Rend = cfg.pulley_contact.end_radius;

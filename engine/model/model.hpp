@@ -54,6 +54,7 @@ struct Model {
   double beam_beta = 0;              // stiffness-proportional damping (scaled)
 
   std::array<Pulley, 2> pulley;
+  double controller_radius = 0;  // R2* of the driven pulley at controller.target_ratio (clamping_safety > 0)
 
   // Constant inertia A0 (docs/model.md 3): the blocks and their inverses.
   Eigen::Matrix4d bend_mass, bend_mass_inv;   // (w1, s1, w2, s2) of one half, one plane
@@ -101,6 +102,10 @@ double torsion_period(const Model& m);
 // run.steady_window, or two torsion periods rounded up to a whole number of meshing
 // periods (the time a link takes to pass, pitch / (omega_in R1)), at least 4 of them.
 double steady_window(const Model& m);
+
+// The clamping forces' potential part at t (docs/model.md 4.6.4): F_k rho(t), or with the
+// controller's clamping_safety the torque-set schedule; and their time rates.
+void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]);
 
 // The time from which every ramp (clamping forces and load torque) has ended.
 double ramps_end(const Config& c);

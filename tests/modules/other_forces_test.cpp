@@ -31,6 +31,23 @@ double rho_dot(double t, double tr) { return tr > 0 && t > 0 && t < tr ? M_PI / 
 
 // The module's energy (docs/model.md 6): bearings (1/2 k1 |delta|^2 + 1/4 k3 |delta|^4 at
 // z_b = -+l_b), axial bearing, clamping potential sigma_m F rho w, drive and load springs.
+// The clamping forces' potential part of docs/model.md 4.6.4: F_k rho(t), or with the
+// controller's clamping_safety S the driven force max(F2 rho, S M_load(t) cos(beta) /
+// (2 f0 R2*)) and the driving force the configured thrust ratio of it.
+double documented_clamp(const Model& m, int k, double t) {
+  const Config& c = m.cfg;
+  double F1 = c.clamping.driving * rho(t, c.ramp.time), F2 = c.clamping.driven * rho(t, c.ramp.time);
+  if (c.controller.enabled && c.controller.clamping_safety > 0) {
+    const double ts = t - c.ramp.load_start;
+    const double M = ts <= 0 ? c.ramp.load_from
+                             : c.ramp.load_from + (c.load.torque - c.ramp.load_from) * rho(ts, c.ramp.load_time);
+    const double beta = c.sheave.cone_angle * M_PI / 180;
+    F2 = std::max(F2, c.controller.clamping_safety * M * std::cos(beta) / (2 * c.friction.f0 * m.controller_radius));
+    F1 = c.clamping.driving / c.clamping.driven * F2;
+  }
+  return k == 0 ? F1 : F2;
+}
+
 double documented_energy(const Model& m, double t, const double* q) {
   const Config& c = m.cfg;
   double E = 0;
@@ -41,7 +58,7 @@ double documented_energy(const Model& m, double t, const double* q) {
       E += 0.5 * c.bearing.k1 * d2 + 0.25 * c.bearing.k3 * d2 * d2;
     }
     E += 0.5 * c.bearing.axial_stiffness * s[Uz] * s[Uz];
-    E += m.pulley[k].moving_side * (k == 0 ? c.clamping.driving : c.clamping.driven) * rho(t, c.ramp.time) * s[W];
+    E += m.pulley[k].moving_side * documented_clamp(m, k, t) * s[W];
   }
   const double din = c.drive.speed * t - q[ishaft(m, 0) + Phi], dl = q[ishaft(m, 1) + Phi] - q[iload(m)];
   return E + 0.5 * c.drive.stiffness * din * din + 0.5 * c.load.stiffness * dl * dl;
@@ -227,10 +244,14 @@ TEST(OtherForcesTest, LoadTorqueHasItsOwnRamp) {
 // (docs/model.md 6: Q . v is the power the module's forces deliver to the coordinates,
 // E its energy), with and without the ratio controller.
 TEST(OtherForcesTest, PowersAreForceTimesVelocityAndCloseTheBalance) {
-  for (const bool ctrl : {false, true}) {
+  for (const int ctrl : {0, 1, 2}) {
     std::vector<std::string> ov = {"load.speed_coefficient=0.01"};
     if (ctrl) ov.insert(ov.end(), {"controller.enabled=true", "controller.kp=2e3", "controller.ki=1e6",
                                    "controller.target_ratio=1.05"});
+    // The clamping set from the load torque (S M cos(beta) / (2 f0 R2*) = 3.7 kN rho above
+    // the 2 kN floor), on the load's own later ramp.
+    if (ctrl == 2) ov.insert(ov.end(), {"controller.clamping_safety=1.3", "clamping.driven=2e3", "clamping.driving=2.3e3",
+                                        "ramp.load_time=5e-4", "ramp.load_start=2e-4", "ramp.load_from=1.0"});
     const Model m = test::model("mini", ov);
     const double tr = m.cfg.ramp.time;
     for (unsigned seed : {3u, 4u}) {
@@ -269,8 +290,23 @@ TEST(OtherForcesTest, PowersAreForceTimesVelocityAndCloseTheBalance) {
       if (ctrl) {
         EXPECT_NE(o.clamp[0], m.cfg.clamping.driving * rho(t, tr)) << "the controller must act";
       }
+      if (ctrl == 2) {
+        EXPECT_GT(documented_clamp(m, 1, t), m.cfg.clamping.driven * rho(t, tr)) << "the torque must set F2";
+        EXPECT_NEAR(o.clamp[1], documented_clamp(m, 1, t), 1e-12 * documented_clamp(m, 1, t));
+      }
     }
   }
+}
+
+// R2* of the torque-set clamping is the driven running radius of the chain placed at the
+// controller's target ratio.
+TEST(OtherForcesTest, TorqueSetClampingUsesTheDrivenRadiusAtTheTarget) {
+  const Model m = test::model("mini", {"controller.enabled=true", "controller.clamping_safety=1.3",
+                                       "controller.target_ratio=1.2"});
+  const Model at = test::model("mini", {"geometry.ratio=1.2"});
+  EXPECT_EQ(m.controller_radius, at.pulley[1].running_radius);
+  EXPECT_GT(m.controller_radius, m.pulley[1].running_radius);
+  EXPECT_EQ(test::model("mini").controller_radius, 0.0);  // off: not computed
 }
 
 // Without damping and speed-proportional load, nothing dissipates whatever the velocities.
