@@ -123,10 +123,17 @@ class Judge {
     else
       held.push_back(fmt("no gross slip: slip %+.2f %% (limit %.3g %%)", 100 * s_.slip, 100 * c_.gross_slip));
   }
+  // The slip growing across the window: the chain starting to slide. (The output speed
+  // alone also falls when the ratio shifts towards underdrive without any slip.)
   void falling() {
-    const double w_a = mean(ch_.output_speed, a_, mid_), w_b = mean(ch_.output_speed, mid_, b_);
-    if (s_.output_speed != 0 && (w_b - w_a) / std::abs(s_.output_speed) < -c_.falling)
-      slip.push_back(fmt("output speed falling: %.2f -> %.2f rad/s across the window", w_a, w_b));
+    const auto half_slip = [&](std::size_t a, std::size_t b) {
+      const double sr = mean(ch_.speed_ratio, a, b), g = mean_defined(ch_.geometric_ratio, a, b);
+      return sr != 0 && g > 0 ? 1.0 - g / sr : 0.0;
+    };
+    const double s_a = half_slip(a_, mid_), s_b = half_slip(mid_, b_);
+    if (s_b - s_a > c_.falling)
+      slip.push_back(fmt("slip growing: %+.2f %% -> %+.2f %% across the window's halves (limit %.3g %% points)",
+                         100 * s_a, 100 * s_b, 100 * c_.falling));
   }
   // The means over the window's two halves (two consecutive windows) agree.
   void drift_check() {

@@ -30,7 +30,7 @@ struct SteadyCriteria {
   double balance = 0.02;         // mean output torque against the mean load torque: 2 %
   double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
-  double falling = 0.02;         // output speed falling by 2 % across the window: slip
+  double falling = 0.02;         // slip growing by 2 % points across the window's halves: slip
   // drift and balance from run.steady_tolerance, the rest as above.
   static SteadyCriteria of(const Config& cfg);
 };
