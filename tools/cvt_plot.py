@@ -1170,6 +1170,9 @@ def cmd_sweep(a):
     rows = _read_csv(a.file, SWEEP_RESULTS)
     cols = list(rows[0].keys())
     keys = cols[:cols.index("status")]
+    for r in rows:  # derived: the thrust ratio F1/F2 (the thrust map, with the ratio controller on)
+        f2 = _num(r.get("clamping_force_driven"))
+        r["thrust_ratio"] = _num(r.get("clamping_force_driving")) / f2 if f2 else float("nan")
     if a.column not in rows[0]:
         raise UserError(f"{a.file}: no column {a.column}")
     x_key = a.x or keys[0]
@@ -1302,7 +1305,8 @@ def build_parser():
 
     p = sub.add_parser("sweep", help="a sweep's CSV: a column against one axis, or contours over two (efficiency map)")
     p.add_argument("file", metavar="SWEEP.csv")
-    p.add_argument("--column", default="efficiency", help="the column drawn (default efficiency)")
+    p.add_argument("--column", default="efficiency",
+                   help="the column drawn (default efficiency; thrust_ratio: F1/F2 of the means, the thrust map)")
     p.add_argument("--x", default=None, metavar="KEY", help="the x axis key (default the first)")
     p.add_argument("--y", default=None, metavar="KEY", help="the y axis key (default the second, if any)")
     p.add_argument("--all", action="store_true", help="contour the not_steady points too (default: steady only)")

@@ -606,7 +606,14 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
                 world.size() > 1 ? (", " + std::to_string(world.size()) + " MPI ranks").c_str() : "");
     std::fflush(stdout);
   }
-  const long unsteady = world.size() > 1 ? run_sweep_mpi(o, plan, world) : run_sweep(o, plan);
+  long unsteady = 0;
+  try {
+    unsteady = world.size() > 1 ? run_sweep_mpi(o, plan, world) : run_sweep(o, plan);
+  } catch (const SweepInterrupted& e) {
+    std::fprintf(stderr, "cvt-engine: sweep interrupted (%s): the finished points are in %s.csv; the same command "
+                 "continues\n", e.what(), o.out.c_str());
+    return kExitInterrupted;
+  }
   if (world.rank() == 0) {
     std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
                 plan.points.size(), unsteady);
@@ -807,6 +814,9 @@ int main(int argc, char** argv) {
   } catch (const cvt::BlowUpError& e) {
     std::fprintf(stderr, "cvt-engine: %s\n", e.what());
     return cvt::kExitBlowUp;
+  } catch (const cvt::SweepInterrupted& e) {
+    std::fprintf(stderr, "cvt-engine: interrupted: %s\n", e.what());
+    return cvt::kExitInterrupted;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cvt-engine: error: %s\n", e.what());
     return cvt::kExitFailure;

@@ -239,6 +239,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     ro.checkpoint_every = 0;
     ro.warn = [](const std::string&) {};
     const RunResult s = run_simulation(m, ro);
+    if (s.interrupted) throw SweepInterrupted("point " + std::to_string(i + 1) + " stopped by signal " + std::to_string(s.signal));
     r.status = s.status;
     for (const auto& x : s.reasons) r.reason += (r.reason.empty() ? "" : "; ") + x;
     r.speed_ratio = s.speed_ratio, r.geometric_ratio = s.geometric_ratio, r.slip = s.slip;
@@ -246,6 +247,8 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
     r.model_time = s.model_time;
+  } catch (const SweepInterrupted&) {
+    throw;
   } catch (const BlowUpError& e) {
     r.status = "blow_up", r.reason = e.what();
     // The run file goes unless kept: so does the sentence that points to it.

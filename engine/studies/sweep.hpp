@@ -8,6 +8,7 @@
 #pragma once
 
 #include <functional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -64,8 +65,14 @@ struct SweepOptions {
   std::function<void(const std::string&)> log;
 };
 
+// A point stopped by SIGINT or SIGTERM: the sweep stops without a row for it (a restart
+// runs it again).
+struct SweepInterrupted : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 // Runs point i until steady, its run file in OUT.runs/; never throws for the point's own
-// failure (a blow-up, a bad value): the row says it.
+// failure (a blow-up, a bad value): the row says it. Throws SweepInterrupted on a signal.
 SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i);
 
 // The rows of a sweep on disk: OUT.csv grows a row per finished point (flushed to the
