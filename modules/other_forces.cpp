@@ -73,7 +73,7 @@ void other_forces(const Model& m, Workspace& ws) {
     o.ctrl_rate = err;
     // Larger ratio wanted -> smaller driving radius -> less driving clamping force.
     ctrl = -(c.controller.kp * err + c.controller.ki * ws.aux[kCtrlIntegral]) * r;
-    ctrl = std::max(ctrl, -F[0]);
+    ctrl = std::max(ctrl, clamping_floor(m, ws.t) - F[0]);
   }
   for (int k = 0; k < 2; ++k) {
     const int sm = m.pulley[k].moving_side;

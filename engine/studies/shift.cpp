@@ -97,6 +97,7 @@ std::string shift_csv_row(const ShiftRow& r) {
 std::vector<ShiftRow> run_shift_study(const ShiftStudyOptions& o) {
   const auto log = o.sweep.log ? o.sweep.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
   check_writable(o.csv, "CSV file");
+  const FileLock lock(o.csv + ".lock", o.csv + " and its runs");  // one study per CSV at a time
   { std::ofstream(o.csv) << shift_csv_header(); }
   const std::string dir = o.csv + ".runs";
   std::filesystem::create_directories(dir);
@@ -122,6 +123,10 @@ std::vector<ShiftRow> run_shift_study(const ShiftStudyOptions& o) {
     }
   }
   std::filesystem::remove_all(dir);
+  {
+    std::error_code ec;
+    std::filesystem::remove(o.csv + ".lock", ec);
+  }
   return rows;
 }
 

@@ -72,6 +72,7 @@ std::vector<SlipRow> run_slip_study(const SlipStudyOptions& o) {
   std::vector<std::string> ratios = o.ratios;
   if (ratios.empty()) ratios.push_back("");
   check_writable(o.csv, "CSV file");
+  const FileLock lock(o.csv + ".lock", o.csv + " and its runs");  // one study per CSV at a time
   { std::ofstream(o.csv) << slip_csv_header(); }
   std::filesystem::create_directories(o.sweep.out + ".runs");
   std::vector<SlipRow> rows;
@@ -109,6 +110,10 @@ std::vector<SlipRow> run_slip_study(const SlipStudyOptions& o) {
     }
   std::error_code ec;
   std::filesystem::remove(o.sweep.out + ".runs", ec);
+  {
+    std::error_code ec;
+    std::filesystem::remove(o.csv + ".lock", ec);
+  }
   return rows;
 }
 

@@ -270,9 +270,7 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
   // One writer per sweep: a lock the kernel lets go of when the process ends, kill -9
   // included.
   check_writable(csv_, "CSV file");
-  lock_.fd = ::open((csv_ + ".lock").c_str(), O_RDWR | O_CREAT, 0644);
-  if (lock_.fd < 0 || ::flock(lock_.fd, LOCK_EX | LOCK_NB) != 0)
-    throw OutputError("another cvt-engine sweep is writing " + csv_ + " (" + csv_ + ".lock is held)");
+  lock_.emplace(csv_ + ".lock", csv_);
   const std::string header = sweep_csv_header(plan);
   std::ifstream in(csv_);
   std::string line, kept = header;
@@ -310,8 +308,16 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
   std::filesystem::rename(tmp, csv_);
 }
 
-SweepLedger::Lock::~Lock() {
-  if (fd >= 0) ::close(fd);
+FileLock::FileLock(const std::string& path, const std::string& what) {
+  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
+  if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+    if (fd_ >= 0) ::close(fd_);
+    throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+  }
+}
+
+FileLock::~FileLock() {
+  if (fd_ >= 0) ::close(fd_);
 }
 
 void SweepLedger::add(const SweepRow& r) {

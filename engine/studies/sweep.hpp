@@ -8,6 +8,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -75,6 +76,20 @@ struct SweepInterrupted : std::runtime_error {
 // failure (a blow-up, a bad value): the row says it. Throws SweepInterrupted on a signal.
 SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i);
 
+// An exclusive lock on a file (made if missing) for the lifetime of this object, let go of
+// by the kernel when the process ends (kill -9 included); throws OutputError, naming
+// `what`, when another process holds it.
+class FileLock {
+ public:
+  FileLock(const std::string& path, const std::string& what);
+  ~FileLock();
+  FileLock(const FileLock&) = delete;
+  FileLock& operator=(const FileLock&) = delete;
+
+ private:
+  int fd_ = -1;
+};
+
 // The rows of a sweep on disk: OUT.csv grows a row per finished point (flushed to the
 // disk at once, so a kill loses no finished point); at the end it is rewritten in point
 // order and OUT.h5 written. OUT.csv.lock keeps a second sweep from writing the same
@@ -100,10 +115,7 @@ class SweepLedger {
   std::vector<SweepRow> rows_;
   std::vector<bool> done_;
   // OUT.csv.lock, held while the sweep runs (and let go of if the constructor throws).
-  struct Lock {
-    int fd = -1;
-    ~Lock();
-  } lock_;
+  std::optional<FileLock> lock_;
 };
 
 // The whole sweep in this process: the points the ledger lacks, in order. Returns the

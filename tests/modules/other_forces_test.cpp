@@ -309,6 +309,23 @@ TEST(OtherForcesTest, TorqueSetClampingUsesTheDrivenRadiusAtTheTarget) {
   EXPECT_EQ(test::model("mini").controller_radius, 0.0);  // off: not computed
 }
 
+// With the torque-set clamping the PI never takes the driving force below the slip-safe
+// force S M_load cos(beta) / (2 f0 R2*): the chain cannot drop into an opened pulley.
+TEST(OtherForcesTest, ControllerKeepsTheDrivingForceSlipSafe) {
+  const Model m = test::model("mini", {"controller.enabled=true", "controller.kp=1e6", "controller.ki=0",
+                                       "controller.target_ratio=3.0", "controller.clamping_safety=1.3",
+                                       "clamping.driven=2e3", "clamping.driving=2.3e3"});
+  const double tr = m.cfg.ramp.time;
+  for (double t : {0.2 * tr, 0.5 * tr, 2 * tr}) {
+    const OtherForces o = run_other(m, t, m.y0);
+    const double floor = 1.3 * m.cfg.load.torque * rho(t, tr) * std::cos(11 * M_PI / 180) /
+                         (2 * m.cfg.friction.f0 * m.controller_radius);
+    EXPECT_GT(floor, 0.0);
+    EXPECT_NEAR(o.clamp[0], floor, 1e-12 * floor) << "t " << t;  // saturated at the floor
+    EXPECT_NEAR(o.clamp[1], floor, 1e-12 * floor) << "t " << t;  // the torque sets F2 too
+  }
+}
+
 // Without damping and speed-proportional load, nothing dissipates whatever the velocities.
 TEST(OtherForcesTest, NoDampingNoDissipation) {
   const Model m = test::model("mini", {"damping.scale=0"});
