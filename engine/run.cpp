@@ -162,7 +162,8 @@ Run::Run(const Model& m, const RunOptions& opt)
   next_stability_check_ = std::max(sim_.time(), ramps_end(c_));
   if (until_) {
     window_ = steady_window(m);
-    first_check_ = ramps_end(c_) + 2 * window_;
+    // A continuation into a new file has only its own samples: two windows of them.
+    first_check_ = std::max(ramps_end(c_), append_ ? 0.0 : sim_.time()) + 2 * window_;
     check_every_ = std::lcm(every_sample_, rebuild_every_);
   }
 }

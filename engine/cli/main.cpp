@@ -582,6 +582,8 @@ Command add_study_command(CLI::App& app) {
 // (engine/studies/sweep.cpp); under mpirun or srun the points go out to the ranks.
 int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points) {
   using namespace cvt;
+  if (o.config_path.empty() == o.from.empty())
+    throw ConfigError("CONFIG", o.config_path, "give either CONFIG or --from CHECKPOINT (whose configuration is the base)");
   if (axes.empty() == points.empty())
     throw ConfigError("--axis", "", "give the points: one or more --axis KEY=V1,V2,... or --points FILE, not both");
   std::vector<SweepAxis> ax;
@@ -589,16 +591,18 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   const SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
   if (plan.points.empty()) throw ConfigError("--points", points, "no points");
   // Every point's configuration is checked before the first runs: a typo fails now.
+  const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
   for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
     std::vector<std::string> ov = o.overrides;
     const auto own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
-    load_config(o.config_path, ov);
+    if (ck) parse_config(ck->config_toml, ov, o.from);
+    else load_config(o.config_path, ov);
   }
   const MpiWorld world;
   if (world.rank() == 0) {
     std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady\n", CVT_VERSION,
-                o.config_path.c_str(), plan.points.size(), [&] {
+                o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(), [&] {
                   std::string k;
                   for (const auto& x : plan.keys) k += (k.empty() ? "" : ", ") + x;
                   return k;
@@ -633,13 +637,19 @@ Command add_sweep_command(CLI::App& app) {
                                          "per point; with mpirun the points go out to the ranks)");
   sw->footer("Example: cvt-engine sweep configs/mini.toml --axis load.torque=5,10 --axis clamping.driving=1.1e4,1.2e4 "
              "--out sweep\n         mpirun -np 3 cvt-engine sweep ... (rank 0 hands out points and writes)");
-  sw->add_option("CONFIG", a->o.config_path, "TOML configuration (the base of every point)")->required();
+  sw->add_option("CONFIG", a->o.config_path, "TOML configuration (the base of every point); omit with --from");
   sw->add_option("--axis", a->axes, "KEY=V1,V2,...: an axis of the full grid (repeatable; the first varies slowest)");
   sw->add_option("--points", a->points, "CSV file: a header of keys, then a row of values per point");
   sw->add_option("-o,--out", a->o.out, "OUT.csv and OUT.h5; a sweep started again with the same OUT skips the "
                                        "points OUT.csv holds")
       ->capture_default_str();
   sw->add_flag("--keep-runs", a->o.keep_runs, "keep each point's run file, OUT.runs/point-NNNN.h5");
+  sw->add_option("--from", a->o.from, "start every point from this checkpoint of a steady state of the same model "
+                                      "(cvt-engine run CONFIG --until-steady -o base.h5 writes base.h5.ckpt); "
+                                      "run.t_end then bounds each point's run beyond it");
+  sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from: a changed load.torque ramps from the checkpoint's "
+                                                "over this time [s]")
+      ->check(CLI::NonNegativeNumber)->capture_default_str();
   sw->add_option("--set", a->o.overrides, "override a key for every point: section.key=value (repeatable)");
   add_schedule_options(sw, a->sched);
   return {sw, [a] {

@@ -9,11 +9,13 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 
 #include "engine/base/timing.hpp"
 #include "engine/guards.hpp"
+#include "engine/io/checkpoint.hpp"
 #include "engine/io/h5_writer.hpp"
 #include "engine/model/config.hpp"
 #include "engine/model/model.hpp"
@@ -110,6 +112,19 @@ std::string point_file(const SweepOptions& o, long i) {
   char b[32];
   std::snprintf(b, sizeof b, "point-%04ld.h5", i);
   return o.out + ".runs/" + b;
+}
+
+// A point started from a steady state's checkpoint: its run bounded run.t_end beyond the
+// checkpoint, and a changed load torque ramped from the checkpoint's over warm_ramp.
+std::vector<std::string> warm_overrides(const Checkpoint& ck, const SweepOptions& o, std::vector<std::string> ov) {
+  const Config base = parse_config(ck.config_toml, {}, o.from);
+  const Config point = parse_config(ck.config_toml, ov, o.from);
+  ov.push_back("run.t_end=" + num(ck.t + point.run.t_end));
+  if (point.load.torque != base.load.torque)
+    for (const std::string& k : {"ramp.load_from=" + num(base.load.torque), "ramp.load_start=" + num(ck.t),
+                                 "ramp.load_time=" + num(o.warm_ramp)})
+      ov.push_back(k);
+  return ov;
 }
 
 }  // namespace
@@ -231,8 +246,11 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     const std::vector<std::string> own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
     ov.push_back("run.until_steady=true");
-    const Model m = build_model(load_config(o.config_path, ov));
+    std::optional<Checkpoint> ck;
+    if (!o.from.empty()) ck = read_checkpoint(o.from), ov = warm_overrides(*ck, o, ov);
+    const Model m = build_model(ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov));
     RunOptions ro;
+    ro.resume = ck ? &*ck : nullptr;
     ro.out_path = path;
     ro.progress = false;
     ro.schedule = o.schedule;
@@ -366,6 +384,14 @@ void SweepLedger::finish(const std::string& config_text) const {
   std::filesystem::remove(csv_ + ".lock", ec);
 }
 
+std::string sweep_config_text(const SweepOptions& o) {
+  if (!o.from.empty()) return read_checkpoint(o.from).config_toml;
+  std::ifstream in(o.config_path);
+  std::stringstream cfg;
+  cfg << in.rdbuf();
+  return cfg.str();
+}
+
 std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total) {
   char b[256];
   std::snprintf(b, sizeof b, "point %ld/%ld  %s: %s", r.point + 1, total, plan.label(r.point).c_str(),
@@ -395,10 +421,7 @@ long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
     ledger.add(r);
     log("  " + sweep_point_line(plan, r, total));
   }
-  std::ifstream in(o.config_path);
-  std::stringstream cfg;
-  cfg << in.rdbuf();
-  ledger.finish(cfg.str());
+  ledger.finish(sweep_config_text(o));
   if (!o.keep_runs) {
     std::error_code ec;
     std::filesystem::remove(o.out + ".runs", ec);  // only if empty

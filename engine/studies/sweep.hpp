@@ -61,6 +61,11 @@ struct SweepOptions {
   std::vector<std::string> overrides;  // --set, for every point (before the point's own keys)
   std::string out = "sweep";           // OUT.csv and OUT.h5
   bool keep_runs = false;              // keep each point's run file in OUT.runs/
+  // Start every point from this checkpoint (a steady state of the same model) instead of
+  // from rest; run.t_end is then the bound on each point's run beyond it. A point whose
+  // load.torque differs from the checkpoint's ramps it over warm_ramp from there.
+  std::string from;
+  double warm_ramp = 1e-2;  // [s]
   ScheduleOptions schedule;
   // Lines of progress (default: stdout).
   std::function<void(const std::string&)> log;
@@ -121,6 +126,9 @@ class SweepLedger {
 // The whole sweep in this process: the points the ledger lacks, in order. Returns the
 // number of points that did not end steady.
 long run_sweep(const SweepOptions& o, const SweepPlan& plan);
+
+// The base configuration's text (CONFIG's, or with `from` the checkpoint's): OUT.h5's /config.
+std::string sweep_config_text(const SweepOptions& o);
 
 // The line a finished point prints.
 std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total);

@@ -81,10 +81,7 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
     MPI_Send(&give, 1, MPI_LONG, from, kTagToWorker, MPI_COMM_WORLD);
     if (give < 0) --active;
   }
-  std::ifstream in(o.config_path);
-  std::stringstream cfg;
-  cfg << in.rdbuf();
-  ledger.finish(cfg.str());
+  ledger.finish(sweep_config_text(o));
   if (!o.keep_runs) {
     std::error_code ec;
     std::filesystem::remove(o.out + ".runs", ec);  // only if empty

@@ -558,11 +558,80 @@ class HistoryFigureTest(unittest.TestCase):
         self.assertIn("snapshots", p.stderr)
 
 
+class StudyFiguresTest(unittest.TestCase):
+    """The figures of cvt-engine sweep, study slip and study shift from their CSV files."""
+
+    SWEEP_HEAD = ("load.torque,clamping.driving,status,speed_ratio,geometric_ratio,slip,input_torque,output_torque,"
+                  "efficiency,input_speed,output_speed,load_torque,clamping_force_driving,clamping_force_driven,"
+                  "model_time,point,reason,wall_s\n")
+
+    def setUp(self):
+        self.dir = tempfile.mkdtemp(prefix="cvt_plot_studies_")
+        self.addCleanup(shutil.rmtree, self.dir, True)
+
+    def write(self, name, text):
+        path = os.path.join(self.dir, name)
+        with open(path, "w") as fh:
+            fh.write(text)
+        return path
+
+    def plot(self, *args):
+        return subprocess.run([PYTHON, TOOL, *args], capture_output=True, text=True, timeout=300)
+
+    def sweep_csv(self):
+        rows = []
+        for i, (m, f1) in enumerate([(m, f) for m in (5, 10, 15) for f in (1.1e4, 1.2e4, 1.3e4)]):
+            st = "slip" if m == 15 and f1 == 1.1e4 else "steady"
+            rows.append(f"{m},{f1},{st},1.0,0.99,0.01,{m * 1.2},{m},{0.8 + 0.001 * m},209.4,207,{m},{f1},1e4,0.03,"
+                        f"{i},,1.5\n")
+        return self.write("sweep.csv", self.SWEEP_HEAD + "".join(rows))
+
+    def test_sweep_contours_over_two_keys_and_thrust_ratio(self):
+        path = self.sweep_csv()
+        for extra in ([], ["--column", "thrust_ratio"], ["--all"]):
+            out = os.path.join(self.dir, "sweep-%d.png" % len(extra))
+            p = self.plot("sweep", path, *extra, "-o", out)
+            self.assertEqual(p.returncode, 0, p.stderr)
+            self.assertTrue(os.path.getsize(out) > 0)
+        mod = load_tool()
+        rows = mod._read_csv(path, mod.SWEEP_RESULTS)
+        self.assertEqual(len(rows), 9)
+
+    def test_sweep_over_one_key_and_bad_column(self):
+        one = self.write("one.csv", self.SWEEP_HEAD.replace("load.torque,", "") +
+                         "1.1e4,steady,1,1,0,1,1,0.9,1,1,1,1.1e4,1e4,0.1,0,,1\n"
+                         "1.2e4,not_steady,1,1,0,1,1,0.91,1,1,1,1.2e4,1e4,0.1,1,\"shifting, a reason\",1\n")
+        p = self.plot("sweep", one, "-o", os.path.join(self.dir, "one.png"))
+        self.assertEqual(p.returncode, 0, p.stderr)
+        p = self.plot("sweep", one, "--column", "nonsense", "-o", os.path.join(self.dir, "bad.png"))
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("no column nonsense", p.stderr)
+        p = self.plot("sweep", self.write("empty.csv", "a,b\n"), "-o", os.path.join(self.dir, "e.png"))
+        self.assertEqual(p.returncode, 2)
+
+    def test_slip_and_shift(self):
+        slip = self.write("slip.csv", "clamping_force_driving,clamping_force_driven,ratio,slip_torque,theory_torque,"
+                          "slip_over_theory,slips_at,runs,note,wall_s\n"
+                          "25000,30000,1,200,256.8,0.78,204,8,,100\n37000,30000,1,250,308,0.81,255,8,,100\n")
+        p = self.plot("slip", slip, "-o", os.path.join(self.dir, "slip.png"))
+        self.assertEqual(p.returncode, 0, p.stderr)
+        shift = self.write("shift.csv", "input_speed,thrust_ratio,ln_thrust_ratio,shift_rate,steady_thrust_ratio,"
+                           "ratio_start,ratio_end,steady_status,wall_s\n"
+                           "104.7,0.9,-0.105,0.29,1.13,1,1.005,steady,3\n104.7,1.4,0.336,-0.59,1.13,1,0.996,steady,3\n"
+                           "209.4,0.9,-0.105,0.79,1.13,1,1.006,steady,3\n209.4,1.4,0.336,-0.86,1.13,1,0.992,steady,3\n")
+        p = self.plot("shift", shift, "-o", os.path.join(self.dir, "shift.png"))
+        self.assertEqual(p.returncode, 0, p.stderr)
+        p = self.plot("shift", slip, "-o", os.path.join(self.dir, "x.png"))  # not a shift study
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("missing column", p.stderr)
+
+
 class ShortOutTest(unittest.TestCase):
     """-o is --out in every subcommand."""
 
     ARGS = {"history": ["RUN.h5"], "profile": ["RUN.h5"], "scaling": ["STUDY.csv"],
-            "spectrogram": ["RUN.h5", "output_torque"], "animate": ["RUN.h5"], "integrators": ["STUDY.csv"]}
+            "spectrogram": ["RUN.h5", "output_torque"], "animate": ["RUN.h5"], "integrators": ["STUDY.csv"],
+            "sweep": ["SWEEP.csv"], "slip": ["SLIP.csv"], "shift": ["SHIFT.csv"]}
 
     def test_every_subcommand_parses_o(self):
         ap = load_tool().build_parser()

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "engine/guards.hpp"
+#include "engine/io/checkpoint.hpp"
 #include "engine/model/config.hpp"
 #include "engine/studies/sweep.hpp"
 #include "tests/test_util.hpp"
@@ -217,6 +218,41 @@ TEST_F(SweepDir, MiniSerialMpiAndKilledGiveTheSameCsv) {
   EXPECT_EQ(without_wall(read_text(dir_ / "killed.csv")), without_wall(serial)) << read_text(dir_ / "restart.log");
   EXPECT_NE(read_text(dir_ / "restart.log").find("points already in"), std::string::npos)
       << read_text(dir_ / "restart.log");
+#endif
+}
+
+// Points started from a steady state's checkpoint (sweep --from): the point at the
+// checkpoint's own load is steady once two windows of its own samples agree; a changed load ramps
+// over --warm-ramp first; mpirun -np 3 gives the serial CSV.
+TEST_F(SweepDir, WarmStartFromASteadyState) {
+  const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
+  ASSERT_EQ(sh(exe + " run " + test::shell_quote(test::config_path("mini")) +
+               " --until-steady --t-end 0.05 --set clamping.driving=1.13e4 --set run.steady_window=4e-3"
+               " -o base.h5 -q > base.log 2>&1"),
+            0)
+      << read_text(dir_ / "base.log");
+  const Checkpoint ck = read_checkpoint((dir_ / "base.h5.ckpt").string());
+  ASSERT_LT(ck.t, 0.05);  // it stopped steady
+  const std::string args = " sweep --from base.h5.ckpt --axis load.torque=10,10.5 --set run.t_end=0.02 --warm-ramp 2e-3";
+  ASSERT_EQ(sh(exe + args + " --out warm > warm.log 2>&1"), 0) << read_text(dir_ / "warm.log");
+  const auto rows = lines(read_text(dir_ / "warm.csv"));
+  ASSERT_EQ(rows.size(), 3u);
+  SweepPlan plan = SweepPlan::grid({parse_axis("load.torque=10,10.5")});
+  const SweepRow same = parse_sweep_csv_row(rows[1], plan), moved = parse_sweep_csv_row(rows[2], plan);
+  EXPECT_EQ(same.status, "steady") << same.reason;
+  EXPECT_GE(same.model_time, ck.t + 2 * 4e-3 - 1e-9);  // two windows of its own samples
+  EXPECT_LT(same.model_time, ck.t + 0.02);
+  EXPECT_EQ(moved.status, "steady") << moved.reason;
+  EXPECT_GE(moved.model_time, ck.t + 2e-3 + 2 * 4e-3 - 1e-9);  // the load's ramp, then two windows
+  EXPECT_NEAR(moved.load_torque, 10.5, 1e-9);
+  EXPECT_GT(moved.output_torque, same.output_torque);
+#ifdef CVT_WITH_MPI
+  if (sh("command -v mpirun > /dev/null") != 0) GTEST_SKIP() << "no mpirun";
+  ASSERT_EQ(sh("OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 mpirun --oversubscribe -np 3 " + exe + args +
+               " --out warm-mpi > mpi.log 2>&1"),
+            0)
+      << read_text(dir_ / "mpi.log");
+  EXPECT_EQ(without_wall(read_text(dir_ / "warm-mpi.csv")), without_wall(read_text(dir_ / "warm.csv")));
 #endif
 }
 
