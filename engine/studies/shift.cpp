@@ -16,11 +16,6 @@ namespace cvt {
 
 namespace {
 
-std::string num(double x) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  return b;
-}
 
 RunOptions quiet_run(const SweepOptions& s, const std::string& out) {
   RunOptions r;
@@ -35,9 +30,9 @@ RunOptions quiet_run(const SweepOptions& s, const std::string& out) {
 // The steady state at one input speed: its file's checkpoint and summary.
 RunResult steady_state(const ShiftStudyOptions& o, double speed, const std::string& out) {
   std::vector<std::string> ov = o.sweep.overrides;
-  if (speed > 0) ov.push_back("drive.speed=" + num(speed));
+  if (speed > 0) ov.push_back("drive.speed=" + exact_number(speed));
   ov.push_back("run.until_steady=true");
-  ov.push_back("run.t_end=" + num(o.steady_bound));
+  ov.push_back("run.t_end=" + exact_number(o.steady_bound));
   return run_simulation(build_model(load_config(o.sweep.config_path, ov)), quiet_run(o.sweep, out));
 }
 
@@ -54,8 +49,8 @@ ShiftRow step(const ShiftStudyOptions& o, const Checkpoint& ck, const RunResult&
   r.steady_status = base.status;
   const double t_end = ck.t + o.settle + o.window;
   const Config c = parse_config(ck.config_toml,
-                                {"clamping.driving=" + num(thrust * c0.clamping.driven), "run.until_steady=false",
-                                 "run.t_end=" + num(t_end)},
+                                {"clamping.driving=" + exact_number(thrust * c0.clamping.driven), "run.until_steady=false",
+                                 "run.t_end=" + exact_number(t_end)},
                                 "checkpoint");
   RunOptions ro = quiet_run(o.sweep, out);
   ro.resume = &ck;
@@ -89,13 +84,13 @@ std::string shift_csv_header() {
 }
 
 std::string shift_csv_row(const ShiftRow& r) {
-  return num(r.input_speed) + "," + num(r.thrust_ratio) + "," + num(r.ln_thrust_ratio) + "," + num(r.shift_rate) + "," +
-         num(r.steady_thrust_ratio) + "," + num(r.ratio_start) + "," + num(r.ratio_end) + "," + r.steady_status + "," +
-         num(r.wall_s) + "\n";
+  return exact_number(r.input_speed) + "," + exact_number(r.thrust_ratio) + "," + exact_number(r.ln_thrust_ratio) + "," + exact_number(r.shift_rate) + "," +
+         exact_number(r.steady_thrust_ratio) + "," + exact_number(r.ratio_start) + "," + exact_number(r.ratio_end) + "," + r.steady_status + "," +
+         exact_number(r.wall_s) + "\n";
 }
 
 std::vector<ShiftRow> run_shift_study(const ShiftStudyOptions& o) {
-  const auto log = o.sweep.log ? o.sweep.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
+  const auto log = sweep_log(o.sweep);
   check_writable(o.csv, "CSV file");
   const FileLock lock(o.csv + ".lock", o.csv + " and its runs");  // one study per CSV at a time
   { std::ofstream(o.csv) << shift_csv_header(); }
@@ -106,7 +101,7 @@ std::vector<ShiftRow> run_shift_study(const ShiftStudyOptions& o) {
   std::vector<ShiftRow> rows;
   for (double w : speeds) {
     const auto t0 = WallClock::now();
-    const std::string base_file = dir + "/steady-" + num(w) + ".h5";
+    const std::string base_file = dir + "/steady-" + exact_number(w) + ".h5";
     const RunResult base = steady_state(o, w, base_file);
     char b[256];
     std::snprintf(b, sizeof b, "  input speed %.5g rad/s: %s at t = %.4g s, geometric ratio %.5f (%.1f s)",

@@ -14,11 +14,6 @@ namespace cvt {
 
 namespace {
 
-std::string num(double x) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  return b;
-}
 
 // One load torque at one clamping force and ratio, run until steady: held (no gross slip,
 // no blow-up) or not.
@@ -30,16 +25,16 @@ struct Probe {
   bool holds(double torque) {
     SweepPlan p;
     p.keys = {"clamping.driving", "clamping.driven", "load.torque"};
-    p.points = {{num(f1), num(f2), num(torque)}};
+    p.points = {{exact_number(f1), exact_number(f2), exact_number(torque)}};
     if (!ratio.empty()) p.keys.push_back("geometry.ratio"), p.points[0].push_back(ratio);
     const SweepRow r = run_sweep_point(o.sweep, p, 0);
     ++row.runs;
     const bool held = r.status == "steady" || r.status == "not_steady";
-    if (r.status == "blow_up" || r.status == "error") row.note = r.status + " at " + num(torque) + " N m: taken as slip";
+    if (r.status == "blow_up" || r.status == "error") row.note = r.status + " at " + exact_number(torque) + " N m: taken as slip";
     char b[200];
     std::snprintf(b, sizeof b, "    F1 = %.4g N, load %.5g N m: %s (slip %+.2f %%, t = %.4g s, %.1f s)", f1, torque,
                   r.status.c_str(), 100 * r.slip, r.model_time, r.wall_s);
-    (o.sweep.log ? o.sweep.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); })(b);
+    sweep_log(o.sweep)(b);
     return held;
   }
 };
@@ -59,9 +54,9 @@ std::string slip_csv_header() {
 }
 
 std::string slip_csv_row(const SlipRow& r) {
-  return num(r.clamping_driving) + "," + num(r.clamping_driven) + "," + num(r.ratio) + "," + num(r.slip_torque) + "," +
-         num(r.theory_torque) + "," + num(r.theory_torque > 0 ? r.slip_torque / r.theory_torque : 0) + "," +
-         num(r.slips_at) + "," + std::to_string(r.runs) + "," + r.note + "," + num(r.wall_s) + "\n";
+  return exact_number(r.clamping_driving) + "," + exact_number(r.clamping_driven) + "," + exact_number(r.ratio) + "," + exact_number(r.slip_torque) + "," +
+         exact_number(r.theory_torque) + "," + exact_number(r.theory_torque > 0 ? r.slip_torque / r.theory_torque : 0) + "," +
+         exact_number(r.slips_at) + "," + std::to_string(r.runs) + "," + r.note + "," + exact_number(r.wall_s) + "\n";
 }
 
 // For each ratio and clamping force: a bracket around the theory (widened until its lower
@@ -82,8 +77,8 @@ std::vector<SlipRow> run_slip_study(const SlipStudyOptions& o) {
       const auto t0 = WallClock::now();
       row.clamping_driving = f1, row.clamping_driven = f1 / thrust;
       std::vector<std::string> ov = o.sweep.overrides;
-      ov.push_back("clamping.driving=" + num(f1));
-      ov.push_back("clamping.driven=" + num(row.clamping_driven));
+      ov.push_back("clamping.driving=" + exact_number(f1));
+      ov.push_back("clamping.driven=" + exact_number(row.clamping_driven));
       if (!ratio.empty()) ov.push_back("geometry.ratio=" + ratio);
       row.ratio = load_config(o.sweep.config_path, ov).geometry.ratio;
       row.theory_torque = slip_theory_torque(o.sweep.config_path, ov);

@@ -64,11 +64,6 @@ std::string csv_field(const std::string& s) {
   return q + "\"";
 }
 
-std::string num(double x) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  return b;
-}
 
 // The result columns after the keys, each with its member.
 struct Column {
@@ -119,10 +114,10 @@ std::string point_file(const SweepOptions& o, long i) {
 std::vector<std::string> warm_overrides(const Checkpoint& ck, const SweepOptions& o, std::vector<std::string> ov) {
   const Config base = parse_config(ck.config_toml, {}, o.from);
   const Config point = parse_config(ck.config_toml, ov, o.from);
-  ov.push_back("run.t_end=" + num(ck.t + point.run.t_end));
+  ov.push_back("run.t_end=" + exact_number(ck.t + point.run.t_end));
   if (point.load.torque != base.load.torque)
-    for (const std::string& k : {"ramp.load_from=" + num(base.load.torque), "ramp.load_start=" + num(ck.t),
-                                 "ramp.load_time=" + num(o.warm_ramp)})
+    for (const std::string& k : {"ramp.load_from=" + exact_number(base.load.torque), "ramp.load_start=" + exact_number(ck.t),
+                                 "ramp.load_time=" + exact_number(o.warm_ramp)})
       ov.push_back(k);
   return ov;
 }
@@ -212,8 +207,8 @@ std::string sweep_csv_row(const SweepRow& r) {
   std::string s;
   for (const auto& v : r.values) s += csv_field(v) + ",";
   s += r.status;
-  for (const auto& c : result_columns()) s += "," + num(r.*c.field);
-  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + num(r.wall_s) + "\n";
+  for (const auto& c : result_columns()) s += "," + exact_number(r.*c.field);
+  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "\n";
 }
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
@@ -384,6 +379,17 @@ void SweepLedger::finish(const std::string& config_text) const {
   std::filesystem::remove(csv_ + ".lock", ec);
 }
 
+std::string exact_number(double x) {
+  char b[40];
+  std::snprintf(b, sizeof b, "%.17g", x);
+  return b;
+}
+
+std::function<void(const std::string&)> sweep_log(const SweepOptions& o) {
+  if (o.log) return o.log;
+  return [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
+}
+
 std::string sweep_config_text(const SweepOptions& o) {
   if (!o.from.empty()) return read_checkpoint(o.from).config_toml;
   std::ifstream in(o.config_path);
@@ -410,7 +416,7 @@ std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long tota
 long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
   SweepLedger ledger(o, plan);
   const long total = static_cast<long>(plan.points.size());
-  const auto log = o.log ? o.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
+  const auto log = sweep_log(o);
   if (ledger.finished() > 0)
     log("  " + std::to_string(ledger.finished()) + " of " + std::to_string(total) + " points already in " + o.out +
         ".csv: skipped");

@@ -130,6 +130,12 @@ long run_sweep(const SweepOptions& o, const SweepPlan& plan);
 // The base configuration's text (CONFIG's, or with `from` the checkpoint's): OUT.h5's /config.
 std::string sweep_config_text(const SweepOptions& o);
 
+// x to 17 significant digits: reads back to the same bits.
+std::string exact_number(double x);
+
+// o.log, or lines on stdout.
+std::function<void(const std::string&)> sweep_log(const SweepOptions& o);
+
 // The line a finished point prints.
 std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total);
 

@@ -61,7 +61,7 @@ std::string wait_for_worker(int* source) {
 }
 
 long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
-  const auto log = o.log ? o.log : [](const std::string& s) { std::printf("%s\n", s.c_str()), std::fflush(stdout); };
+  const auto log = sweep_log(o);
   SweepLedger ledger(o, plan);
   const long total = static_cast<long>(plan.points.size());
   if (ledger.finished() > 0)
