@@ -147,7 +147,11 @@ Model build_model(const Config& cfg) {
   m.pulley[1].running_radius = pl.R2;
   if (cfg.controller.enabled && cfg.controller.clamping_safety > 0) {
     gp.ratio = cfg.controller.target_ratio;  // the driven radius at the ratio the controller holds
-    m.controller_radius = place_chain(gp).R2;
+    try {
+      m.controller_radius = place_chain(gp).R2;
+    } catch (const ConfigError& e) {
+      throw ConfigError("controller.target_ratio", std::to_string(gp.ratio), "the chain cannot run at this ratio: " + e.reason());
+    }
   }
   // Faces placed so that the crowned ends of wrapped pins just touch them (5.3): the
   // half centre lines of a regular arc sit at radius r_h.

@@ -307,13 +307,21 @@ TEST(OtherForcesTest, TorqueSetClampingUsesTheDrivenRadiusAtTheTarget) {
   EXPECT_EQ(m.controller_radius, at.pulley[1].running_radius);
   EXPECT_GT(m.controller_radius, m.pulley[1].running_radius);
   EXPECT_EQ(test::model("mini").controller_radius, 0.0);  // off: not computed
+  // A target the chain cannot run at is named as the controller's key.
+  try {
+    test::model("mini", {"controller.enabled=true", "controller.clamping_safety=1.3", "controller.target_ratio=3.0"});
+    ADD_FAILURE() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(e.key(), "controller.target_ratio");
+    EXPECT_NE(std::string(e.what()).find("impossible ratio"), std::string::npos) << e.what();
+  }
 }
 
 // With the torque-set clamping the PI never takes the driving force below the slip-safe
 // force S M_load cos(beta) / (2 f0 R2*): the chain cannot drop into an opened pulley.
 TEST(OtherForcesTest, ControllerKeepsTheDrivingForceSlipSafe) {
-  const Model m = test::model("mini", {"controller.enabled=true", "controller.kp=1e6", "controller.ki=0",
-                                       "controller.target_ratio=3.0", "controller.clamping_safety=1.3",
+  const Model m = test::model("mini", {"controller.enabled=true", "controller.kp=1e7", "controller.ki=0",
+                                       "controller.target_ratio=1.5", "controller.clamping_safety=1.3",
                                        "clamping.driven=2e3", "clamping.driving=2.3e3"});
   const double tr = m.cfg.ramp.time;
   for (double t : {0.2 * tr, 0.5 * tr, 2 * tr}) {
