@@ -87,7 +87,7 @@ void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSumm
 class Judge {
  public:
   Judge(const Model& m, const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s, const SteadyCriteria& c)
-      : m_(m), ch_(ch), a_(a), b_(b), mid_((a + b) / 2), s_(s), c_(c),
+      : ch_(ch), a_(a), b_(b), mid_((a + b) / 2), s_(s), c_(c),
         torque_scale_(std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6})) {
     const std::size_t n = ch.size();
     const double dt = (ch.t.back() - ch.t.front()) / static_cast<double>(std::max<std::size_t>(1, n - 1));
@@ -201,7 +201,6 @@ class Judge {
     else held.push_back("torque balance: " + text + fmt("; limit %.2g %%)", 100 * c_.balance));
   }
 
-  const Model& m_;
   const SummaryChannels& ch_;
   const std::size_t a_, b_, mid_;
   RunSummary& s_;

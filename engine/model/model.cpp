@@ -25,30 +25,32 @@ double ramped_load_torque(const Config& c, double t) {
   return from + (to - from) * ramp(ts, c.ramp.load_time);
 }
 
+double torque_set_gain(const Model& m) {
+  const Config& c = m.cfg;
+  if (!c.controller.enabled || !(c.controller.clamping_safety > 0)) return 0.0;
+  return c.controller.clamping_safety * m.cos_beta / (2 * c.friction.f0 * m.controller_radius);
+}
+
+double clamping_floor(const Model& m, double t) {
+  const double g = torque_set_gain(m);
+  return g == 0 ? 0.0 : g * ramped_load_torque(m.cfg, t);
+}
+
 void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]) {
   const Config& c = m.cfg;
   const double r = ramp(t, c.ramp.time), rd = ramp_rate(t, c.ramp.time);
   const double F0[2] = {c.clamping.driving, c.clamping.driven};
   for (int k = 0; k < 2; ++k) F[k] = F0[k] * r, Fdot[k] = F0[k] * rd;
-  const double S = c.controller.clamping_safety;
-  if (!c.controller.enabled || !(S > 0)) return;
+  const double g = torque_set_gain(m);
+  if (g == 0) return;
   // The driven force from the load torque with the safety factor, the configured force
   // (times the ramp) its floor; the driving force the configured thrust ratio of it.
-  const double g = S * m.cos_beta / (2 * c.friction.f0 * m.controller_radius);
   const double ts = t - c.ramp.load_start;
   const double M = ramped_load_torque(c, t);
-  // (clamping_floor is g M: keep the two together.)
   const double Md = ts > 0 ? (c.load.torque - c.ramp.load_from) * ramp_rate(ts, c.ramp.load_time) : 0.0;
   if (g * M > F[1]) F[1] = g * M, Fdot[1] = g * Md;
   const double thrust = c.clamping.driving / c.clamping.driven;
   F[0] = thrust * F[1], Fdot[0] = thrust * Fdot[1];
-}
-
-double clamping_floor(const Model& m, double t) {
-  const Config& c = m.cfg;
-  if (!c.controller.enabled || !(c.controller.clamping_safety > 0)) return 0.0;
-  const double g = c.controller.clamping_safety * m.cos_beta / (2 * c.friction.f0 * m.controller_radius);
-  return g * ramped_load_torque(c, t);
 }
 
 double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }

@@ -106,6 +106,9 @@ double steady_window(const Model& m);
 // The clamping forces' potential part at t (docs/model.md 4.6.4): F_k rho(t), or with the
 // controller's clamping_safety the torque-set schedule; and their time rates.
 void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]);
+// S cos(beta) / (2 f0 R2*) of the torque-set clamping (controller.clamping_safety S > 0 and
+// the controller on), else 0: the slip-safe force per N m of load torque.
+double torque_set_gain(const Model& m);
 // The least driving force the PI may leave: with the torque-set clamping the slip-safe
 // force S M_load(t) cos(beta) / (2 f0 R2*), else 0.
 double clamping_floor(const Model& m, double t);

@@ -417,9 +417,7 @@ long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
   SweepLedger ledger(o, plan);
   const long total = static_cast<long>(plan.points.size());
   const auto log = sweep_log(o);
-  if (ledger.finished() > 0)
-    log("  " + std::to_string(ledger.finished()) + " of " + std::to_string(total) + " points already in " + o.out +
-        ".csv: skipped");
+  log_resumed(o, ledger);
   std::filesystem::create_directories(o.out + ".runs");
   for (long i = 0; i < total; ++i) {
     if (ledger.done(i)) continue;
@@ -427,6 +425,16 @@ long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
     ledger.add(r);
     log("  " + sweep_point_line(plan, r, total));
   }
+  return close_sweep(o, ledger);
+}
+
+void log_resumed(const SweepOptions& o, const SweepLedger& ledger) {
+  if (ledger.finished() > 0)
+    sweep_log(o)("  " + std::to_string(ledger.finished()) + " of " + std::to_string(ledger.points()) +
+                 " points already in " + o.out + ".csv: skipped");
+}
+
+long close_sweep(const SweepOptions& o, const SweepLedger& ledger) {
   ledger.finish(sweep_config_text(o));
   if (!o.keep_runs) {
     std::error_code ec;

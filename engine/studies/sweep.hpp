@@ -108,6 +108,7 @@ class SweepLedger {
   SweepLedger& operator=(const SweepLedger&) = delete;
   bool done(long i) const { return done_[static_cast<std::size_t>(i)]; }
   long finished() const { return static_cast<long>(rows_.size()); }
+  long points() const { return static_cast<long>(done_.size()); }
   void add(const SweepRow& r);
   // OUT.csv in point order, and OUT.h5.
   void finish(const std::string& config_text) const;
@@ -126,6 +127,13 @@ class SweepLedger {
 // The whole sweep in this process: the points the ledger lacks, in order. Returns the
 // number of points that did not end steady.
 long run_sweep(const SweepOptions& o, const SweepPlan& plan);
+
+// "N of M points already in OUT.csv: skipped", when the ledger holds an earlier run's rows.
+void log_resumed(const SweepOptions& o, const SweepLedger& ledger);
+
+// The end of a sweep: OUT.csv in point order and OUT.h5, OUT.runs/ removed unless kept or
+// not empty; returns the number of points that did not end steady.
+long close_sweep(const SweepOptions& o, const SweepLedger& ledger);
 
 // The base configuration's text (CONFIG's, or with `from` the checkpoint's): OUT.h5's /config.
 std::string sweep_config_text(const SweepOptions& o);

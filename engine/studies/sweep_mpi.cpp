@@ -64,9 +64,7 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
   const auto log = sweep_log(o);
   SweepLedger ledger(o, plan);
   const long total = static_cast<long>(plan.points.size());
-  if (ledger.finished() > 0)
-    log("  " + std::to_string(ledger.finished()) + " of " + std::to_string(total) + " points already in " + o.out +
-        ".csv: skipped");
+  log_resumed(o, ledger);
   long next = 0;
   for (int active = workers; active > 0;) {
     int from = 0;
@@ -81,14 +79,7 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
     MPI_Send(&give, 1, MPI_LONG, from, kTagToWorker, MPI_COMM_WORLD);
     if (give < 0) --active;
   }
-  ledger.finish(sweep_config_text(o));
-  if (!o.keep_runs) {
-    std::error_code ec;
-    std::filesystem::remove(o.out + ".runs", ec);  // only if empty
-  }
-  long unsteady = 0;
-  for (const auto& r : ledger.rows()) unsteady += r.status != "steady";
-  return unsteady;
+  return close_sweep(o, ledger);
 }
 
 void work(const SweepOptions& o, const SweepPlan& plan) {
