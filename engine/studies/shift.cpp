@@ -16,7 +16,6 @@ namespace cvt {
 
 namespace {
 
-
 RunOptions quiet_run(const SweepOptions& s, const std::string& out) {
   RunOptions r;
   r.out_path = out;

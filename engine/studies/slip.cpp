@@ -14,7 +14,6 @@ namespace cvt {
 
 namespace {
 
-
 // One load torque at one clamping force and ratio, run until steady: held (no gross slip,
 // no blow-up) or not.
 struct Probe {
