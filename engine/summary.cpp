@@ -218,6 +218,26 @@ SteadyCriteria SteadyCriteria::of(const Config& cfg) {
   return c;
 }
 
+namespace {
+
+// The controller in one line: off, or which control and its target ("1 -> 1.2 -> 0.8"
+// for a profile).
+std::string controller_text(const Config& cfg) {
+  const auto& c = cfg.controller;
+  if (!c.enabled) return "off";
+  std::string target = fmt("%.4g", c.target_ratio);
+  if (!c.target_profile.empty()) {
+    target = fmt("%.4g", c.target_profile.front()[1]);
+    for (std::size_t i = 1; i < c.target_profile.size(); ++i)
+      if (c.target_profile[i][1] != c.target_profile[i - 1][1]) target += fmt(" -> %.4g", c.target_profile[i][1]);
+  }
+  if (c.clamping_safety > 0)
+    return fmt("slip-safe clamping (S %.3g), PI on ln(F1/F2), target ratio ", c.clamping_safety) + target + " (sheaves)";
+  return "PI on F1, target speed ratio " + target;
+}
+
+}  // namespace
+
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
                double window_start) {
   const Config& cfg = m.cfg;
@@ -228,7 +248,7 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.ratio_target = cfg.geometry.ratio;
   s.method = to_string(cfg.integrator.method);
   s.step = cfg.integrator.step;
-  s.controller = cfg.controller.enabled ? fmt("PI on F1, target speed ratio %.4g", cfg.controller.target_ratio) : "off";
+  s.controller = controller_text(cfg);
   s.reasons.clear();
   s.criteria.clear();
   const std::size_t n = ch.size();

@@ -1,9 +1,34 @@
 // docs/model.md 4.6.
 #include "modules/other_forces.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace cvt {
+
+namespace {
+
+// The slip-safe clamping (docs/model.md 4.6.4): the smaller force B carries the torque
+// the driven pulley must transmit with the safety factor, the PI on the sheaves' ratio sets kappa = F1/F2; ctrl_k is what it
+// adds to the potential part F_k rho.
+void slip_safe_control(const Model& m, Workspace& ws, const double F[2], double ctrl[2]) {
+  const Config& c = m.cfg;
+  const double R1 = sheave_radius(m, 0, ws.q[m.shaft(0) + kW]), R2 = sheave_radius(m, 1, ws.q[m.shaft(1) + kW]);
+  const double err = target_ratio(c, ws.t) - R2 / R1;
+  const double B = std::max(std::min(F[0], F[1]), slip_safe_gain(m) * transmitted_torque(c, ws.t) / R2);
+  // Larger ratio wanted -> smaller driving radius -> a smaller thrust ratio.
+  const double u = std::log(c.clamping.driving / c.clamping.driven) -
+                   (c.controller.shift_kp * err + c.controller.shift_ki * ws.aux[kCtrlIntegral]);
+  const double lim = std::log(c.controller.thrust_limit);
+  const double lk = std::clamp(u, -lim, lim);
+  // The integral stops while the thrust ratio sits at its limit and the error pushes on.
+  ws.other.ctrl_rate = (u > lim && err < 0) || (u < -lim && err > 0) ? 0.0 : err;
+  const double kappa = std::exp(lk);
+  const double Ft[2] = {B * std::max(kappa, 1.0), B * std::max(1.0 / kappa, 1.0)};
+  for (int k = 0; k < 2; ++k) ctrl[k] = Ft[k] - F[k];
+}
+
+}  // namespace
 
 void other_forces(const Model& m, Workspace& ws) {
   const Config& c = m.cfg;
@@ -62,27 +87,27 @@ void other_forces(const Model& m, Workspace& ws) {
   o.p_out = Mload * v[pl];
   // 4.6.4 clamping: F_k(t) pushes the moving sheave towards the chain; the ramped part is
   // the potential sigma_m F w with explicit time dependence, the controller part external.
-  const double r = ramp(ws.t, c.ramp.time);
-  double F[2], Fd[2];
+  double F[2], Fd[2], ctrl[2] = {0.0, 0.0};
   clamping_schedule(m, ws.t, F, Fd);
-  double ctrl = 0;
   o.ctrl_rate = 0;
   if (c.controller.enabled) {
-    const double ratio = v[p2] != 0 ? v[p1] / v[p2] : 0.0;
-    const double err = c.controller.target_ratio - ratio;
-    o.ctrl_rate = err;
-    // Larger ratio wanted -> smaller driving radius -> less driving clamping force.
-    ctrl = -(c.controller.kp * err + c.controller.ki * ws.aux[kCtrlIntegral]) * r;
-    ctrl = std::max(ctrl, clamping_floor(m, ws.t) - F[0]);
+    if (c.controller.clamping_safety > 0) {
+      slip_safe_control(m, ws, F, ctrl);
+    } else {
+      const double ratio = v[p2] != 0 ? v[p1] / v[p2] : 0.0;
+      const double err = target_ratio(c, ws.t) - ratio;
+      o.ctrl_rate = err;
+      // Larger ratio wanted -> smaller driving radius -> less driving clamping force.
+      ctrl[0] = -(c.controller.kp * err + c.controller.ki * ws.aux[kCtrlIntegral]) * ramp(ws.t, c.ramp.time);
+      ctrl[0] = std::max(ctrl[0], -F[0]);
+    }
   }
   for (int k = 0; k < 2; ++k) {
     const int sm = m.pulley[k].moving_side;
     const double w = q[m.shaft(k) + kW], wd = v[m.shaft(k) + kW];
-    const double Framp = F[k];
-    const double Fc = k == 0 ? ctrl : 0.0;
-    o.f[kShaftSize * k + kW] -= sm * (Framp + Fc);
-    o.clamp[k] = Framp + Fc;
-    o.p_clamp += sm * Fd[k] * w - sm * Fc * wd;
+    o.f[kShaftSize * k + kW] -= sm * (F[k] + ctrl[k]);
+    o.clamp[k] = F[k] + ctrl[k];
+    o.p_clamp += sm * Fd[k] * w - sm * ctrl[k] * wd;
   }
 }
 

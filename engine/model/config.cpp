@@ -46,7 +46,7 @@ namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-enum class Kind { real, integer, boolean, method, law };
+enum class Kind { real, integer, boolean, method, law, profile };
 
 // Bounds of a numeric key: lo <(=) value <(=) hi.
 struct Range {
@@ -58,6 +58,7 @@ struct Range {
 
 constexpr Range positive{0.0, true, kInf, false};
 constexpr Range nonneg{0.0, false, kInf, false};
+constexpr Range above_one{1.0, true, kInf, false};
 
 struct KeyDef {
   const char* section;
@@ -143,9 +144,13 @@ const std::vector<KeyDef>& schema() {
 
       CVT_KEY(controller, enabled, boolean, "", Range{}),
       CVT_KEY(controller, target_ratio, real, "1", positive),
+      CVT_KEY(controller, target_profile, profile, "s, 1", positive),
       CVT_KEY(controller, kp, real, "N", nonneg),
       CVT_KEY(controller, ki, real, "N/s", nonneg),
       CVT_KEY(controller, clamping_safety, real, "1", nonneg),
+      CVT_KEY(controller, shift_kp, real, "1", nonneg),
+      CVT_KEY(controller, shift_ki, real, "1/s", nonneg),
+      CVT_KEY(controller, thrust_limit, real, "1", above_one),
 
       CVT_KEY(ramp, time, real, "s", nonneg),
       CVT_KEY(ramp, load_time, real, "s", nonneg),
@@ -529,6 +534,32 @@ class Validator {
         law = v == "nonsmooth" ? FrictionLaw::nonsmooth : v == "smooth" ? FrictionLaw::smooth : FrictionLaw::none;
         break;
       }
+      case Kind::profile: read_profile(qkey, n, *static_cast<std::vector<std::array<double, 2>>*>(d.ref(cfg))); break;
+    }
+  }
+
+  // An array of [time, ratio] pairs: finite numbers, times >= 0 and non-decreasing,
+  // ratios in the key's range.
+  void read_profile(const std::string& qkey, const toml::node& n, std::vector<std::array<double, 2>>& out) const {
+    const auto* a = n.as_array();
+    if (!a) fail(qkey, &n, std::string("wrong type: expected an array of [time, ratio] pairs, got ") + type_name(n));
+    out.clear();
+    for (const toml::node& e : *a) {
+      const auto* pair = e.as_array();
+      std::array<double, 2> p{};
+      if (!pair || pair->size() != 2) fail(qkey, &n, "each point must be a [time, ratio] pair of two numbers");
+      for (int k = 0; k < 2; ++k) {
+        const toml::node& x = *pair->get(static_cast<std::size_t>(k));
+        if (auto f = x.as_floating_point()) p[k] = f->get();
+        else if (auto i = x.as_integer()) p[k] = static_cast<double>(i->get());
+        else fail(qkey, &n, std::string("each point must be a [time, ratio] pair of two numbers, got ") + type_name(x));
+        if (!std::isfinite(p[k])) fail(qkey, &n, "must hold finite numbers");
+      }
+      const std::string at = "point " + std::to_string(out.size() + 1) + " [" + format_double(p[0]) + ", " + format_double(p[1]) + "]: ";
+      if (p[0] < 0) fail(qkey, &n, at + "the time must not be negative");
+      if (!out.empty() && p[0] < out.back()[0]) fail(qkey, &n, at + "the times must not decrease");
+      if (!(p[1] > 0)) fail(qkey, &n, at + "the ratio must be positive (> 0)");
+      out.push_back(p);
     }
   }
 
@@ -592,6 +623,14 @@ class Validator {
       fail_rel("integrator", "w_k_every", std::to_string(c.integrator.w_k_every),
                "must be a multiple of integrator.w_every = " + std::to_string(c.integrator.w_every) +
                    " (the stiffness is taken when the matrix is rebuilt)");
+    if (c.controller.clamping_safety > 0 && (c.controller.kp > 0 || c.controller.ki > 0))
+      fail_rel("controller", c.controller.kp > 0 ? "kp" : "ki", num(c.controller.kp > 0 ? c.controller.kp : c.controller.ki),
+               "kp and ki act on F1 alone (controller.clamping_safety = 0); with clamping_safety > 0 the PI "
+               "sets ln(F1/F2): give controller.shift_kp and controller.shift_ki instead");
+    if (c.controller.clamping_safety == 0 && (c.controller.shift_kp > 0 || c.controller.shift_ki > 0))
+      fail_rel("controller", c.controller.shift_kp > 0 ? "shift_kp" : "shift_ki",
+               num(c.controller.shift_kp > 0 ? c.controller.shift_kp : c.controller.shift_ki),
+               "acts only with the slip-safe clamping: give controller.clamping_safety > 0 (or use kp and ki)");
     const std::string links_range = "must be in [0, chain.links) = [0, " + std::to_string(c.chain.links) + ")";
     if (c.run.tracked_pin >= c.chain.links) fail_rel("run", "tracked_pin", std::to_string(c.run.tracked_pin), links_range);
     if (c.run.tracked_link >= c.chain.links) fail_rel("run", "tracked_link", std::to_string(c.run.tracked_link), links_range);
@@ -663,6 +702,14 @@ void apply_override(toml::table& root, const std::string& raw, std::map<std::str
 
 // ---- resolved TOML ----------------------------------------------------------------------
 
+// [[t, r], ...] as TOML writes it.
+std::string profile_text(const std::vector<std::array<double, 2>>& p) {
+  std::string out = "[";
+  for (std::size_t i = 0; i < p.size(); ++i)
+    out += (i ? ", [" : "[") + format_double(p[i][0]) + ", " + format_double(p[i][1]) + "]";
+  return out + "]";
+}
+
 std::string resolved_toml(Config& cfg) {
   std::ostringstream os;
   os << "# cvt-engine resolved configuration: every key, defaults filled in (SI units)\n";
@@ -679,6 +726,7 @@ std::string resolved_toml(Config& cfg) {
       case Kind::boolean: os << (*static_cast<bool*>(d.ref(cfg)) ? "true" : "false"); break;
       case Kind::method: os << quote(to_string(*static_cast<IntegratorMethod*>(d.ref(cfg)))); break;
       case Kind::law: os << quote(to_string(*static_cast<FrictionLaw*>(d.ref(cfg)))); break;
+      case Kind::profile: os << profile_text(*static_cast<std::vector<std::array<double, 2>>*>(d.ref(cfg))); break;
     }
     if (*d.unit) os << "  # [" << d.unit << "]";
     os << "\n";

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 #include <map>
@@ -131,13 +132,19 @@ struct Config {
   } clamping;
   struct Controller {
     bool enabled = false;
-    double target_ratio = 1.0;  // speed ratio omega_in/omega_out to hold
-    double kp = 0.0;            // [N]
+    double target_ratio = 1.0;  // ratio to hold (speed ratio; the sheaves' ratio when clamping_safety > 0)
+    // (time [s], ratio) points, times non-decreasing: the target interpolated linearly
+    // between them, held before the first and after the last; empty: target_ratio.
+    std::vector<std::array<double, 2>> target_profile;
+    double kp = 0.0;            // [N] on F1 (clamping_safety = 0)
     double ki = 0.0;            // [N/s]
-    // > 0: the clamping forces set from the transmitted torque (docs/model.md 4.6.4): F2 =
-    // max(clamping.driven rho, S M_load cos(beta) / (2 f0 R2*)), F1 = (clamping.driving /
-    // clamping.driven) F2 plus the PI's correction. 0: the configured forces.
+    // > 0: slip-safe clamping (docs/model.md 4.6.4): both forces at least
+    // S |M_load| cos(beta) / (2 f0 R2), the PI (shift_kp, shift_ki) setting ln(F1/F2)
+    // from the ratio of the sheave positions. 0: the configured forces, kp and ki on F1.
     double clamping_safety = 0.0;  // S [1]
+    double shift_kp = 0.0;         // ln(F1/F2) per unit ratio error [1]
+    double shift_ki = 0.0;         // [1/s]
+    double thrust_limit = 3.0;     // F1/F2 kept within [1/limit, limit] [1]
   } controller;
   struct Ramp {
     double time = 2.0e-3;  // t_ramp [s] of the clamping forces (and of the load unless load_time); 0: at once

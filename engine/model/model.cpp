@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "engine/model/geometry.hpp"
 
@@ -25,32 +26,44 @@ double ramped_load_torque(const Config& c, double t) {
   return from + (to - from) * ramp(ts, c.ramp.load_time);
 }
 
-double torque_set_gain(const Model& m) {
-  const Config& c = m.cfg;
-  if (!c.controller.enabled || !(c.controller.clamping_safety > 0)) return 0.0;
-  return c.controller.clamping_safety * m.cos_beta / (2 * c.friction.f0 * m.controller_radius);
-}
-
-double clamping_floor(const Model& m, double t) {
-  const double g = torque_set_gain(m);
-  return g == 0 ? 0.0 : g * ramped_load_torque(m.cfg, t);
-}
-
 void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]) {
   const Config& c = m.cfg;
   const double r = ramp(t, c.ramp.time), rd = ramp_rate(t, c.ramp.time);
   const double F0[2] = {c.clamping.driving, c.clamping.driven};
   for (int k = 0; k < 2; ++k) F[k] = F0[k] * r, Fdot[k] = F0[k] * rd;
-  const double g = torque_set_gain(m);
-  if (g == 0) return;
-  // The driven force from the load torque with the safety factor, the configured force
-  // (times the ramp) its floor; the driving force the configured thrust ratio of it.
-  const double ts = t - c.ramp.load_start;
-  const double M = ramped_load_torque(c, t);
-  const double Md = ts > 0 ? (c.load.torque - c.ramp.load_from) * ramp_rate(ts, c.ramp.load_time) : 0.0;
-  if (g * M > F[1]) F[1] = g * M, Fdot[1] = g * Md;
-  const double thrust = c.clamping.driving / c.clamping.driven;
-  F[0] = thrust * F[1], Fdot[0] = thrust * Fdot[1];
+}
+
+double target_ratio(const Config& c, double t) {
+  const auto& p = c.controller.target_profile;
+  if (p.empty()) return c.controller.target_ratio;
+  if (t <= p.front()[0]) return p.front()[1];
+  for (std::size_t i = 1; i < p.size(); ++i)
+    if (t < p[i][0]) return p[i - 1][1] + (p[i][1] - p[i - 1][1]) * (t - p[i - 1][0]) / (p[i][0] - p[i - 1][0]);
+  return p.back()[1];
+}
+
+double target_rate(const Config& c, double t) {
+  const auto& p = c.controller.target_profile;
+  for (std::size_t i = 1; i < p.size(); ++i)
+    if (t >= p[i - 1][0] && t < p[i][0]) return (p[i][1] - p[i - 1][1]) / (p[i][0] - p[i - 1][0]);
+  return 0.0;
+}
+
+double transmitted_torque(const Config& c, double t) {
+  const double r = target_ratio(c, t);
+  return std::abs(ramped_load_torque(c, t)) + c.load.inertia * c.drive.speed * std::abs(target_rate(c, t)) / (r * r);
+}
+
+double sheave_radius(const Model& m, int k, double w) {
+  const Config& c = m.cfg;
+  const double r = m.pulley[k].running_radius - m.pulley[k].moving_side * w / (2 * m.tan_beta);
+  return std::clamp(r, c.sheave.hub_radius, c.sheave.outer_radius);
+}
+
+double slip_safe_gain(const Model& m) {
+  const Config& c = m.cfg;
+  if (!c.controller.enabled || !(c.controller.clamping_safety > 0)) return 0.0;
+  return c.controller.clamping_safety * m.cos_beta / (2 * c.friction.f0);
 }
 
 double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }
@@ -79,6 +92,30 @@ double steady_window(const Model& m) {
   // A whole number of meshing periods, at least 4: the polygon ripple averages out.
   return std::max(4.0, std::ceil(w / t_mesh - 1e-9)) * t_mesh;
 }
+
+namespace {
+
+// Every ratio the controller is asked for must be one the chain can run at (5).
+void check_targets(const Config& cfg, ChainPathParams gp) {
+  const auto& prof = cfg.controller.target_profile;
+  const bool from_profile = !prof.empty();
+  std::vector<double> ratios;
+  if (from_profile)
+    for (const auto& p : prof) ratios.push_back(p[1]);
+  else
+    ratios.push_back(cfg.controller.target_ratio);
+  for (double r : ratios) {
+    gp.ratio = r;
+    try {
+      place_chain(gp);
+    } catch (const ConfigError& e) {
+      throw ConfigError(from_profile ? "controller.target_profile" : "controller.target_ratio", std::to_string(r),
+                        "the chain cannot run at this ratio: " + e.reason());
+    }
+  }
+}
+
+}  // namespace
 
 Model build_model(const Config& cfg) {
   Model m;
@@ -147,14 +184,7 @@ Model build_model(const Config& cfg) {
   m.pulley[1].moving_side = -1;
   m.pulley[0].running_radius = pl.R1;
   m.pulley[1].running_radius = pl.R2;
-  if (cfg.controller.enabled && cfg.controller.clamping_safety > 0) {
-    gp.ratio = cfg.controller.target_ratio;  // the driven radius at the ratio the controller holds
-    try {
-      m.controller_radius = place_chain(gp).R2;
-    } catch (const ConfigError& e) {
-      throw ConfigError("controller.target_ratio", std::to_string(gp.ratio), "the chain cannot run at this ratio: " + e.reason());
-    }
-  }
+  if (cfg.controller.enabled) check_targets(cfg, gp);
   // Faces placed so that the crowned ends of wrapped pins just touch them (5.3): the
   // half centre lines of a regular arc sit at radius r_h.
   const double Rend = cfg.pulley_contact.end_radius;

@@ -54,7 +54,6 @@ struct Model {
   double beam_beta = 0;              // stiffness-proportional damping (scaled)
 
   std::array<Pulley, 2> pulley;
-  double controller_radius = 0;  // R2* of the driven pulley at controller.target_ratio (clamping_safety > 0)
 
   // Constant inertia A0 (docs/model.md 3): the blocks and their inverses.
   Eigen::Matrix4d bend_mass, bend_mass_inv;   // (w1, s1, w2, s2) of one half, one plane
@@ -103,15 +102,24 @@ double torsion_period(const Model& m);
 // periods (the time a link takes to pass, pitch / (omega_in R1)), at least 4 of them.
 double steady_window(const Model& m);
 
-// The clamping forces' potential part at t (docs/model.md 4.6.4): F_k rho(t), or with the
-// controller's clamping_safety the torque-set schedule; and their time rates.
+// The clamping forces' potential part at t (docs/model.md 4.6.4), F_k rho(t), and its
+// time rate; the controller's forces are external to it.
 void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]);
-// S cos(beta) / (2 f0 R2*) of the torque-set clamping (controller.clamping_safety S > 0 and
-// the controller on), else 0: the slip-safe force per N m of load torque.
-double torque_set_gain(const Model& m);
-// The least driving force the PI may leave: with the torque-set clamping the slip-safe
-// force S M_load(t) cos(beta) / (2 f0 R2*), else 0.
-double clamping_floor(const Model& m, double t);
+// The controller's target ratio at t: controller.target_profile interpolated linearly
+// (held before its first point and after its last), or controller.target_ratio.
+double target_ratio(const Config& c, double t);
+// The target's rate d(ratio)/dt at t (0 outside the profile's sloped segments).
+double target_rate(const Config& c, double t);
+// The torque the driven pulley must transmit at t by the schedule: |M_load(t)| plus what
+// accelerates the load along the target, J_load omega_in |d(ratio)/dt| / ratio^2.
+double transmitted_torque(const Config& c, double t);
+// The running radius of pulley k's chain with its moving sheave at w (docs/model.md
+// 4.6.4): the initial radius less sigma_k w / (2 tan beta), within hub and outer radius.
+double sheave_radius(const Model& m, int k, double w);
+// S cos(beta) / (2 f0) of the slip-safe clamping (the controller on with
+// controller.clamping_safety S > 0), else 0: the least clamping force per newton of
+// strand tension difference M_load / R2.
+double slip_safe_gain(const Model& m);
 
 // The time from which every ramp (clamping forces and load torque) has ended.
 double ramps_end(const Config& c);

@@ -297,6 +297,36 @@ TEST(ConfigTest, CrossKeyChecks) {
   EXPECT_TRUE(contains(e.reason(), "30")) << e.reason();
 }
 
+// The target profile is an array of [time, ratio] pairs with times that do not decrease;
+// it round-trips through the resolved TOML.
+TEST(ConfigTest, TargetProfile) {
+  const Config c = parse_config("[controller]\ntarget_profile = [[0, 1.0], [0.1, 1.2], [0.1, 0.8]]\n");
+  ASSERT_EQ(c.controller.target_profile.size(), 3u);
+  EXPECT_EQ(c.controller.target_profile[1][0], 0.1);
+  EXPECT_EQ(c.controller.target_profile[2][1], 0.8);
+  EXPECT_EQ(parse_config(c.resolved_toml).controller.target_profile, c.controller.target_profile);
+  EXPECT_TRUE(parse_config("").controller.target_profile.empty());
+  auto e = expect_override_error("controller.target_profile=[[0.1, 1.0], [0.05, 1.2]]", "controller.target_profile", "[[0.1, 1.0], [0.05, 1.2]]");
+  EXPECT_TRUE(contains(e.reason(), "point 2 [0.05, 1.2]: the times must not decrease")) << e.reason();
+  e = expect_override_error("controller.target_profile=[[0, -1.0]]", "controller.target_profile", "-1");
+  EXPECT_TRUE(contains(e.reason(), "ratio must be positive")) << e.reason();
+  e = expect_override_error("controller.target_profile=[[0, 1.0, 2.0]]", "controller.target_profile", "2");
+  EXPECT_TRUE(contains(e.reason(), "[time, ratio] pair")) << e.reason();
+  expect_override_error("controller.target_profile=[[-1, 1.0]]", "controller.target_profile", "-1");
+  expect_override_error("controller.target_profile=1.2", "controller.target_profile", "1.2");
+}
+
+// Each control has its own gains: kp, ki on F1 without the slip-safe clamping, shift_kp,
+// shift_ki on ln(F1/F2) with it; the other pair is refused with the reason.
+TEST(ConfigTest, ControllerGainsBelongToTheirControl) {
+  auto e = expect_parse_error("[controller]\nclamping_safety = 1.5\nkp = 1e5\n", "controller.kp", "1e5");
+  EXPECT_TRUE(contains(e.reason(), "shift_kp")) << e.reason();
+  e = expect_parse_error("[controller]\nshift_ki = 100\n", "controller.shift_ki", "100");
+  EXPECT_TRUE(contains(e.reason(), "clamping_safety")) << e.reason();
+  expect_parse_error("[controller]\nthrust_limit = 1.0\n", "controller.thrust_limit", "1.0");
+  EXPECT_NO_THROW(parse_config("[controller]\nclamping_safety = 1.5\nshift_kp = 20\nshift_ki = 400\n"));
+}
+
 TEST(ConfigTest, BadFrictionLaw) {
   auto e = expect_parse_error("[friction]\nlaw = \"coulomb\"\n", "friction.law", "coulomb");
   EXPECT_TRUE(contains(e.reason(), "nonsmooth")) << e.reason();
