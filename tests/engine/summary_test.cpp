@@ -81,6 +81,21 @@ TEST(SummaryTest, SteadyOperatingPoint) {
   EXPECT_NE(json.find("\"efficiency_meaningful\": true"), std::string::npos) << json;
 }
 
+// The summary names the controller: off, the PI on F1 with its target, or the slip-safe
+// clamping with its safety factor and the targets of its profile in order.
+TEST(SummaryTest, NamesTheController) {
+  auto controller = [](const std::vector<std::string>& ov) {
+    RunSummary s;
+    summarize(test::model("reference", ov), Synthetic().ch, s);
+    return s.controller;
+  };
+  EXPECT_EQ(controller({}), "off");
+  EXPECT_EQ(controller({"controller.enabled=true", "controller.target_ratio=1.1"}), "PI on F1, target speed ratio 1.1");
+  EXPECT_EQ(controller({"controller.enabled=true", "controller.clamping_safety=2",
+                        "controller.target_profile=[[0.06, 1.0], [0.18, 1.2], [0.24, 1.2], [0.48, 0.8]]"}),
+            "slip-safe clamping (S 2), PI on ln(F1/F2), target ratio 1 -> 1.2 -> 0.8 (sheaves)");
+}
+
 TEST(SummaryTest, RunEndingInTheRampIsNotSteadyAndItsEfficiencyNotMeaningful) {
   const RunSummary s = Synthetic({}, 1.5e-3).summary();
   EXPECT_EQ(s.status, "not_steady");
