@@ -92,21 +92,40 @@ TEST(ControllerTest, MiniShiftsToItsTargetWithSlipSafeForces) {
   EXPECT_LT(mean(c, c.geometric, 0.0, 0.005), 1.01) << "the ratio must start from the chain's own";
 }
 
-// The reference model under its 150 N m load, from rest: hold 1.0, shift to 1.2, hold,
-// shift to 0.8, hold; the gains of docs/studies.md. The ratio reaches each target, the
-// chain never slips grossly, and the output torque is carried throughout (the load's
-// acceleration during the shift to 0.8 is part of what the output torque carries).
+// configs/reference-shift.toml: the reference model under its 150 N m load, from rest,
+// holds 1.0, shifts to 1.2, holds, shifts to 0.8, holds. The ratio reaches each target
+// (within 3 %: the PI overshoots the end of each ramp by about 2 %), the chain never slips
+// grossly, and the output torque is carried throughout (on the way down it also
+// accelerates the load; on the way up the decelerating load gives some back).
 TEST(ControllerTest, SlowReferenceShiftsUnderLoadWithoutSlip) {
   Model m;
-  const Channels c = run_and_read(
-      "reference-steady",
-      {"controller.enabled=true", "controller.clamping_safety=1.5", "controller.shift_kp=20", "controller.shift_ki=400",
-       "clamping.driving=12.3e3", "clamping.driven=1e4",
-       "controller.target_profile=[[0.06, 1.0], [0.16, 1.2], [0.22, 1.2], [0.42, 0.8], [0.5, 0.8]]", "run.t_end=0.5"},
-      "controller_reference", &m);
+  const Channels c = run_and_read("reference-shift", {}, "controller_reference", &m);
+  ASSERT_NEAR(c.t.back(), 0.55, 1e-9) << "the run must reach the profile's end";
   expect_carried_without_slip(m, c, 0.04, 0.02, 0.8);
-  EXPECT_NEAR(mean(c, c.geometric, 0.2, 0.22), 1.2, 0.02 * 1.2) << "the ratio must reach 1.2";
-  EXPECT_NEAR(mean(c, c.geometric, 0.48, 0.5), 0.8, 0.02 * 0.8) << "the ratio must reach 0.8";
+  EXPECT_NEAR(mean(c, c.geometric, 0.04, 0.06), 1.0, 0.01) << "the ratio must hold 1.0";
+  EXPECT_NEAR(mean(c, c.geometric, 0.22, 0.24), 1.2, 0.03 * 1.2) << "the ratio must reach 1.2";
+  EXPECT_NEAR(mean(c, c.geometric, 0.53, 0.55), 0.8, 0.03 * 0.8) << "the ratio must reach 0.8";
+}
+
+// The slip-safe clamping with a W-method whose stiffness is rebuilt seldom is warned about.
+TEST(ControllerTest, WarnsWhenTheStiffnessIsRebuiltSeldom) {
+  for (const int every : {16, 64}) {
+    const Model m = build_model(load_config(test::config_path("mini"),
+                                            {"controller.enabled=true", "controller.clamping_safety=3", "run.t_end=1e-4",
+                                             "integrator.w_k_every=" + std::to_string(every)}));
+    RunOptions o;
+    o.out_path = (fs::temp_directory_path() / ("controller_warn_" + std::to_string(getpid()) + ".h5")).string();
+    o.progress = false;
+    std::string warned;
+    o.warn = [&](const std::string& w) { warned += w; };
+    try {
+      run_simulation(m, o);
+    } catch (const std::exception&) {
+      // the warning comes before the first step; mini blows up from rest with 64 (configs/mini.toml)
+    }
+    for (const char* ext : {"", ".ckpt"}) fs::remove(o.out_path + ext);
+    EXPECT_EQ(warned.find("set integrator.w_k_every = 16 or less") != std::string::npos, every == 64) << warned;
+  }
 }
 
 }  // namespace
