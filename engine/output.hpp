@@ -56,8 +56,7 @@ class Recorder {
     scalar("load_torque", "N m", s.t, s.load_torque);
     scalar("speed_ratio", "1", s.t, s.speed_ratio);
     scalar("geometric_ratio", "1", s.t, s.geometric_ratio);
-    scalar("slip", "1", s.t,  // 0 while undefined: no pin touches a sheave yet (geometric ratio 0)
-           s.speed_ratio != 0 && s.geometric_ratio > 0 ? 1.0 - s.geometric_ratio / s.speed_ratio : 0.0);
+    scalar("slip", "1", s.t, slip_of(s.speed_ratio, s.geometric_ratio));
     scalar("efficiency", "1", s.t, s.efficiency);
     scalar("clamping_force_driving", "N", s.t, s.clamp[0]);
     scalar("clamping_force_driven", "N", s.t, s.clamp[1]);

@@ -62,7 +62,7 @@ void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSumm
   s.window_start = ch.t[a], s.window_end = ch.t[b - 1];
   s.speed_ratio = mean(ch.speed_ratio, a, b);
   s.geometric_ratio = mean_defined(ch.geometric_ratio, a, b);
-  s.slip = s.speed_ratio != 0 && s.geometric_ratio > 0 ? 1.0 - s.geometric_ratio / s.speed_ratio : 0.0;
+  s.slip = slip_of(s.speed_ratio, s.geometric_ratio);
   s.input_speed = mean(ch.input_speed, a, b);
   s.output_speed = mean(ch.output_speed, a, b);
   s.input_torque = mean(ch.input_torque, a, b);
@@ -127,8 +127,7 @@ class Judge {
   // alone also falls when the ratio shifts towards underdrive without any slip.)
   void falling() {
     const auto half_slip = [&](std::size_t a, std::size_t b) {
-      const double sr = mean(ch_.speed_ratio, a, b), g = mean_defined(ch_.geometric_ratio, a, b);
-      return sr != 0 && g > 0 ? 1.0 - g / sr : 0.0;
+      return slip_of(mean(ch_.speed_ratio, a, b), mean_defined(ch_.geometric_ratio, a, b));
     };
     const double s_a = half_slip(a_, mid_), s_b = half_slip(mid_, b_);
     if (s_b - s_a > c_.falling)

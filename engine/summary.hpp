@@ -12,6 +12,12 @@ namespace cvt {
 
 struct Sample;
 
+// The chain's slip (creep) 1 - geometric / speed ratio (docs/model.md 6); 0 while it is
+// undefined: no pin on a sheave yet (geometric ratio 0) or the output at rest.
+inline double slip_of(double speed_ratio, double geometric_ratio) {
+  return speed_ratio != 0 && geometric_ratio > 0 ? 1.0 - geometric_ratio / speed_ratio : 0.0;
+}
+
 // The channels the summary reads, one entry per output sample (a run's samples, or the
 // observables read back from a run's file).
 struct SummaryChannels {

@@ -8,9 +8,9 @@ namespace cvt {
 
 namespace {
 
-// The slip-safe clamping (docs/model.md 4.6.4): the smaller force B carries the torque
-// the driven pulley must transmit with the safety factor, the PI on the sheaves' ratio sets kappa = F1/F2; ctrl_k is what it
-// adds to the potential part F_k rho.
+// The slip-safe clamping (docs/model.md 4.6.4): the smaller force B carries the torque the
+// driven pulley must transmit with the safety factor, the PI on the sheaves' ratio sets
+// kappa = F1/F2; ctrl_k is what it adds to the potential part F_k rho.
 void slip_safe_control(const Model& m, Workspace& ws, const double F[2], double ctrl[2]) {
   const Config& c = m.cfg;
   const double R1 = sheave_radius(m, 0, ws.q[m.shaft(0) + kW]), R2 = sheave_radius(m, 1, ws.q[m.shaft(1) + kW]);

@@ -1,12 +1,16 @@
 // Shared helpers of the test suite.
 #pragma once
 
+#include <unistd.h>
+
+#include <filesystem>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "engine/model/config.hpp"
 #include "engine/model/model.hpp"
+#include "engine/run.hpp"
 
 namespace cvt::test {
 
@@ -22,6 +26,23 @@ inline std::string shell_quote(const std::string& s) {
 
 inline std::string config_path(const std::string& name) {
   return std::string(CVT_SOURCE_DIR) + "/configs/" + name + ".toml";
+}
+
+// A test run's options: its own file NAME_PID.h5 in the temp folder, no progress lines, the
+// warnings swallowed, the flow graph on 2 threads (the same bits as any schedule).
+inline RunOptions quiet_run_options(const std::string& name) {
+  RunOptions o;
+  o.out_path = (std::filesystem::temp_directory_path() / (name + "_" + std::to_string(getpid()) + ".h5")).string();
+  o.progress = false;
+  o.schedule.kind = SchedulerKind::flowgraph;
+  o.schedule.threads = 2;
+  o.warn = [](const std::string&) {};
+  return o;
+}
+
+// Removes a test run's file and its checkpoint.
+inline void remove_run_files(const std::string& out_path) {
+  for (const char* ext : {"", ".ckpt"}) std::filesystem::remove(out_path + ext);
 }
 
 // The shipped configs run ROS34PW2; the tests' reference is RK4 at 1e-8 over a short

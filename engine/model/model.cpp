@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <vector>
 
 #include "engine/model/geometry.hpp"
 
@@ -97,22 +96,16 @@ namespace {
 
 // Every ratio the controller is asked for must be one the chain can run at (5).
 void check_targets(const Config& cfg, ChainPathParams gp) {
-  const auto& prof = cfg.controller.target_profile;
-  const bool from_profile = !prof.empty();
-  std::vector<double> ratios;
-  if (from_profile)
-    for (const auto& p : prof) ratios.push_back(p[1]);
-  else
-    ratios.push_back(cfg.controller.target_ratio);
-  for (double r : ratios) {
-    gp.ratio = r;
+  const auto check = [&](double ratio, const char* key) {
+    gp.ratio = ratio;
     try {
       place_chain(gp);
     } catch (const ConfigError& e) {
-      throw ConfigError(from_profile ? "controller.target_profile" : "controller.target_ratio", std::to_string(r),
-                        "the chain cannot run at this ratio: " + e.reason());
+      throw ConfigError(key, std::to_string(ratio), "the chain cannot run at this ratio: " + e.reason());
     }
-  }
+  };
+  if (cfg.controller.target_profile.empty()) check(cfg.controller.target_ratio, "controller.target_ratio");
+  for (const auto& p : cfg.controller.target_profile) check(p[1], "controller.target_profile");
 }
 
 }  // namespace

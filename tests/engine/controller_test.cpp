@@ -3,12 +3,10 @@
 // without gross slip, and neither clamping force drops below the slip-safe force. On the
 // mini model and, as a Slow test, the reference model's 1.0 -> 1.2 -> 0.8 under its load.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 
 #include "engine/io/h5_writer.hpp"
 #include "engine/run.hpp"
@@ -17,8 +15,6 @@
 namespace cvt {
 namespace {
 
-namespace fs = std::filesystem;
-
 struct Channels {
   std::vector<double> t, geometric, slip, output_torque, load_torque, f1, f2;
 };
@@ -26,12 +22,7 @@ struct Channels {
 // Runs CONFIG with the overrides and reads the channels back from its file.
 Channels run_and_read(const std::string& config, const std::vector<std::string>& ov, const std::string& name, Model* model) {
   *model = build_model(load_config(test::config_path(config), ov));
-  RunOptions o;
-  o.out_path = (fs::temp_directory_path() / (name + "_" + std::to_string(getpid()) + ".h5")).string();
-  o.progress = false;
-  o.schedule.kind = SchedulerKind::flowgraph;
-  o.schedule.threads = 2;
-  o.warn = [](const std::string&) {};
+  const RunOptions o = test::quiet_run_options(name);
   const RunResult r = run_simulation(*model, o);
   EXPECT_NE(r.status, "blow_up");
   H5File f = H5File::open(o.out_path);
@@ -45,7 +36,7 @@ Channels run_and_read(const std::string& config, const std::vector<std::string>&
   c.f1 = value("clamping_force_driving");
   c.f2 = value("clamping_force_driven");
   f.close();
-  for (const char* ext : {"", ".ckpt"}) fs::remove(o.out_path + ext);
+  test::remove_run_files(o.out_path);
   return c;
 }
 
@@ -113,9 +104,7 @@ TEST(ControllerTest, WarnsWhenTheStiffnessIsRebuiltSeldom) {
     const Model m = build_model(load_config(test::config_path("mini"),
                                             {"controller.enabled=true", "controller.clamping_safety=3", "run.t_end=1e-4",
                                              "integrator.w_k_every=" + std::to_string(every)}));
-    RunOptions o;
-    o.out_path = (fs::temp_directory_path() / ("controller_warn_" + std::to_string(getpid()) + ".h5")).string();
-    o.progress = false;
+    RunOptions o = test::quiet_run_options("controller_warn");
     std::string warned;
     o.warn = [&](const std::string& w) { warned += w; };
     try {
@@ -123,7 +112,7 @@ TEST(ControllerTest, WarnsWhenTheStiffnessIsRebuiltSeldom) {
     } catch (const std::exception&) {
       // the warning comes before the first step; mini blows up from rest with 64 (configs/mini.toml)
     }
-    for (const char* ext : {"", ".ckpt"}) fs::remove(o.out_path + ext);
+    test::remove_run_files(o.out_path);
     EXPECT_EQ(warned.find("set integrator.w_k_every = 16 or less") != std::string::npos, every == 64) << warned;
   }
 }

@@ -3,9 +3,6 @@
 // slip, with t_end the bound; the summary names the criteria that held. On the mini model
 // (a steady point and a slipping one) and, as a Slow test, on the reference model.
 #include <gtest/gtest.h>
-#include <unistd.h>
-
-#include <filesystem>
 
 #include "engine/io/h5_writer.hpp"
 #include "engine/run.hpp"
@@ -14,17 +11,10 @@
 namespace cvt {
 namespace {
 
-namespace fs = std::filesystem;
-
 RunResult run_until_steady(const std::string& config, std::vector<std::string> ov, const std::string& name) {
   ov.push_back("run.until_steady=true");
   const Model m = build_model(load_config(test::config_path(config), ov));
-  RunOptions o;
-  o.out_path = (fs::temp_directory_path() / (name + "_" + std::to_string(getpid()) + ".h5")).string();
-  o.progress = false;
-  o.schedule.kind = SchedulerKind::flowgraph;
-  o.schedule.threads = 2;
-  o.warn = [](const std::string&) {};
+  const RunOptions o = test::quiet_run_options(name);
   RunResult r = run_simulation(m, o);
   // The two windows' means, read back from the file: they agree as the summary says.
   H5File f = H5File::open(o.out_path);
@@ -40,7 +30,7 @@ RunResult run_until_steady(const std::string& config, std::vector<std::string> o
     EXPECT_NEAR(a / na, b / nb, m.cfg.run.steady_tolerance * m.cfg.load.torque) << "the windows' means";
     EXPECT_NEAR(0.5 * (a / na + b / nb), r.output_torque, 1e-3 * m.cfg.load.torque);
   }
-  for (const char* ext : {"", ".ckpt"}) fs::remove(o.out_path + ext);
+  test::remove_run_files(o.out_path);
   return r;
 }
 
