@@ -12,11 +12,12 @@ PACKAGES = cmake g++ make pkg-config graphviz \
   libtbb-dev libtbbbind-2-5 libeigen3-dev libhwloc-dev hwloc \
   libhdf5-dev hdf5-tools libgtest-dev libbenchmark-dev libtomlplusplus-dev libcli11-dev \
   libopenmpi-dev openmpi-bin \
-  python3-h5py python3-matplotlib python3-numpy
+  python3-h5py python3-matplotlib python3-numpy python3-dev pybind11-dev python3-pytest python3-scipy \
+  chromium
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: deps configure build run test test-slow bench plots clean
+.PHONY: deps configure build run test test-slow bench plots view video clean
 
 deps:
 	@missing=$$(for p in $(PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "install ok installed" || echo $$p; done); \
@@ -25,6 +26,11 @@ deps:
 	  $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
+	@# Node.js and npm (Debian's, unless the machine has them), then the 3D viewer's libraries
+	@# (three.js, h5wasm; playwright-core, pngjs for its browser test) from its lockfile.
+	@command -v node >/dev/null && command -v npm >/dev/null || { echo "installing: nodejs npm"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null; }
+	@cd tools/viewer && { [ node_modules/.package-lock.json -nt package-lock.json ] || npm ci --no-audit --no-fund --loglevel=error; }
 
 $(BUILD)/CMakeCache.txt: CMakeLists.txt | deps
 	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
@@ -50,6 +56,16 @@ test-slow: build
 
 bench: build
 	@for b in $(BUILD)/*_bench; do echo "== $$b"; $$b --benchmark_min_time=0.2; done
+
+# The 3D viewer of a run's file in the browser (docs/viewer.md): `make view OUT=results.h5`
+# serves it on http://127.0.0.1:8765/; `make video OUT=results.h5 VIDEO=run.webm` records
+# the 3D view with headless Chromium. The run needs snapshots (run.snapshot_interval > 0).
+VIDEO ?= $(basename $(OUT)).webm
+view: deps
+	@$(PYTHON) tools/cvt_view.py $(OUT)
+
+video: deps
+	@$(PYTHON) tools/cvt_view.py $(OUT) --port 0 --video $(VIDEO)
 
 # Figures of the last run ($(OUT)) into $(PLOTS): history.png (speed and geometric ratio, slip,
 # torques, clamping forces, sheave positions, efficiency, strand tensions, then the tracked

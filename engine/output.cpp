@@ -8,6 +8,15 @@
 
 namespace cvt {
 
+namespace {
+// x to 17 significant digits (JSON).
+std::string exact_text(double x) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.17g", x);
+  return b;
+}
+}  // namespace
+
 void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
   f.set_string_attribute("/parameters", "version", CVT_VERSION);
   f.set_string_attribute("/parameters", "config", m.cfg.resolved_toml);
@@ -16,6 +25,22 @@ void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
                          "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
                              std::to_string(m.pulley[1].running_radius) +
                              " m, closure residual = " + std::to_string(m.closure_residual) + " m");
+  // The layout the 3D viewer draws (docs/output.md): shaft axes, sheave faces, links.
+  std::string layout = "{\"links\": " + std::to_string(m.links) + ", \"tracked_pin\": " +
+                       std::to_string(m.cfg.run.tracked_pin) + ", \"cone_angle\": " +
+                       exact_text(m.cfg.sheave.cone_angle * M_PI / 180) + ", \"hub_radius\": " +
+                       exact_text(m.cfg.sheave.hub_radius) + ", \"outer_radius\": " +
+                       exact_text(m.cfg.sheave.outer_radius) + ", \"pin_length\": " + exact_text(m.cfg.pin.length) +
+                       ", \"plate_spread\": " + exact_text(m.cfg.chain.plate_spread) +
+                       ", \"pitch\": " + exact_text(m.cfg.chain.pitch) + ", \"pulleys\": [";
+  for (int k = 0; k < 2; ++k) {
+    const Pulley& p = m.pulley[k];
+    layout += std::string(k ? ", " : "") + "{\"centre\": [" + exact_text(p.centre.x()) + ", " +
+              exact_text(p.centre.y()) + "], \"face_z\": [" + exact_text(p.face_z[0]) + ", " +
+              exact_text(p.face_z[1]) + "], \"moving_side\": " + std::to_string(p.moving_side) +
+              ", \"running_radius\": " + exact_text(p.running_radius) + "}";
+  }
+  f.set_string_attribute("/parameters", "layout", layout + "]}");
 }
 
 void write_profile(H5File& f, const Profiler::Report& r) {

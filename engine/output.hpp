@@ -39,7 +39,7 @@ class Recorder {
   void declare(const Sample& s, bool snapshots) {
     declare_only_ = true;
     record(s);
-    if (snapshots) snapshot(s.t, {}, {});
+    if (snapshots) snapshot(s.t, {}, {}, {}, {});
     declare_only_ = false;
   }
   // Keeps the first `samples` rows of every observable and `snaps` of every snapshot series.
@@ -85,15 +85,23 @@ class Recorder {
     scalar("work_contact_switching", "J", s.t, s.work_contact_switching);
     scalar("energy_residual", "J", s.t, s.energy_residual);
   }
-  void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension) {
-    auto& p = f_.series("/particles/chain/position/value", {hsize_t(N_), 3}, 16);
+  void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension,
+                const std::vector<double>& pin_ends, const std::vector<double>& contact_normal) {
+    const hsize_t N = hsize_t(N_);
+    auto& p = f_.series("/particles/chain/position/value", {N, 3}, 16);
     auto& pt = f_.series("/particles/chain/position/time", {}, 256);
-    auto& l = f_.series("/particles/chain/link_tension/value", {hsize_t(N_)}, 16);
+    auto& l = f_.series("/particles/chain/link_tension/value", {N}, 16);
     auto& lt = f_.series("/particles/chain/link_tension/time", {}, 256);
+    auto& e = f_.series("/particles/chain/pin_end_position/value", {N, 2, 2, 3}, 16);
+    auto& et = f_.series("/particles/chain/pin_end_position/time", {}, 256);
+    auto& c = f_.series("/particles/chain/pin_end_normal_force/value", {N, 2, 2}, 16);
+    auto& ct = f_.series("/particles/chain/pin_end_normal_force/time", {}, 256);
     if (!snap_init_) {
       f_.set_string_attribute("/particles/chain/position/value", "unit", "m");
       f_.set_string_attribute("/particles/chain/link_tension/value", "unit", "N");
-      snapshots_ = {&p, &pt, &l, &lt};
+      f_.set_string_attribute("/particles/chain/pin_end_position/value", "unit", "m");
+      f_.set_string_attribute("/particles/chain/pin_end_normal_force/value", "unit", "N");
+      snapshots_ = {&p, &pt, &l, &lt, &e, &et, &c, &ct};
       snap_init_ = true;
     }
     if (declare_only_) return;
@@ -101,6 +109,10 @@ class Recorder {
     pt.append(t);
     l.append(tension.data());
     lt.append(t);
+    e.append(pin_ends.data());
+    et.append(t);
+    c.append(contact_normal.data());
+    ct.append(t);
   }
 
  private:

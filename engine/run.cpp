@@ -105,10 +105,11 @@ class Run {
   FileHistory hist_;
   std::vector<Sample> samples_;  // the running efficiency's window (reaching back into the file)
   SummaryChannels channels_;
-  std::vector<double> pos_, ten_;
+  std::vector<double> pos_, ten_, ends_, normal_;  // a snapshot
   RunResult r_;
   EnergyGuard energy_;
   bool warned_stability_ = false;
+  bool stop_asked_ = false;  // RunOptions::on_progress returned false
   double next_stability_check_ = 0;
   const bool tty_ = isatty(fileno(stderr));
   WallClock::time_point t0_ = WallClock::now(), last_progress_ = t0_, last_flush_ = t0_;
@@ -230,8 +231,8 @@ void Run::open_output() {
   } else {
     record();
     if (every_snapshot_) {
-      sim_.snapshot(pos_, ten_);
-      rec_->snapshot(sim_.time(), pos_, ten_);
+      sim_.snapshot(pos_, ten_, &ends_, &normal_);
+      rec_->snapshot(sim_.time(), pos_, ten_, ends_, normal_);
     }
   }
   file_->start_swmr();
@@ -270,8 +271,8 @@ void Run::watch(const Sample& s) {
 
 void Run::snapshot() {
   output([&] {
-    sim_.snapshot(pos_, ten_);
-    rec_->snapshot(sim_.time(), pos_, ten_);
+    sim_.snapshot(pos_, ten_, &ends_, &normal_);
+    rec_->snapshot(sim_.time(), pos_, ten_, ends_, normal_);
   });
 }
 
@@ -283,9 +284,16 @@ Checkpoint Run::checkpoint() const {
 }
 
 void Run::progress(long n, WallClock::time_point now) {
-  if (!opt_.progress || now - last_progress_ <= std::chrono::seconds(3)) return;
+  if ((!opt_.progress && !opt_.on_progress) ||
+      std::chrono::duration<double>(now - last_progress_).count() <= opt_.progress_seconds)
+    return;
   const double el = std::chrono::duration<double>(now - t0_).count();
   const double eta = el / static_cast<double>(n - start_) * static_cast<double>(total_ - n);
+  if (opt_.on_progress) {
+    last_progress_ = now;
+    stop_asked_ = !opt_.on_progress({n, total_, sim_.time(), c_.run.t_end, el, eta});
+    return;
+  }
   std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s", tty_ ? "\r" : "", n,
                total_, sim_.time(), 100.0 * static_cast<double>(n) / static_cast<double>(total_),
                (sim_.time() - (opt_.resume ? opt_.resume->t : 0.0)) / el * 3600, eta, tty_ ? "   " : "\n");
@@ -326,7 +334,7 @@ void Run::steps() {
         done_ = n;
         break;
       }
-      if (g_stop_signal && (n % rebuild_every_ == 0 || n == total_)) {
+      if ((g_stop_signal || stop_asked_) && (n % rebuild_every_ == 0 || n == total_)) {
         done_ = n;  // its sample ends the series
         if (!on_grid) sim_.check_finite(), record();
         break;
@@ -362,14 +370,14 @@ RunResult Run::finish() {
                             scheduler_name(opt_.schedule.kind));
   const long steps = done_ - start_;
   r_.steps = steps;
-  r_.interrupted = g_stop_signal != 0;
+  r_.interrupted = g_stop_signal != 0 || stop_asked_;
   r_.signal = g_stop_signal;
   r_.t_start = t_start;
   r_.model_time = sim_.time();
   r_.wall_s = step_wall_;
   r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
   r_.model_s_per_hour = static_cast<double>(steps) * h_ / step_wall_ * 3600.0;
-  r_.stopped = r_.interrupted ? "signal" : stopped_;
+  r_.stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : stopped_;
   r_.steady_window = window_;
   summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * window_ : -1.0);
   const Sample& last = samples_.back();

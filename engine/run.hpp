@@ -15,6 +15,14 @@
 
 namespace cvt {
 
+// Where a run stands, for RunOptions::on_progress.
+struct RunProgress {
+  long step = 0, steps = 0;  // steps done and the steps to run.t_end (the bound with run.until_steady)
+  double t = 0, t_end = 0;   // model time now and at the end [s]
+  double wall_s = 0;         // since the steps began
+  double eta_s = 0;          // wall time to t_end at the rate so far
+};
+
 struct RunOptions {
   std::string out_path = "results.h5";
   bool progress = true;
@@ -35,6 +43,11 @@ struct RunOptions {
   std::string profile_json;
   // The summary as JSON to this file as well (empty: not written).
   std::string summary_json;
+  // Called every progress_seconds of wall time instead of the progress line on stderr
+  // (with progress false too); returning false stops the run as SIGINT does (the state at
+  // that step sampled, the file kept, RunResult::interrupted set, signal 0).
+  std::function<bool(const RunProgress&)> on_progress;
+  double progress_seconds = 3.0;
   // Warnings as they happen (default: "cvt-engine: warning: ..." on stderr); they are also
   // kept in the summary and the file's /summary.
   std::function<void(const std::string&)> warn;

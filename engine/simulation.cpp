@@ -371,7 +371,8 @@ Sample Simulation::sample() {
   return s;
 }
 
-void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& tensions) {
+void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& tensions,
+                          std::vector<double>* pin_ends, std::vector<double>* contact_normal) {
   const int N = m_.links;
   positions.resize(3 * N);
   tensions.resize(N);
@@ -384,6 +385,25 @@ void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& t
     positions[3 * j + 1] = 0.5 * (mid(a, 1) + mid(b, 1));
     positions[3 * j + 2] = 0.25 * (a[half::kZ] + a[half::kEnd + half::kZ] + b[half::kZ] + b[half::kEnd + half::kZ]);
     tensions[j] = link_tension(m_, diag_, j);
+  }
+  if (pin_ends) {
+    pin_ends->resize(12 * N);
+    for (int j = 0; j < N; ++j)
+      for (int h = 0; h < 2; ++h) {
+        const double* x = q + (h == 0 ? m_.half_a(j) : m_.half_b(j));
+        for (int e = 0; e < 2; ++e)
+          for (int c = 0; c < 3; ++c) (*pin_ends)[12 * j + 6 * h + 3 * e + c] = x[e * half::kEnd + half::kX + c];
+      }
+  }
+  if (contact_normal) {
+    contact_normal->resize(4 * N);
+    PinContactReport rep;
+    JointSlot scratch;
+    for (int j = 0; j < N; ++j) {
+      pulley_contact_joint(m_, diag_, j, scratch, &rep);
+      for (int h = 0; h < 2; ++h)
+        for (int e = 0; e < 2; ++e) (*contact_normal)[4 * j + 2 * h + e] = rep.end[h][e].normal;
+    }
   }
 }
 

@@ -79,8 +79,11 @@ class Simulation {
   void advance(OdeDriver& driver, double t1);
   // Channels of the current state.
   Sample sample();
-  // Joint centres [N][3] and link tensions [N] of the current state.
-  void snapshot(std::vector<double>& positions, std::vector<double>& tensions);
+  // Joint centres [N][3] and link tensions [N] of the current state; with pin_ends, the
+  // ends of every pin half [N][2 halves a, b][2 ends z < 0, z > 0][3]; with contact_normal,
+  // the normal force of each of those ends on a sheave [N][2][2] (0 off the sheaves).
+  void snapshot(std::vector<double>& positions, std::vector<double>& tensions,
+                std::vector<double>* pin_ends = nullptr, std::vector<double>* contact_normal = nullptr);
   // Throws BlowUpError when the state is not finite or a contact penetrates absurdly
   // deep: names time, step, the coordinate or the contact, then replays the steps from
   // the last good state to name the pin and the module that drove it, and gives the

@@ -45,7 +45,7 @@ struct RunSummary {
   // The run.
   long steps = 0;
   double t_start = 0, model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
-  bool interrupted = false;  // stopped by SIGINT or SIGTERM (the file holds the run so far)
+  bool interrupted = false;  // stopped by SIGINT, SIGTERM or a progress callback (the file holds the run so far)
   int signal = 0;
   std::string method, controller;
   double step = 0;
@@ -64,7 +64,8 @@ struct RunSummary {
   std::string status = "not_steady";
   std::vector<std::string> reasons;
   std::vector<std::string> criteria;  // the checks that held, with their figures
-  // What ended the run: "t_end", "steady" or "slip" (run.until_steady), "signal".
+  // What ended the run: "t_end", "steady" or "slip" (run.until_steady), "signal",
+  // "callback" (RunOptions::on_progress asked to stop: the Python module's progress callback).
   std::string stopped = "t_end";
   double steady_window = 0;  // each of the two windows compared (run.until_steady) [s]
   // Energy balance at the end: residual [J] and its fraction of the energy turned over.

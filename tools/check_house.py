@@ -33,6 +33,8 @@ LAYERS = {
                        "engine/io", "numa", "engine/base"],
     "engine/cli": ["engine/studies", "engine", "engine/wmethod", "graph", "engine/rhs", "modules", "engine/model",
                    "engine/ode", "engine/io", "numa", "engine/base"],
+    "engine/python": ["engine/studies", "engine", "engine/wmethod", "graph", "engine/rhs", "modules", "engine/model",
+                      "engine/ode", "engine/io", "numa", "engine/base"],
 }
 MAX_LINES = 120
 INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)

@@ -582,23 +582,7 @@ Command add_study_command(CLI::App& app) {
 // (engine/studies/sweep.cpp); under mpirun or srun the points go out to the ranks.
 int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points) {
   using namespace cvt;
-  if (o.config_path.empty() == o.from.empty())
-    throw ConfigError("CONFIG", o.config_path, "give either CONFIG or --from CHECKPOINT (whose configuration is the base)");
-  if (axes.empty() == points.empty())
-    throw ConfigError("--axis", "", "give the points: one or more --axis KEY=V1,V2,... or --points FILE, not both");
-  std::vector<SweepAxis> ax;
-  for (const auto& a : axes) ax.push_back(parse_axis(a));
-  const SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
-  if (plan.points.empty()) throw ConfigError("--points", points, "no points");
-  // Every point's configuration is checked before the first runs: a typo fails now.
-  const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
-  for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
-    std::vector<std::string> ov = o.overrides;
-    const auto own = plan.overrides(i);
-    ov.insert(ov.end(), own.begin(), own.end());
-    if (ck) parse_config(ck->config_toml, ov, o.from);
-    else load_config(o.config_path, ov);
-  }
+  const SweepPlan plan = sweep_plan(o, axes, points);
   const MpiWorld world;
   if (world.rank() == 0) {
     std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady\n", CVT_VERSION,

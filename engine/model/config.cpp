@@ -400,7 +400,8 @@ class Validator {
     std::string where;
     if (auto it = override_text_.find(qkey); it != override_text_.end()) {
       value = it->second;
-      const auto sc = shortcuts_.find(qkey);
+      auto sc = shortcuts_.find(qkey);
+      if (sc == shortcuts_.end()) sc = shortcuts_.find("*");
       where = " (from " + (sc != shortcuts_.end() ? sc->second : std::string("--set")) + ")";
     } else if (node && node->source().begin.line > 0) {
       where = " (" + origin_ + " line " + std::to_string(node->source().begin.line) + ")";

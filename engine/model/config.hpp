@@ -198,7 +198,8 @@ struct Config {
 // Throws ConfigError. `origin` names the source in messages.
 // Every problem in the text is reported (one line each), not only the first. `shortcuts`
 // names the command-line option an override came from ({"integrator.step", "--step"}):
-// messages then say "(from --step)" instead of "(from --set)".
+// messages then say "(from --step)" instead of "(from --set)"; the entry "*" names where
+// the other overrides came from (the Python module: "the overrides").
 Config parse_config(const std::string& toml_text, const std::vector<std::string>& overrides = {},
                     const std::string& origin = "<string>",
                     const std::map<std::string, std::string>& shortcuts = {});

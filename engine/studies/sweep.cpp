@@ -183,6 +183,26 @@ SweepPlan SweepPlan::from_file(const std::string& path) {
   return p;
 }
 
+SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes, const std::string& points) {
+  if (o.config_path.empty() == o.from.empty())
+    throw ConfigError("CONFIG", o.config_path, "give either CONFIG or --from CHECKPOINT (whose configuration is the base)");
+  if (axes.empty() == points.empty())
+    throw ConfigError("--axis", "", "give the points: one or more --axis KEY=V1,V2,... or --points FILE, not both");
+  std::vector<SweepAxis> ax;
+  for (const auto& a : axes) ax.push_back(parse_axis(a));
+  SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
+  if (plan.points.empty()) throw ConfigError("--points", points, "no points");
+  const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
+  for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
+    std::vector<std::string> ov = o.overrides;
+    const auto own = plan.overrides(i);
+    ov.insert(ov.end(), own.begin(), own.end());
+    if (ck) parse_config(ck->config_toml, ov, o.from);
+    else load_config(o.config_path, ov);
+  }
+  return plan;
+}
+
 std::vector<std::string> SweepPlan::overrides(long i) const {
   std::vector<std::string> o;
   for (std::size_t k = 0; k < keys.size(); ++k) o.push_back(keys[k] + "=" + points[static_cast<std::size_t>(i)][k]);

@@ -71,6 +71,11 @@ struct SweepOptions {
   std::function<void(const std::string&)> log;
 };
 
+// The plan of a sweep from --axis texts or a --points file (exactly one of the two), with
+// every point's configuration checked before the first runs, so that a typo fails at once.
+// Throws ConfigError; also when o has both or neither of config_path and from.
+SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes, const std::string& points);
+
 // A point stopped by SIGINT or SIGTERM: the sweep stops without a row for it (a restart
 // runs it again).
 struct SweepInterrupted : std::runtime_error {

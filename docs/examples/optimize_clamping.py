@@ -1,0 +1,86 @@
+#!/usr/bin/python3
+"""The smallest clamping force that carries a load without gross slip, found with SciPy
+from steady-state runs, and checked against the slip study (docs/python.md).
+
+    PYTHONPATH=build/python docs/examples/optimize_clamping.py              # mini, 15 N m: about 5 min
+    PYTHONPATH=build/python docs/examples/optimize_clamping.py --load 12 --slip 0.03 --json opt.json
+
+F1 is the unknown; F2 = F1 / (F1/F2 of the configuration), so the thrust ratio, and with it
+the ratio the pulleys hold, stays the configuration's. Each evaluation is a run until steady
+(bound --t-end) at the given load; its slip (creep) 1 - geometric / speed ratio is the
+constraint. Less clamping means less friction work in the wraps, so the smallest force
+that keeps the slip at the bound is also the most efficient one that holds the load; the
+script prints the efficiency of every run to show it. Brent's method (scipy.optimize.brentq)
+finds the force where the slip equals the bound. Then `study_slip` at that force must find
+a slip limit equal to the load: the two are the same question asked from the two sides.
+"""
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+from scipy.optimize import brentq
+
+import cvt_engine as cvt
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+
+ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ap.add_argument("--config", default=os.path.join(ROOT, "configs", "mini.toml"))
+ap.add_argument("--load", type=float, default=15.0, help="load torque [N m]")
+ap.add_argument("--thrust-ratio", type=float, default=1.13, help="F1/F2, kept [1]")
+ap.add_argument("--slip", type=float, default=0.05, help="the slip bound (0.05: gross slip, as the slip study)")
+ap.add_argument("--bracket", default="6e3,14e3", help="F1 interval to search [N]")
+ap.add_argument("--t-end", type=float, default=0.03, help="bound on each run [s]")
+ap.add_argument("--xtol", type=float, default=0.01, help="relative tolerance on F1")
+ap.add_argument("--threads", type=int, default=os.cpu_count())
+ap.add_argument("--json", help="write the result here as well")
+args = ap.parse_args()
+
+runs = []  # every evaluation: F1, slip, efficiency, status, wall time
+
+
+def slip_excess(f1):
+    """The slip of the steady run at clamping F1 minus the bound (> 0: too little clamping)."""
+    r = cvt.run(args.config, overrides={"clamping.driving": f1, "clamping.driven": f1 / args.thrust_ratio,
+                                        "load.torque": args.load},
+                until_steady=True, t_end=args.t_end, threads=args.threads, channels=False)
+    s = r.summary
+    runs.append({"clamping_driving": f1, "slip": s["slip"], "efficiency": s["efficiency"], "status": s["status"],
+                 "output_torque": s["output_torque"], "wall_s": s["wall_s"]})
+    print(f"  F1 = {f1:8.1f} N: {s['status']:10s} slip {100 * s['slip']:+6.2f} %  efficiency {s['efficiency']:.4f}"
+          f"  output {s['output_torque']:.2f} N m  ({s['wall_s']:.1f} s)", flush=True)
+    return s["slip"] - args.slip
+
+
+lo, hi = (float(x) for x in args.bracket.split(","))
+print(f"smallest F1 (F1/F2 = {args.thrust_ratio}) holding {args.load} N m with slip <= {100 * args.slip:g} %, "
+      f"{os.path.basename(args.config)}:")
+t0 = time.time()
+f_opt = brentq(slip_excess, lo, hi, xtol=args.xtol * lo, rtol=args.xtol)
+wall_opt = time.time() - t0
+best = min((r for r in runs if r["slip"] <= args.slip), key=lambda r: r["clamping_driving"])
+held = [r for r in runs if r["slip"] <= args.slip]
+print(f"optimum F1 = {f_opt:.1f} N (F2 = {f_opt / args.thrust_ratio:.1f} N) after {len(runs)} simulations, "
+      f"{wall_opt:.0f} s; the smallest force run that held: {best['clamping_driving']:.1f} N, efficiency "
+      f"{best['efficiency']:.4f} (the best of the {len(held)} that held: "
+      f"{max(r['efficiency'] for r in held):.4f})")
+
+print(f"the slip study at F1 = {f_opt:.1f} N:")
+t1 = time.time()
+study = cvt.study_slip(args.config, clamping=[f_opt], thrust_ratio=args.thrust_ratio, tolerance=0.03,
+                       overrides={"run.t_end": args.t_end}, out="optimize-slip.csv", threads=args.threads,
+                       log=lambda line: print("  " + line, flush=True))[0]
+wall_study = time.time() - t1
+print(f"  holds {study['slip_torque']:.2f} N m, slips at {study['slips_at']:.2f} N m ({study['runs']} runs, "
+      f"{wall_study:.0f} s) against the load {args.load} N m: "
+      f"{100 * (study['slip_torque'] / args.load - 1):+.1f} %")
+result = {"load": args.load, "thrust_ratio": args.thrust_ratio, "slip_bound": args.slip, "optimum": f_opt,
+          "simulations": len(runs), "wall_s": wall_opt, "runs": runs, "study": study, "study_wall_s": wall_study,
+          "efficiency_at_optimum": best["efficiency"],
+          "efficiency_slope": float(np.polyfit([r["clamping_driving"] for r in held],
+                                               [r["efficiency"] for r in held], 1)[0]) if len(held) > 1 else None}
+if args.json:
+    with open(args.json, "w") as f:
+        json.dump(result, f, indent=1)

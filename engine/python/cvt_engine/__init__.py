@@ -1,0 +1,246 @@
+"""cvt-engine from Python: configurations, runs, sweeps and studies (docs/python.md).
+
+    import cvt_engine as cvt
+    r = cvt.run("configs/mini.toml", overrides={"load.torque": 15}, until_steady=True, t_end=0.1)
+    r.summary["efficiency"], r.channels["output_torque"]
+
+Every call is the library call `cvt-engine` makes for the same command line, so the same
+inputs give the same bits. The engine runs with the GIL released; a progress callback or a
+log takes it back for its call.
+"""
+import csv
+import json
+import math
+import os
+import shutil
+import signal
+import tempfile
+import tomllib
+
+import numpy as np
+
+from . import _core
+from ._core import BlowUpError, Config, ConfigError, OutputError
+
+__version__ = _core.version
+__all__ = ["Config", "ConfigError", "BlowUpError", "OutputError", "Result", "load_config", "parse_config",
+           "run", "sweep", "study_slip", "study_shift", "model_info", "config_value"]
+
+
+def _text(value):
+    """A Python value as the TOML text of an override (floats to 17 digits: the same bits)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_text(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as a configuration value")
+
+
+def _overrides(overrides):
+    """{"load.torque": 15} or ["load.torque=15"] as the list of "key=value" texts."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, dict):
+        return [f"{k}={_text(v)}" for k, v in overrides.items()]
+    if isinstance(overrides, str):
+        raise TypeError("overrides: give a dict {key: value} or a list of 'key=value' texts, not one string")
+    return [str(o) for o in overrides]
+
+
+def _error(key, value, reason):
+    e = ConfigError(f"configuration error: {key} = {value}: {reason}")
+    e.key, e.value, e.reason = key, str(value), reason
+    return e
+
+
+def load_config(path, overrides=None):
+    """The configuration of a TOML file with overrides applied and every key validated.
+
+    Raises ConfigError (a ValueError) naming the key, its value and why (.key, .value, .reason).
+    """
+    return _core.load_config(os.fspath(path), _overrides(overrides), {"*": "the overrides"})
+
+
+def parse_config(text, overrides=None, origin="<string>"):
+    """As load_config, from TOML text."""
+    return _core.parse_config(text, _overrides(overrides), origin, {"*": "the overrides"})
+
+
+def config_value(config, key):
+    """The value of "section.key" in a configuration (its resolved TOML)."""
+    table = tomllib.loads(config.toml)
+    for part in key.split("."):
+        if not isinstance(table, dict) or part not in table:
+            raise KeyError(key)
+        table = table[part]
+    return table
+
+
+def model_info(config):
+    """links, coordinates, unknowns, the running radii [m] and the closure residual [m]."""
+    return _core.model_info(_config(config, None, {}))
+
+
+def _config(config, overrides, shortcuts):
+    """A Config from a path or a Config, with overrides (shortcuts: {key: argument name})."""
+    ov = _overrides(overrides)
+    for key, value in shortcuts.items():
+        if value is not None:
+            ov.append(f"{key}={_text(value)}")
+    names = {k: n for k, n in _SHORTCUT_NAMES.items() if shortcuts.get(k) is not None}
+    names["*"] = "the overrides"
+    if isinstance(config, Config):
+        return _core.parse_config(config.toml, ov, "<config>", names) if ov else config
+    return _core.load_config(os.fspath(config), ov, names)
+
+
+_SHORTCUT_NAMES = {"run.t_end": "the argument t_end", "run.until_steady": "the argument until_steady",
+                   "integrator.step": "the argument step", "integrator.method": "the argument method"}
+
+
+def _schedule(scheduler, threads):
+    if scheduler is None:
+        scheduler = "serial" if threads == 1 else "flowgraph"
+    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
+        raise _error("threads", threads, "must be an integer >= 1")
+    return scheduler, threads
+
+
+class Result:
+    """A finished run: summary (dict, the keys of docs/output.md /summary), channels (dict of
+    NumPy arrays, "time" among them), file (the HDF5 file, or None when it was temporary)."""
+
+    def __init__(self, summary, channels, file):
+        self.summary, self.channels, self.file = summary, channels, file
+
+    def __repr__(self):
+        s = self.summary
+        return (f"<cvt_engine.Result t = {s['model_time']:.6g} s, {s['status']}, efficiency {s['efficiency']:.4f}, "
+                f"{len(self.channels)} channels>")
+
+
+def read_channels(path):
+    """The channels of a run's file: {"time": [T], name: [T] or [T][k], ...} as NumPy arrays."""
+    import h5py
+    with h5py.File(path, "r") as f:
+        obs = f["observables"]
+        out = {"time": np.asarray(obs[next(iter(obs))]["time"])}
+        for name in obs:
+            out[name] = np.asarray(obs[name]["value"])
+    return out
+
+
+def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, method=None, out=None,
+        threads=1, scheduler=None, grain=4, quiet=True, progress=None, progress_seconds=3.0,
+        checkpoint_every=50000, channels=True):
+    """Runs a simulation (as `cvt-engine run`) and returns a Result.
+
+    config: a path or a Config; overrides: {key: value} or ["key=value", ...];
+    t_end, until_steady, step, method: as --t-end, --until-steady, --step, --method.
+    out: the HDF5 file to keep (None: a temporary file, removed after the channels are read).
+    threads > 1 runs the flow graph (the same bits for any thread count).
+    quiet: no lines on stdout/stderr (warnings are in summary["warnings"] all the same).
+    progress: a callable given a dict (step, steps, t, t_end, wall_s, eta_s) every
+    progress_seconds; returning False stops the run (summary["stopped"] == "callback").
+    Ctrl-C stops the run at its next step and raises KeyboardInterrupt; the file is kept.
+    Raises ConfigError for a bad key or argument, BlowUpError when the state blows up.
+    """
+    scheduler, threads = _schedule(scheduler, threads)
+    cfg = _config(config, overrides, {"run.t_end": t_end, "run.until_steady": until_steady,
+                                      "integrator.step": step, "integrator.method": method})
+    tmp = None
+    if out is None:
+        tmp = tempfile.mkdtemp(prefix="cvt_engine_")
+        path = os.path.join(tmp, "run.h5")
+    else:
+        path = os.fspath(out)
+    try:
+        summary = json.loads(_core.run(cfg, path, scheduler, threads, grain, quiet, progress,
+                                       float(progress_seconds), int(checkpoint_every)))
+        ch = read_channels(path) if channels else {}
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if summary.get("signal") == signal.SIGINT:
+        raise KeyboardInterrupt(f"run stopped at t = {summary['model_time']} s" +
+                                ("" if tmp else f"; the results so far are in {path}"))
+    return Result(summary, ch, None if tmp else path)
+
+
+def _number(text):
+    try:
+        x = float(text)
+    except ValueError:
+        return text
+    return int(x) if x.is_integer() and "." not in text and "e" not in text.lower() else x
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def _log(log, quiet):
+    if log is not None:
+        return log
+    return None if quiet else print
+
+
+def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, from_checkpoint=None,
+          keep_runs=False, warm_ramp=1e-2, threads=1, scheduler=None, grain=4, quiet=True, log=None):
+    """Operating points, each run until steady (as `cvt-engine sweep`); returns OUT.csv's rows
+    as dicts (the keys, status, speed_ratio, ..., efficiency, ...: docs/studies.md).
+
+    axes: {key: [values]} (a full grid, the first key slowest); points: a CSV file of points.
+    from_checkpoint: start every point from a steady state's checkpoint (then config is None).
+    A sweep started again with the same out skips the points OUT.csv holds.
+    log: a callable given each progress line (default: silent when quiet, else print).
+    """
+    scheduler, threads = _schedule(scheduler, threads)
+    ax = [f"{k}=" + ",".join(_text(v) for v in vals) for k, vals in (axes or {}).items()]
+    _core.sweep(os.fspath(config) if config is not None else "", from_checkpoint or "", _overrides(overrides), ax,
+                os.fspath(points) if points is not None else "", os.fspath(out), keep_runs, float(warm_ramp),
+                scheduler, threads, grain, _log(log, quiet))
+    return _rows(os.fspath(out) + ".csv")
+
+
+def _positive(name, values):
+    for v in values:
+        if not (isinstance(v, (int, float, np.number)) and math.isfinite(v) and v > 0):
+            raise _error(name, v, "must be a positive number")
+    return [float(v) for v in values]
+
+
+def study_slip(config, *, clamping, thrust_ratio=0.0, ratios=None, tolerance=0.02, out="slip.csv",
+               overrides=None, threads=1, scheduler=None, grain=4, quiet=True, log=None):
+    """The slip limit (as `cvt-engine study slip`): for each clamping.driving value [N] the
+    largest load torque held without gross slip, by bisection; rows as dicts (slip_torque,
+    slips_at, theory_torque, runs, ...). thrust_ratio 0: the configuration's F1/F2."""
+    scheduler, threads = _schedule(scheduler, threads)
+    if not 1e-4 <= tolerance <= 0.5:
+        raise _error("tolerance", tolerance, "must be in [1e-4, 0.5]")
+    if thrust_ratio:
+        _positive("thrust_ratio", [thrust_ratio])
+    return _core.study_slip(os.fspath(config), _overrides(overrides), _positive("clamping", clamping),
+                            float(thrust_ratio), [_text(r) for r in (ratios or [])], float(tolerance),
+                            os.fspath(out), scheduler, threads, grain, _log(log, quiet))
+
+
+def study_shift(config, *, thrust_ratios, speeds=None, settle=2e-3, window=1e-2, steady_bound=0.3,
+                out="shift.csv", overrides=None, threads=1, scheduler=None, grain=4, quiet=True, log=None):
+    """The shift rate (as `cvt-engine study shift`): from the steady state at each input speed,
+    a step to each F1/F2; rows as dicts (shift_rate [1/s], ln_thrust_ratio, ...)."""
+    scheduler, threads = _schedule(scheduler, threads)
+    if settle < 0:
+        raise _error("settle", settle, "must be >= 0")
+    _positive("window", [window])
+    _positive("steady_bound", [steady_bound])
+    return _core.study_shift(os.fspath(config), _overrides(overrides), _positive("thrust_ratios", thrust_ratios),
+                             _positive("speeds", speeds or []), float(settle), float(window), float(steady_bound),
+                             os.fspath(out), scheduler, threads, grain, _log(log, quiet))

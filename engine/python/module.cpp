@@ -1,0 +1,251 @@
+// The Python module's extension, cvt_engine._core (docs/python.md): the configuration, a
+// run, a sweep and the slip and shift studies, each the same library call the command line
+// makes, so that the same inputs give the same bits. The package engine/python/cvt_engine
+// wraps it (keyword arguments, the channels as NumPy arrays, the CSV rows as dicts).
+// The GIL is released while the engine runs; callbacks take it back.
+#include <pybind11/functional.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/guards.hpp"
+#include "engine/model/config.hpp"
+#include "engine/model/model.hpp"
+#include "engine/run.hpp"
+#include "engine/simulation.hpp"
+#include "engine/studies/shift.hpp"
+#include "engine/studies/slip.hpp"
+#include "engine/studies/sweep.hpp"
+#include "engine/summary.hpp"
+
+namespace py = pybind11;
+using namespace cvt;
+
+namespace {
+
+ScheduleOptions schedule(const std::string& scheduler, int threads, int grain) {
+  if (threads < 1) throw ConfigError("threads", std::to_string(threads), "must be at least 1");
+  if (grain < 1) throw ConfigError("grain", std::to_string(grain), "must be at least 1");
+  ScheduleOptions o;
+  try {
+    o.kind = parse_scheduler(scheduler);
+  } catch (const std::invalid_argument&) {
+    throw ConfigError("scheduler", scheduler, "must be one of serial, flowgraph, paper-omp");
+  }
+  o.threads = threads;
+  o.grain = grain;
+  return o;
+}
+
+// A Python callable as a line logger (None: silent); the GIL is taken for each call, and
+// an exception it raises is kept for the caller to raise once the engine has returned.
+std::function<void(const std::string&)> line_log(const py::object& log, std::optional<py::error_already_set>& error) {
+  if (log.is_none()) return [](const std::string&) {};
+  return [&log, &error](const std::string& line) {
+    py::gil_scoped_acquire gil;
+    if (error) return;
+    try {
+      log(line);
+    } catch (py::error_already_set& e) {
+      error = std::move(e);
+    }
+  };
+}
+
+// The run: the summary as JSON text (the same as --summary-json), to be parsed by the package.
+std::string run(const Config& cfg, const std::string& out, const std::string& scheduler, int threads, int grain,
+                bool quiet, const py::object& progress, double progress_seconds, long checkpoint_every) {
+  if (!(progress_seconds >= 0)) throw ConfigError("progress_seconds", std::to_string(progress_seconds), "must be >= 0");
+  const Model model = build_model(cfg);
+  RunOptions opt;
+  opt.schedule = schedule(scheduler, threads, grain);
+  opt.out_path = out;
+  opt.progress = !quiet && progress.is_none();
+  opt.progress_seconds = progress_seconds;
+  opt.checkpoint_every = checkpoint_every;
+  std::optional<py::error_already_set> error;
+  if (quiet) opt.warn = [](const std::string&) {};  // kept in the summary's warnings all the same
+  if (!progress.is_none()) {
+    opt.on_progress = [&progress, &error](const RunProgress& p) {
+      py::gil_scoped_acquire gil;
+      if (error) return false;
+      try {
+        const py::object go = progress(py::dict(py::arg("step") = p.step, py::arg("steps") = p.steps,
+                                                py::arg("t") = p.t, py::arg("t_end") = p.t_end,
+                                                py::arg("wall_s") = p.wall_s, py::arg("eta_s") = p.eta_s));
+        return go.is_none() || go.cast<bool>();
+      } catch (py::error_already_set& e) {
+        error = std::move(e);
+        return false;
+      }
+    };
+  }
+  RunResult r;
+  {
+    py::gil_scoped_release nogil;
+    r = run_simulation(model, opt);
+  }
+  if (error) throw *error;
+  return summary_json(r);
+}
+
+SweepOptions sweep_options(const std::string& config_path, const std::string& from,
+                           const std::vector<std::string>& overrides, const std::string& out,
+                           const std::string& scheduler, int threads, int grain) {
+  SweepOptions o;
+  o.config_path = config_path;
+  o.from = from;
+  o.overrides = overrides;
+  o.out = out;
+  o.schedule = schedule(scheduler, threads, grain);
+  return o;
+}
+
+long sweep(SweepOptions o, const std::vector<std::string>& axes, const std::string& points, bool keep_runs,
+           double warm_ramp, const py::object& log) {
+  o.keep_runs = keep_runs;
+  o.warm_ramp = warm_ramp;
+  std::optional<py::error_already_set> error;
+  o.log = line_log(log, error);
+  const SweepPlan plan = sweep_plan(o, axes, points);
+  long unsteady = 0;
+  {
+    py::gil_scoped_release nogil;
+    unsteady = run_sweep(o, plan);
+  }
+  if (error) throw *error;
+  return unsteady;
+}
+
+py::list slip_study(SlipStudyOptions o, const py::object& log) {
+  std::optional<py::error_already_set> error;
+  o.sweep.log = line_log(log, error);
+  o.sweep.out = o.csv;
+  std::vector<SlipRow> rows;
+  {
+    py::gil_scoped_release nogil;
+    rows = run_slip_study(o);
+  }
+  if (error) throw *error;
+  py::list out;
+  for (const SlipRow& r : rows)
+    out.append(py::dict(py::arg("clamping_driving") = r.clamping_driving, py::arg("clamping_driven") = r.clamping_driven,
+                        py::arg("ratio") = r.ratio, py::arg("theory_torque") = r.theory_torque,
+                        py::arg("slip_torque") = r.slip_torque, py::arg("slips_at") = r.slips_at,
+                        py::arg("runs") = r.runs, py::arg("wall_s") = r.wall_s, py::arg("note") = r.note));
+  return out;
+}
+
+py::list shift_study(ShiftStudyOptions o, const py::object& log) {
+  std::optional<py::error_already_set> error;
+  o.sweep.log = line_log(log, error);
+  std::vector<ShiftRow> rows;
+  {
+    py::gil_scoped_release nogil;
+    rows = run_shift_study(o);
+  }
+  if (error) throw *error;
+  py::list out;
+  for (const ShiftRow& r : rows)
+    out.append(py::dict(py::arg("input_speed") = r.input_speed, py::arg("thrust_ratio") = r.thrust_ratio,
+                        py::arg("ln_thrust_ratio") = r.ln_thrust_ratio,
+                        py::arg("steady_thrust_ratio") = r.steady_thrust_ratio, py::arg("shift_rate") = r.shift_rate,
+                        py::arg("ratio_start") = r.ratio_start, py::arg("ratio_end") = r.ratio_end,
+                        py::arg("steady_status") = r.steady_status, py::arg("wall_s") = r.wall_s));
+  return out;
+}
+
+py::dict model_info(const Config& cfg) {
+  const Model m = build_model(cfg);
+  return py::dict(py::arg("links") = m.links, py::arg("coordinates") = m.ndof, py::arg("unknowns") = m.nstate,
+                  py::arg("running_radius_driving") = m.pulley[0].running_radius,
+                  py::arg("running_radius_driven") = m.pulley[1].running_radius,
+                  py::arg("closure_residual") = m.closure_residual);
+}
+
+void register_errors(py::module_& m) {
+  // ConfigError carries the key, the value and the reason; the others their message.
+  static py::exception<ConfigError> config_error(m, "ConfigError", PyExc_ValueError);
+  static py::exception<BlowUpError> blow_up(m, "BlowUpError", PyExc_RuntimeError);
+  static py::exception<OutputError> output_error(m, "OutputError", PyExc_OSError);
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const ConfigError& e) {
+      py::object err = py::reinterpret_borrow<py::object>(config_error.ptr())(e.what());
+      err.attr("key") = e.key();
+      err.attr("value") = e.value();
+      err.attr("reason") = e.reason();
+      PyErr_SetObject(config_error.ptr(), err.ptr());
+    } catch (const BlowUpError& e) {
+      blow_up(e.what());
+    } catch (const OutputError& e) {
+      output_error(e.what());
+    }
+  });
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "cvt-engine's extension; use the package cvt_engine (docs/python.md)";
+  m.attr("version") = CVT_VERSION;
+  register_errors(m);
+  py::class_<Config>(m, "Config", "a validated configuration (load_config, parse_config)")
+      .def_property_readonly("toml", [](const Config& c) { return c.resolved_toml; },
+                             "the resolved TOML: every key with its value");
+  m.def("load_config", &load_config, py::arg("path"), py::arg("overrides"),
+        py::arg("shortcuts") = std::map<std::string, std::string>{});
+  m.def("parse_config", &parse_config, py::arg("text"), py::arg("overrides"), py::arg("origin"),
+        py::arg("shortcuts") = std::map<std::string, std::string>{});
+  m.def("model_info", &model_info, py::arg("config"));
+  m.def("run", &run, py::arg("config"), py::arg("out"), py::arg("scheduler"), py::arg("threads"), py::arg("grain"),
+        py::arg("quiet"), py::arg("progress"), py::arg("progress_seconds"), py::arg("checkpoint_every"));
+  m.def("sweep",
+        [](const std::string& config, const std::string& from, const std::vector<std::string>& overrides,
+           const std::vector<std::string>& axes, const std::string& points, const std::string& out, bool keep_runs,
+           double warm_ramp, const std::string& scheduler, int threads, int grain, const py::object& log) {
+          return sweep(sweep_options(config, from, overrides, out, scheduler, threads, grain), axes, points,
+                       keep_runs, warm_ramp, log);
+        },
+        py::arg("config"), py::arg("from_checkpoint"), py::arg("overrides"), py::arg("axes"), py::arg("points"),
+        py::arg("out"), py::arg("keep_runs"), py::arg("warm_ramp"), py::arg("scheduler"), py::arg("threads"),
+        py::arg("grain"), py::arg("log"));
+  m.def("study_slip",
+        [](const std::string& config, const std::vector<std::string>& overrides, const std::vector<double>& clamping,
+           double thrust_ratio, const std::vector<std::string>& ratios, double tolerance, const std::string& csv,
+           const std::string& scheduler, int threads, int grain, const py::object& log) {
+          SlipStudyOptions o;
+          o.sweep = sweep_options(config, "", overrides, csv, scheduler, threads, grain);
+          o.clamping = clamping;
+          o.thrust_ratio = thrust_ratio;
+          o.ratios = ratios;
+          o.tolerance = tolerance;
+          o.csv = csv;
+          return slip_study(o, log);
+        },
+        py::arg("config"), py::arg("overrides"), py::arg("clamping"), py::arg("thrust_ratio"), py::arg("ratios"),
+        py::arg("tolerance"), py::arg("csv"), py::arg("scheduler"), py::arg("threads"), py::arg("grain"),
+        py::arg("log"));
+  m.def("study_shift",
+        [](const std::string& config, const std::vector<std::string>& overrides,
+           const std::vector<double>& thrust_ratios, const std::vector<double>& speeds, double settle, double window,
+           double steady_bound, const std::string& csv, const std::string& scheduler, int threads, int grain,
+           const py::object& log) {
+          ShiftStudyOptions o;
+          o.sweep = sweep_options(config, "", overrides, csv, scheduler, threads, grain);
+          o.thrust_ratios = thrust_ratios;
+          o.speeds = speeds;
+          o.settle = settle;
+          o.window = window;
+          o.steady_bound = steady_bound;
+          o.csv = csv;
+          return shift_study(o, log);
+        },
+        py::arg("config"), py::arg("overrides"), py::arg("thrust_ratios"), py::arg("speeds"), py::arg("settle"),
+        py::arg("window"), py::arg("steady_bound"), py::arg("csv"), py::arg("scheduler"), py::arg("threads"),
+        py::arg("grain"), py::arg("log"));
+}

@@ -1,0 +1,170 @@
+"""The Python module cvt_engine (docs/python.md): configuration errors as exceptions that
+name the key, runs with the same bits as the command line, progress callbacks that can stop
+a run, the GIL released while the engine runs, sweeps with the command line's CSV, and the
+documented example script.
+
+    PYTHONPATH=build/python CVT_ENGINE_EXE=build/cvt-engine /usr/bin/python3 -m pytest tests/python
+"""
+import csv
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+import cvt_engine as cvt
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+MINI = os.path.join(ROOT, "configs", "mini.toml")
+EXE = os.environ.get("CVT_ENGINE_EXE", os.path.join(ROOT, "build", "cvt-engine"))
+# What differs between two runs of the same inputs: the wall clock and the run's identity.
+WALL_KEYS = {"wall_s", "us_per_step", "model_s_per_hour", "run_id"}
+
+
+def cli(*args, cwd=None):
+    return subprocess.run([EXE, *args], cwd=cwd, check=True, capture_output=True, text=True)
+
+
+def observables(path):
+    with h5py.File(path, "r") as f:
+        return {name: np.asarray(f["observables"][name]["value"]) for name in f["observables"]}
+
+
+def test_config_errors_name_the_key():
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.load_config(MINI, {"load.torqe": 3})
+    assert e.value.key == "load.torqe" and "did you mean 'load.torque'" in e.value.reason
+    assert "(from the overrides)" in str(e.value)
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.load_config(MINI, ["friction.f0=-0.1"])
+    assert e.value.key == "friction.f0" and e.value.value == "-0.1"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.run(MINI, t_end=-1.0)
+    assert e.value.key == "run.t_end" and "the argument t_end" in str(e.value)
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.run(MINI, t_end=1e-3, threads=0)
+    assert e.value.key == "threads"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.run(MINI, t_end=1e-3, scheduler="fast")
+    assert e.value.key == "scheduler"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.load_config("no/such.toml")
+    assert "no/such.toml" in str(e.value)
+    with pytest.raises(TypeError):
+        cvt.load_config(MINI, "load.torque=3")
+    assert isinstance(e.value, ValueError)
+
+
+def test_config_reads_back_its_values():
+    cfg = cvt.load_config(MINI, {"load.torque": 12.5, "controller.target_profile": [[0.0, 1.0], [0.01, 1.1]]})
+    assert cvt.config_value(cfg, "load.torque") == 12.5
+    assert cvt.config_value(cfg, "controller.target_profile") == [[0.0, 1.0], [0.01, 1.1]]
+    again = cvt.parse_config(cfg.toml)  # the resolved text is a complete configuration
+    assert again.toml == cfg.toml
+    info = cvt.model_info(cfg)
+    assert info["links"] == 30 and info["unknowns"] == 2 * info["coordinates"] + 6
+
+
+def test_run_gives_the_same_bits_as_the_command_line(tmp_path):
+    cli("run", MINI, "--t-end", "0.004", "--set", "load.torque=15", "--out", str(tmp_path / "cli.h5"), "--quiet",
+        "--summary-json", str(tmp_path / "cli.json"))
+    r = cvt.run(MINI, t_end=0.004, overrides={"load.torque": 15.0}, out=tmp_path / "py.h5")
+    r2 = cvt.run(MINI, t_end=0.004, overrides=["load.torque=15"], threads=2)  # the flow graph, a temporary file
+    a = observables(tmp_path / "cli.h5")
+    assert set(a) == set(r.channels) - {"time"} == set(r2.channels) - {"time"}
+    for name, value in a.items():
+        assert np.array_equal(value, r.channels[name]), name
+        assert np.array_equal(value, r2.channels[name]), name
+    assert r.file == str(tmp_path / "py.h5") and r2.file is None
+    with open(tmp_path / "cli.json") as f:
+        js = json.load(f)
+    for key, value in js.items():
+        if key not in WALL_KEYS:
+            assert r.summary[key] == value, key
+    assert r.channels["time"][-1] == pytest.approx(0.004) and r.summary["status"] in ("steady", "not_steady", "slip")
+
+
+def test_progress_reaches_the_callback_which_can_stop_the_run():
+    seen = []
+    r = cvt.run(MINI, t_end=0.003, progress=seen.append, progress_seconds=0)
+    assert seen and all(p["t_end"] == 0.003 and 0 < p["step"] <= p["steps"] for p in seen)
+    assert [p["step"] for p in seen] == sorted(p["step"] for p in seen)
+    assert r.summary["stopped"] == "t_end" and not r.summary["interrupted"]
+    r = cvt.run(MINI, t_end=0.003, progress=lambda p: p["t"] < 0.001, progress_seconds=0)
+    assert r.summary["stopped"] == "callback" and r.summary["interrupted"]
+    assert 0.001 <= r.summary["model_time"] < 0.0015
+    assert r.channels["time"][-1] == r.summary["model_time"]
+
+    def fails(p):
+        raise ZeroDivisionError("from the callback")
+    with pytest.raises(ZeroDivisionError, match="from the callback"):
+        cvt.run(MINI, t_end=0.003, progress=fails, progress_seconds=0)
+
+
+def test_the_engine_runs_without_the_gil():
+    ticks = []
+    done = threading.Event()
+
+    def count():
+        while not done.is_set():
+            ticks.append(time.monotonic())
+            time.sleep(0.01)
+    counter = threading.Thread(target=count)
+    counter.start()
+    t0 = time.monotonic()
+    try:
+        cvt.run(MINI, t_end=0.004)
+    finally:
+        done.set()
+        counter.join()
+    wall = time.monotonic() - t0
+    # With the GIL held the counter would not tick at all until the run returns.
+    during = [t for t in ticks if t0 + 0.1 * wall < t < t0 + 0.9 * wall]
+    assert len(during) >= 0.3 * (0.8 * wall / 0.01), (len(during), wall)
+
+
+def test_sweep_gives_the_command_lines_rows(tmp_path):
+    base = {"run.t_end": 0.004}
+    rows = cvt.sweep(MINI, axes={"load.torque": [10, 15.5]}, overrides=base, out=tmp_path / "py")
+    cli("sweep", MINI, "--axis", "load.torque=10,15.5", "--set", "run.t_end=0.004", "--out", str(tmp_path / "cli"))
+    with open(tmp_path / "cli.csv") as f:
+        expected = list(csv.DictReader(f))
+    assert [r["load.torque"] for r in rows] == [10, 15.5]
+    assert len(rows) == len(expected) == 2
+    for got, want in zip(rows, expected):
+        for key, text in want.items():
+            if key != "wall_s":
+                value = got[key]
+                assert (value == float(text)) if isinstance(value, (int, float)) else value == text, key
+    assert all(r["status"] in ("steady", "not_steady", "slip") for r in rows)
+    with pytest.raises(cvt.ConfigError) as e:  # every point checked before the first runs
+        cvt.sweep(MINI, axes={"load.torque": [10, -1]}, out=tmp_path / "bad")
+    assert e.value.key == "load.torque"
+    assert not os.path.exists(tmp_path / "bad.csv")
+
+
+def test_studies_check_their_arguments(tmp_path):
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.study_slip(MINI, clamping=[1.1e4, -5], out=tmp_path / "slip.csv")
+    assert e.value.key == "clamping"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.study_slip(MINI, clamping=[1.1e4], tolerance=0.9, out=tmp_path / "slip.csv")
+    assert e.value.key == "tolerance"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.study_shift(MINI, thrust_ratios=[1.1], window=0, out=tmp_path / "shift.csv")
+    assert e.value.key == "window"
+
+
+def test_the_efficiency_curve_example_runs(tmp_path):
+    script = os.path.join(ROOT, "docs", "examples", "efficiency_curve.py")
+    package = os.path.dirname(os.path.dirname(os.path.abspath(cvt.__file__)))
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=package)
+    out = subprocess.run([sys.executable, script, "--loads", "8,14", "--t-end", "0.004", "--out", str(tmp_path / "eff")],
+                         cwd=tmp_path, env=env, check=True, capture_output=True, text=True)
+    assert os.path.getsize(tmp_path / "eff.png") > 10000
+    assert "load 8 N m" in out.stdout and "load 14 N m" in out.stdout
