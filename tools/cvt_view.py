@@ -4,6 +4,7 @@
     tools/cvt_view.py results.h5                   # serves the viewer, prints its address, opens a browser
     tools/cvt_view.py results.h5 --port 0 --no-browser
     tools/cvt_view.py results.h5 --video run.webm  # records the 3D view with headless Chromium
+    tools/cvt_view.py results.h5 --screenshot view.png --at 0.08   # the page at t = 0.08 s as PNG
 
 The page (tools/viewer/) and its libraries (tools/viewer/node_modules: three.js and h5wasm,
 installed by `make deps` from the lockfile) are served from the repository on loopback;
@@ -60,16 +61,19 @@ def main():
     ap.add_argument("--port", type=int, default=8765, help="port on 127.0.0.1 (0: any free one)")
     ap.add_argument("--no-browser", action="store_true", help="do not open a browser")
     ap.add_argument("--video", help="record the 3D view to this WebM file with headless Chromium, then exit")
+    ap.add_argument("--screenshot", help="a PNG of the whole page with headless Chromium, then exit")
+    ap.add_argument("--at", default="", help="with --screenshot: the model time shown [s] (default: the last snapshot)")
     ap.add_argument("--fps", type=int, default=30, help="video frames per second (one snapshot per frame)")
     ap.add_argument("--size", default="1280x720", help="video size WxH")
     a = ap.parse_args()
     check(a.file)
     srv, url = serve(a.file, a.port)
-    if a.video:
+    if a.video or a.screenshot:
         node = shutil.which("node")
         if not node:
             sys.exit("cvt_view: node is missing: run `make deps`")
-        r = subprocess.run([node, os.path.join(VIEWER, "record.mjs"), url, a.video, str(a.fps), a.size])
+        r = subprocess.run([node, os.path.join(VIEWER, "record.mjs"), url, a.video or a.screenshot, str(a.fps),
+                            a.size, a.at])
         srv.shutdown()
         sys.exit(r.returncode)
     print(f"cvt_view: {a.file} at {url}  (Ctrl-C stops)", flush=True)
