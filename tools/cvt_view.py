@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import sys
 import threading
+import urllib.parse
 import webbrowser
 
 VIEWER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "viewer")
@@ -45,7 +46,8 @@ def serve(run_file, port):
     """The server on 127.0.0.1 (port 0: any free one), running in a thread."""
     srv = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler(os.path.abspath(run_file)))
     threading.Thread(target=srv.serve_forever, daemon=True).start()
-    return srv, f"http://127.0.0.1:{srv.server_address[1]}/index.html"
+    name = urllib.parse.quote(os.path.basename(run_file))
+    return srv, f"http://127.0.0.1:{srv.server_address[1]}/index.html?name={name}"
 
 
 def check(run_file):

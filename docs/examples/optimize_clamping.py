@@ -40,6 +40,7 @@ ap.add_argument("--t-end", type=float, default=0.03, help="bound on each run [s]
 ap.add_argument("--xtol", type=float, default=0.01, help="relative tolerance on F1")
 ap.add_argument("--threads", type=int, default=os.cpu_count())
 ap.add_argument("--json", help="write the result here as well")
+ap.add_argument("--figure", default="optimize-clamping.png", help="the runs and the optimum drawn here")
 args = ap.parse_args()
 
 runs = []  # every evaluation: F1, slip, efficiency, status, wall time
@@ -103,3 +104,31 @@ result = {"load": args.load, "thrust_ratio": args.thrust_ratio, "slip_bound": ar
 if args.json:
     with open(args.json, "w") as f:
         json.dump(result, f, indent=1)
+
+import matplotlib
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+ev = sorted((r for r in runs if r["status"] != "blow_up"), key=lambda r: r["clamping_driving"])
+ok = [r for r in ev if r in held]
+fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+for r in ev:
+    a1.plot(r["clamping_driving"] / 1e3, 100 * r["slip"], "o" if r in held else "x",
+            color="tab:blue" if r in held else "tab:red")
+a1.axhline(100 * args.slip, color="0.5", ls="--", lw=1)
+a1.axvline(f_opt / 1e3, color="tab:green", lw=1.5, label=f"optimum {f_opt / 1e3:.2f} kN")
+a1.set_xlabel("clamping force F1 [kN]")
+a1.set_ylabel("slip (creep) at the end [%]")
+a1.set_title(f"{args.load:g} N m: held (o), slipped (x)")
+a1.legend()
+a2.plot([r["clamping_driving"] / 1e3 for r in ok], [r["efficiency"] for r in ok], "o-", color="tab:blue")
+a2.axvline(f_opt / 1e3, color="tab:green", lw=1.5)
+a2.set_xlabel("clamping force F1 [kN]")
+a2.set_ylabel("efficiency of the runs that held")
+a2.set_title(f"slip study at the optimum: holds {study['slip_torque']:.2f}, slips at {study['slips_at']:.2f} N m",
+             fontsize=10)
+for a in (a1, a2):
+    a.grid(alpha=0.3)
+fig.tight_layout()
+fig.savefig(args.figure, dpi=110)
+print(f"wrote {args.figure}")

@@ -3,6 +3,7 @@
 // plot and the video recorder. window.cvtView is the page's handle for scripts (the browser
 // test, tools/viewer/record.mjs).
 import * as h5wasm from "h5wasm";
+import { ArrayBufferTarget, Muxer } from "webm-muxer";
 import { colormap, frameAt, readRun } from "./data.js";
 import { CvtView } from "./view.js";
 
@@ -63,8 +64,8 @@ function drawPlot(run, name, t) {
 }
 
 async function open() {
-  const url = new URLSearchParams(location.search).get("file") || "run.h5";
-  $("file").textContent = decodeURIComponent(url.split("/").pop());
+  const query = new URLSearchParams(location.search), url = query.get("file") || "run.h5";
+  $("file").textContent = query.get("name") || url.split("/").pop();
   const response = await fetch(url);
   if (!response.ok) throw new Error(`cannot fetch ${url}: ${response.status}`);
   const bytes = new Uint8Array(await response.arrayBuffer());
@@ -109,24 +110,27 @@ async function main() {
   };
   $("play").addEventListener("click", play);
   window.addEventListener("keydown", (e) => { if (e.code === "Space" && e.target === document.body) play(); });
-  // The video: every snapshot once, fps frames per second of video, as WebM.
+  // The video: every snapshot once, fps frames per second of video, VP8 in WebM, each frame
+  // encoded with its own timestamp (WebCodecs), so the video's time does not depend on how
+  // fast the page draws.
   const record = async (fps = 30) => {
-    const stream = $("view").captureStream(0), track = stream.getVideoTracks()[0];
-    const type = ["video/webm;codecs=vp9", "video/webm;codecs=vp8", "video/webm"].find(
-      (t) => MediaRecorder.isTypeSupported(t));
-    const rec = new MediaRecorder(stream, { mimeType: type, videoBitsPerSecond: 6e6 });
-    const chunks = [];
-    rec.ondataavailable = (e) => e.data.size && chunks.push(e.data);
-    const stopped = new Promise((resolve) => (rec.onstop = resolve));
-    rec.start();
-    for (let s = 0; s < run.S; ++s) {
+    const canvas = $("view"), width = canvas.width, height = canvas.height;
+    const muxer = new Muxer({ target: new ArrayBufferTarget(), video: { codec: "V_VP8", width, height, frameRate: fps } });
+    let failure = null;
+    const encoder = new VideoEncoder({ output: (chunk, meta) => muxer.addVideoChunk(chunk, meta),
+                                       error: (e) => (failure = e) });
+    encoder.configure({ codec: "vp8", width, height, bitrate: 6e6, framerate: fps });
+    for (let s = 0; s < run.S && !failure; ++s) {
       show(s);
-      track.requestFrame();
-      await new Promise((r) => setTimeout(r, 1000 / fps));
+      const frame = new VideoFrame(canvas, { timestamp: Math.round(s * 1e6 / fps), duration: Math.round(1e6 / fps) });
+      encoder.encode(frame, { keyFrame: s % (2 * fps) === 0 });
+      frame.close();
+      while (encoder.encodeQueueSize > 4) await new Promise((r) => setTimeout(r, 5));
     }
-    rec.stop();
-    await stopped;
-    return new Blob(chunks, { type: "video/webm" });
+    await encoder.flush();
+    if (failure) throw failure;
+    muxer.finalize();
+    return new Blob([muxer.target.buffer], { type: "video/webm" });
   };
   $("record").addEventListener("click", async () => {
     $("record").disabled = true;

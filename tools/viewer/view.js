@@ -94,18 +94,20 @@ export class CvtView {
     this.plateDepth = L.plate_spread * MM;
   }
 
+  // The arrows: one instanced shaft and one instanced head per pin end (4 N each), so that
+  // the whole field costs two draw calls.
   buildArrows() {
-    this.arrows = [];
-    if (!this.run.normal) return;
+    this.arrowShafts = this.arrowHeads = null;
+    if (!this.run.normal || !this.run.ends) return;
     let fmax = 0;
     for (const f of this.run.normal) fmax = Math.max(fmax, f);
     this.forceScale = fmax > 0 ? 2.5 * this.run.layout.pitch * MM / fmax : 0;  // mm per N
-    for (let i = 0; i < 4 * this.run.N; ++i) {
-      const a = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), 1, 0xff5533);
-      a.visible = false;
-      this.arrows.push(a);
-      this.scene.add(a);
-    }
+    const mat = new THREE.MeshBasicMaterial({ color: 0xff5533 });
+    const shaft = new THREE.CylinderGeometry(1, 1, 1, 6).translate(0, 0.5, 0);  // base at the origin, along y
+    const head = new THREE.ConeGeometry(1, 1, 8).translate(0, 0.5, 0);
+    this.arrowShafts = new THREE.InstancedMesh(shaft, mat, 4 * this.run.N);
+    this.arrowHeads = new THREE.InstancedMesh(head, mat, 4 * this.run.N);
+    this.scene.add(this.arrowShafts, this.arrowHeads);
   }
 
   // Shows snapshot s.
@@ -165,29 +167,40 @@ export class CvtView {
   }
 
   // Each pin end's normal force on the pin: along the face normal, outward and away from
-  // the face (docs/model.md 4.5.3), at the end node, length proportional to the force.
+  // the face (docs/model.md 4.5.3), from the end node, length proportional to the force.
   updateArrows(s) {
-    if (!this.arrows.length || !this.run.ends) return;
+    if (!this.arrowShafts) return;
     const r = this.run, L = r.layout, N = r.N, sb = Math.sin(L.cone_angle), cb = Math.cos(L.cone_angle);
-    const dir = new THREE.Vector3(), at = new THREE.Vector3();
+    const dir = new THREE.Vector3(), at = new THREE.Vector3(), tip = new THREE.Vector3();
+    const q = new THREE.Quaternion(), up = new THREE.Vector3(0, 1, 0), m = new THREE.Matrix4();
+    const none = new THREE.Matrix4().makeScale(0, 0, 0);
+    const width = 0.04 * L.pitch * MM;
     for (let j = 0; j < N; ++j)
       for (let h = 0; h < 2; ++h)
         for (let e = 0; e < 2; ++e) {
-          const i = (j * 2 + h) * 2 + e, f = r.normal[s * N * 4 + i], arrow = this.arrows[i];
-          arrow.visible = f > 0;
-          if (!(f > 0)) continue;
+          const i = (j * 2 + h) * 2 + e, f = r.normal[s * N * 4 + i];
+          if (!(f > 0)) {
+            this.arrowShafts.setMatrixAt(i, none);
+            this.arrowHeads.setMatrixAt(i, none);
+            continue;
+          }
           const o = (s * N + j) * 12 + h * 6 + e * 3;
           at.set(r.ends[o] * MM, r.ends[o + 1] * MM, r.ends[o + 2] * MM);
-          const p = L.pulleys.reduce((best, q) => Math.hypot(at.x - q.centre[0] * MM, at.y - q.centre[1] * MM) <
-            Math.hypot(at.x - best.centre[0] * MM, at.y - best.centre[1] * MM) ? q : best);
+          const p = L.pulleys.reduce((best, c) => Math.hypot(at.x - c.centre[0] * MM, at.y - c.centre[1] * MM) <
+            Math.hypot(at.x - best.centre[0] * MM, at.y - best.centre[1] * MM) ? c : best);
           const lx = at.x - p.centre[0] * MM, ly = at.y - p.centre[1] * MM, rr = Math.hypot(lx, ly);
           const sigma = e === 0 ? -1 : 1;
           dir.set(sb * lx / rr, sb * ly / rr, -sigma * cb).normalize();
-          arrow.position.copy(at);
-          arrow.setDirection(dir);
-          const len = Math.max(1e-3, f * this.forceScale);
-          arrow.setLength(len, 0.3 * len, 0.15 * len);
+          q.setFromUnitVectors(up, dir);
+          const len = Math.max(1e-3, f * this.forceScale), headLen = 0.3 * len;
+          this.arrowShafts.setMatrixAt(i, m.compose(at, q, new THREE.Vector3(width, len - headLen, width)));
+          tip.copy(dir).multiplyScalar(len - headLen).add(at);
+          this.arrowHeads.setMatrixAt(i, m.compose(tip, q, new THREE.Vector3(3 * width, headLen, 3 * width)));
         }
+    this.arrowShafts.instanceMatrix.needsUpdate = true;
+    this.arrowHeads.instanceMatrix.needsUpdate = true;
+    this.arrowShafts.computeBoundingSphere();
+    this.arrowHeads.computeBoundingSphere();
   }
 
   showSheaves(on) {
@@ -196,6 +209,7 @@ export class CvtView {
   }
 
   resize(w, h) {
+    w -= w % 2, h -= h % 2;  // even sizes, as video encoders want them
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();

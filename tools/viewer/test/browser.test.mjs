@@ -155,6 +155,12 @@ test("a recorded video plays", async () => {
     v.muted = true;
     v.src = "data:video/webm;base64," + b64;
     await new Promise((ok, fail) => { v.onloadeddata = ok; v.onerror = () => fail(new Error("cannot decode")); });
+    // The duration of a WebM without a duration field shows once the end is found.
+    v.currentTime = 1e6;
+    await new Promise((ok) => (v.onseeked = ok));
+    const duration = v.duration;
+    v.currentTime = 0;
+    await new Promise((ok) => (v.onseeked = ok));
     await v.play();
     await new Promise((ok) => setTimeout(ok, 300));
     const c = document.createElement("canvas");
@@ -164,10 +170,13 @@ test("a recorded video plays", async () => {
     const d = g.getImageData(0, 0, c.width, c.height).data;
     let lit = 0;
     for (let i = 0; i < d.length; i += 4) lit += Math.abs(d[i] - 0x1e) + Math.abs(d[i + 1] - 0x22) + Math.abs(d[i + 2] - 0x28) > 40;
-    return { w: v.videoWidth, h: v.videoHeight, t: v.currentTime, lit: lit / (d.length / 4) };
+    return { w: v.videoWidth, h: v.videoHeight, t: v.currentTime, lit: lit / (d.length / 4), duration };
   }, bytes.toString("base64"));
   assert.equal(played.w, 640);  // the canvas of a 640 x 360 page: its width, its height less the bars
   assert.ok(played.h > 100 && played.h < 360, `height ${played.h}`);
   assert.ok(played.t > 0, `played to ${played.t} s`);
+  // One snapshot per frame at 20 frames per second: 21 snapshots last 1.05 s.
+  const frames = await page.evaluate(() => window.cvtView.frames);
+  assert.ok(Math.abs(played.duration - frames / 20) < 0.1, `duration ${played.duration} s for ${frames} frames`);
   assert.ok(played.lit > 0.01, `drawn part of a frame: ${played.lit}`);
 });
