@@ -123,9 +123,10 @@ def test_the_engine_runs_without_the_gil():
         done.set()
         counter.join()
     wall = time.monotonic() - t0
-    # With the GIL held the counter would not tick at all until the run returns.
+    # With the GIL held the counter would not tick at all until the run returns; free, it
+    # ticks about every 10 ms (fewer on a loaded machine).
     during = [t for t in ticks if t0 + 0.1 * wall < t < t0 + 0.9 * wall]
-    assert len(during) >= 0.3 * (0.8 * wall / 0.01), (len(during), wall)
+    assert len(during) >= min(10, 0.1 * (0.8 * wall / 0.01)), (len(during), wall)
 
 
 def test_sweep_gives_the_command_lines_rows(tmp_path):
