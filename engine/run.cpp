@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <csignal>
+#include <mutex>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -26,10 +27,16 @@ long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, s
 volatile std::sig_atomic_t g_stop_signal = 0;
 extern "C" void on_stop_signal(int sig) { g_stop_signal = sig; }
 
-// Installs the handlers for the lifetime of a run and restores the previous ones.
+// Installs the handlers while runs are going on and restores the previous ones after the
+// last: runs side by side in threads of one process (the Python module) share them, and a
+// signal stops them all.
 struct StopSignals {
-  struct sigaction old_int {}, old_term {};
+  static inline std::mutex mutex;
+  static inline int active = 0;
+  static inline struct sigaction old_int {}, old_term {};
   StopSignals() {
+    const std::lock_guard lock(mutex);
+    if (active++ > 0) return;
     g_stop_signal = 0;
     struct sigaction sa {};
     sa.sa_handler = on_stop_signal;
@@ -38,6 +45,8 @@ struct StopSignals {
     sigaction(SIGTERM, &sa, &old_term);
   }
   ~StopSignals() {
+    const std::lock_guard lock(mutex);
+    if (--active > 0) return;
     sigaction(SIGINT, &old_int, nullptr);
     sigaction(SIGTERM, &old_term, nullptr);
   }
@@ -291,7 +300,7 @@ void Run::progress(long n, WallClock::time_point now) {
   const double eta = el / static_cast<double>(n - start_) * static_cast<double>(total_ - n);
   if (opt_.on_progress) {
     last_progress_ = now;
-    stop_asked_ = !opt_.on_progress({n, total_, sim_.time(), c_.run.t_end, el, eta});
+    if (!opt_.on_progress({n, total_, sim_.time(), c_.run.t_end, el, eta})) stop_asked_ = true;
     return;
   }
   std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s", tty_ ? "\r" : "", n,

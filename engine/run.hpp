@@ -44,7 +44,8 @@ struct RunOptions {
   // The summary as JSON to this file as well (empty: not written).
   std::string summary_json;
   // Called every progress_seconds of wall time instead of the progress line on stderr
-  // (with progress false too); returning false stops the run as SIGINT does (the state at
+  // (with progress false too); returning false stops the run as SIGINT does, at the next
+  // step where the W matrix is rebuilt (at most integrator.w_k_every steps on; the state at
   // that step sampled, the file kept, RunResult::interrupted set, signal 0).
   std::function<bool(const RunProgress&)> on_progress;
   double progress_seconds = 3.0;

@@ -376,6 +376,7 @@ void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& t
   const int N = m_.links;
   positions.resize(3 * N);
   tensions.resize(N);
+  diag_.status = ws_.status;  // the contacts of this state (a snapshot can fall between samples)
   set_stage_input(m_, diag_, clock_.t, y_.data());
   const double* q = y_.data();
   for (int j = 0; j < N; ++j) {

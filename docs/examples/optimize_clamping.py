@@ -41,6 +41,7 @@ ap.add_argument("--xtol", type=float, default=0.01, help="relative tolerance on 
 ap.add_argument("--threads", type=int, default=os.cpu_count())
 ap.add_argument("--json", help="write the result here as well")
 ap.add_argument("--figure", default="optimize-clamping.png", help="the runs and the optimum drawn here")
+ap.add_argument("--study-out", default="optimize-slip.csv", help="the slip study's CSV")
 args = ap.parse_args()
 
 runs = []  # every evaluation: F1, slip, efficiency, status, wall time
@@ -78,19 +79,19 @@ lo, hi = (float(x) for x in args.bracket.split(","))
 print(f"smallest F1 (F1/F2 = {args.thrust_ratio}) holding {args.load} N m with slip <= {100 * args.slip:g} %, "
       f"{os.path.basename(args.config)}:")
 t0 = time.time()
-f_opt = bisect(slip_excess, lo, hi, xtol=args.xtol * lo)
+bisect(slip_excess, lo, hi, xtol=args.xtol * lo)
 wall_opt = time.time() - t0
+# The optimum: the smallest force that held (bisect's last midpoint may be one that slipped).
 held = [r for r in runs if r["status"] not in ("blow_up", "slip") and r["slip"] <= args.slip]
 best = min(held, key=lambda r: r["clamping_driving"])
-print(f"optimum F1 = {f_opt:.1f} N (F2 = {f_opt / args.thrust_ratio:.1f} N) after {len(runs)} simulations, "
-      f"{wall_opt:.0f} s; the smallest force run that held: {best['clamping_driving']:.1f} N, efficiency "
-      f"{best['efficiency']:.4f} (the best of the {len(held)} that held: "
+f_opt = best["clamping_driving"]
+print(f"optimum F1 = {f_opt:.1f} N (F2 = {f_opt / args.thrust_ratio:.1f} N), efficiency {best['efficiency']:.4f}, "
+      f"after {len(runs)} simulations, {wall_opt:.0f} s (the best efficiency of the {len(held)} that held: "
       f"{max(r['efficiency'] for r in held):.4f})")
-
 print(f"the slip study at F1 = {f_opt:.1f} N:")
 t1 = time.time()
 study = cvt.study_slip(args.config, clamping=[f_opt], thrust_ratio=args.thrust_ratio, tolerance=0.03,
-                       overrides={"run.t_end": args.t_end}, out="optimize-slip.csv", threads=args.threads,
+                       overrides={"run.t_end": args.t_end}, out=args.study_out, threads=args.threads,
                        log=lambda line: print("  " + line, flush=True))[0]
 wall_study = time.time() - t1
 print(f"  holds {study['slip_torque']:.2f} N m, slips at {study['slips_at']:.2f} N m ({study['runs']} runs, "

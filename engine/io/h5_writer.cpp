@@ -86,8 +86,10 @@ void require_no_nul(const std::string& text, const std::string& path) {
 }  // namespace
 
 void h5_silence_error_printing() {
-  static std::once_flag once;
-  std::call_once(once, [] { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); });
+  // Per thread: a thread-safe HDF5 keeps the error-printing setting per thread (runs in
+  // several threads of one process, the Python module).
+  thread_local bool done = false;
+  if (!done) H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr), done = true;
 }
 
 // ---------------------------------------------------------------------------------------------

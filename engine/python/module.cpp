@@ -55,8 +55,9 @@ std::function<void(const std::string&)> line_log(const py::object& log, std::opt
   };
 }
 
-// The run: the summary as JSON text (the same as --summary-json), to be parsed by the package.
-std::string run(const Config& cfg, const std::string& out, const std::string& scheduler, int threads, int grain,
+// The run: the summary as JSON text (the same as --summary-json), to be parsed by the
+// package, and the signal that stopped the run (0: none).
+std::pair<std::string, int> run(const Config& cfg, const std::string& out, const std::string& scheduler, int threads, int grain,
                 bool quiet, const py::object& progress, double progress_seconds, long checkpoint_every) {
   if (!(progress_seconds >= 0)) throw ConfigError("progress_seconds", std::to_string(progress_seconds), "must be >= 0");
   const Model model = build_model(cfg);
@@ -76,7 +77,10 @@ std::string run(const Config& cfg, const std::string& out, const std::string& sc
         const py::object go = progress(py::dict(py::arg("step") = p.step, py::arg("steps") = p.steps,
                                                 py::arg("t") = p.t, py::arg("t_end") = p.t_end,
                                                 py::arg("wall_s") = p.wall_s, py::arg("eta_s") = p.eta_s));
-        return go.is_none() || go.cast<bool>();
+        if (go.is_none()) return true;
+        const int truth = PyObject_IsTrue(go.ptr());  // any object's truth, as `if go:` has it
+        if (truth < 0) throw py::error_already_set();
+        return truth == 1;
       } catch (py::error_already_set& e) {
         error = std::move(e);
         return false;
@@ -89,7 +93,7 @@ std::string run(const Config& cfg, const std::string& out, const std::string& sc
     r = run_simulation(model, opt);
   }
   if (error) throw *error;
-  return summary_json(r);
+  return {summary_json(r), r.signal};
 }
 
 SweepOptions sweep_options(const std::string& config_path, const std::string& from,
@@ -184,6 +188,8 @@ void register_errors(py::module_& m) {
       blow_up(e.what());
     } catch (const OutputError& e) {
       output_error(e.what());
+    } catch (const SweepInterrupted& e) {
+      PyErr_SetString(PyExc_KeyboardInterrupt, e.what());  // the finished points are in OUT.csv
     }
   });
 }

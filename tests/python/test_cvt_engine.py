@@ -169,3 +169,70 @@ def test_the_efficiency_curve_example_runs(tmp_path):
                          cwd=tmp_path, env=env, check=True, capture_output=True, text=True)
     assert os.path.getsize(tmp_path / "eff.png") > 10000
     assert "load 8 N m" in out.stdout and "load 14 N m" in out.stdout
+
+
+def test_ctrl_c_stops_the_run_and_raises_keyboard_interrupt(tmp_path):
+    import signal
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        cvt.run(MINI, t_end=0.05, out=tmp_path / "stopped.h5")
+    timer.join()
+    with h5py.File(tmp_path / "stopped.h5", "r") as f:  # kept, complete up to the stop
+        t = f["observables/output_torque/time"][()]
+        assert 0 < t[-1] < 0.05
+        assert f["summary"].attrs["stopped"] == "signal"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_stop_asked_once_holds_and_any_false_value_stops():
+    calls = []
+
+    def once(p):
+        calls.append(p["step"])
+        return len(calls) != 1  # False at the first call only
+    r = cvt.run(MINI, t_end=0.003, progress=once, progress_seconds=0)
+    assert r.summary["stopped"] == "callback" and r.summary["model_time"] < 0.003
+    r = cvt.run(MINI, t_end=0.002, progress=lambda p: [], progress_seconds=0)  # [] is false
+    assert r.summary["stopped"] == "callback"
+    r = cvt.run(MINI, t_end=0.002, progress=lambda p: "yes", progress_seconds=0)
+    assert r.summary["stopped"] == "t_end"
+
+    class Undecided:
+        def __bool__(self):
+            raise ValueError("neither")
+    with pytest.raises(ValueError, match="neither"):
+        cvt.run(MINI, t_end=0.002, progress=lambda p: Undecided(), progress_seconds=0)
+
+
+def test_runs_side_by_side_in_threads_give_their_own_bits():
+    import signal
+    results = {}
+
+    def one(load):
+        results[load] = cvt.run(MINI, t_end=0.002, overrides={"load.torque": load})
+    threads = [threading.Thread(target=one, args=(load,)) for load in (5.0, 15.0)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for load in (5.0, 15.0):
+        alone = cvt.run(MINI, t_end=0.002, overrides={"load.torque": load})
+        for name, value in alone.channels.items():
+            assert np.array_equal(value, results[load].channels[name]), (load, name)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Ctrl-C works again
+
+
+def test_snapshots_between_samples_hold_that_states_contact_forces(tmp_path):
+    # A snapshot every 2.5 us with samples every 10 us, against samples every 2.5 us too:
+    # the same snapshots, contact forces included.
+    over = {"run.snapshot_interval": 2.5e-6, "load.torque": 12.0}
+    cvt.run(MINI, t_end=0.002, overrides=over, out=tmp_path / "a.h5", channels=False)
+    cvt.run(MINI, t_end=0.002, overrides={**over, "run.sample_interval": 2.5e-6}, out=tmp_path / "b.h5",
+            channels=False)
+    with h5py.File(tmp_path / "a.h5", "r") as a, h5py.File(tmp_path / "b.h5", "r") as b:
+        for name in ("position", "link_tension", "pin_end_position", "pin_end_normal_force"):
+            x, y = a[f"particles/chain/{name}/value"][()], b[f"particles/chain/{name}/value"][()]
+            assert x.shape == y.shape and len(x) == 801, name
+            assert np.array_equal(x, y), name
+        assert (a["particles/chain/pin_end_normal_force/value"][-1] > 0).sum() > 10  # the chain is on the sheaves

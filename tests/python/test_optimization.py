@@ -31,8 +31,8 @@ def test_the_optimum_is_where_the_slip_study_puts_the_limit(tmp_path):
     # Bisection to 1 % of 6 kN over 8 kN: the two ends and 7 halvings (and any blow-up's rerun).
     evaluations = [x for x in r["runs"] if x["status"] != "blow_up"]
     assert len(evaluations) == 2 + math.ceil(math.log2((hi - lo) / (0.01 * lo)))
-    # The runs bracket the optimum (bisect's last midpoint, a run that held): every run below
-    # it slipped, every run at or above it held.
+    # The runs bracket the optimum (the smallest force that held): every run below it
+    # slipped, every run at or above it held.
     for x in evaluations:
         held = x["status"] != "slip" and x["slip"] <= 0.05
         assert held == (x["clamping_driving"] >= r["optimum"]), x

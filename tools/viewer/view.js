@@ -14,12 +14,13 @@ THREE.ColorManagement.enabled = false;
 export const BACKGROUND = 0x1e2228;
 
 function sheaveGeometry(layout, side) {
-  // The face z = side (r - hub) tan(beta) (relative to the face's z at the hub), from the hub
-  // to the outer radius, then a back face 15 % of the outer radius thick.
+  // The face z = side r tan(beta) relative to its offset on the axis (docs/model.md 4.5.3:
+  // l_z = Z + w + sigma r tan(beta)), from the hub to the outer radius, then a back face
+  // 15 % of the outer radius behind the face's outer edge.
   const tb = Math.tan(layout.cone_angle);
   const r0 = layout.hub_radius * MM, r1 = layout.outer_radius * MM;
-  const zOuter = side * (r1 - r0) * tb, back = side * (zOuter * side + 0.15 * r1);
-  const pts = [[r0 * 0.6, 0], [r0, 0], [r1, zOuter], [r1, back], [r0 * 0.6, back]].map(
+  const zHub = side * r0 * tb, zOuter = side * r1 * tb, back = zOuter + side * 0.15 * r1;
+  const pts = [[r0 * 0.6, zHub], [r0, zHub], [r1, zOuter], [r1, back], [r0 * 0.6, back]].map(
     ([r, z]) => new THREE.Vector2(r, z));
   const g = new THREE.LatheGeometry(pts, 96);
   g.rotateX(Math.PI / 2);  // the lathe's axis y onto the shaft axis z: profile (r, z) -> scene z
@@ -153,7 +154,7 @@ export class CvtView {
       ex.copy(d).setZ(0).normalize();
       ey.crossVectors(ez, ex);
       q.setFromRotationMatrix(basis.makeBasis(ex, ey, ez));
-      mtx.compose(mid, q, new THREE.Vector3(0.8 * d.length(), this.plateHeight, this.plateDepth));
+      mtx.compose(mid, q, new THREE.Vector3(0.92 * d.length(), this.plateHeight, this.plateDepth));
       this.plates.setMatrixAt(i, mtx);
       const c = colormap((r.tension[s * N + i] - lo) / (hi - lo));
       this.plates.instanceColor.setXYZ(i, c[0], c[1], c[2]);
@@ -220,12 +221,16 @@ export class CvtView {
     this.renderer.render(this.scene, this.camera);
   }
 
-  // Where joint j's centre of the current snapshot falls on the canvas [px from top left].
-  project(j) {
-    const r = this.run, N = r.N, s = this.frame;
-    const v = new THREE.Vector3(r.position[(s * N + j) * 3] * MM, r.position[(s * N + j) * 3 + 1] * MM,
-                                r.position[(s * N + j) * 3 + 2] * MM).project(this.camera);
+  // Where the model's point (x, y, z) [m] falls on the canvas [px from top left].
+  projectPoint(x, y, z) {
+    const v = new THREE.Vector3(x * MM, y * MM, z * MM).project(this.camera);
     const c = this.renderer.domElement;
     return [(v.x + 1) / 2 * c.width, (1 - v.y) / 2 * c.height];
+  }
+
+  // Where joint j's centre of the current snapshot falls on the canvas.
+  project(j) {
+    const r = this.run, o = (this.frame * r.N + j) * 3;
+    return this.projectPoint(r.position[o], r.position[o + 1], r.position[o + 2]);
   }
 }

@@ -147,8 +147,9 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
     threads > 1 runs the flow graph (the same bits for any thread count).
     quiet: no lines on stdout/stderr (warnings are in summary["warnings"] all the same).
     progress: a callable given a dict (step, steps, t, t_end, wall_s, eta_s) every
-    progress_seconds; returning False stops the run (summary["stopped"] == "callback").
-    Ctrl-C stops the run at its next step and raises KeyboardInterrupt; the file is kept.
+    progress_seconds; returning a false value stops the run at the next step where the W
+    matrix is rebuilt (summary["stopped"] == "callback").
+    Ctrl-C stops the run the same way and raises KeyboardInterrupt; the file is kept.
     Raises ConfigError for a bad key or argument, BlowUpError when the state blows up.
     """
     scheduler, threads = _schedule(scheduler, threads)
@@ -161,15 +162,18 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
     else:
         path = os.fspath(out)
     try:
-        summary = json.loads(_core.run(cfg, path, scheduler, threads, grain, quiet, progress,
-                                       float(progress_seconds), int(checkpoint_every)))
-        ch = read_channels(path) if channels else {}
+        text, stop_signal = _core.run(cfg, path, scheduler, threads, grain, quiet, progress,
+                                      float(progress_seconds), int(checkpoint_every))
+        summary = json.loads(text)
+        ch = read_channels(path) if channels and not stop_signal else {}
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    if summary.get("signal") == signal.SIGINT:
-        raise KeyboardInterrupt(f"run stopped at t = {summary['model_time']} s" +
-                                ("" if tmp else f"; the results so far are in {path}"))
+    if stop_signal:
+        # The engine caught SIGINT or SIGTERM and stopped the run at a step (the file kept);
+        # now Python's own handler acts on it: KeyboardInterrupt for Ctrl-C, the end of the
+        # process for SIGTERM (unless the program handles it, when the run's result returns).
+        signal.raise_signal(stop_signal)
     return Result(summary, ch, None if tmp else path)
 
 

@@ -63,7 +63,15 @@ async function strandJoints() {
     for (let j = 0; j < N; ++j) {
       const x = run.position[(s * N + j) * 3], y = run.position[(s * N + j) * 3 + 1];
       const off = L.pulleys.every((p) => Math.hypot(x - p.centre[0], y - p.centre[1]) > 1.15 * p.running_radius);
-      if (off) out.push({ j, xy: view.project(j), x: (run.tension[s * N + j] - lo) / (hi - lo) });
+      // The pin halves' ends, a little inside each end (the ends are the cylinders' caps).
+      const ends = [];
+      for (let h = 0; h < 2; ++h) {
+        const o = ((s * N + j) * 2 + h) * 6, e = run.ends;
+        for (const f of [0.2, 0.8])
+          ends.push(view.projectPoint(e[o] + f * (e[o + 3] - e[o]), e[o + 1] + f * (e[o + 4] - e[o + 1]),
+                                      e[o + 2] + f * (e[o + 5] - e[o + 2])));
+      }
+      if (off) out.push({ j, xy: view.project(j), ends, x: (run.tension[s * N + j] - lo) / (hi - lo) });
     }
     return out;
   });
@@ -89,7 +97,6 @@ test("draws the chain where the snapshot puts it, in the colours of the tension 
   let png = await shot("viewer-first.png");
   const joints = await strandJoints();
   assert.ok(joints.length >= 6, `joints on the strands: ${joints.length}`);
-  for (const { j, xy } of joints) assert.ok(drawnNear(png, xy[0], xy[1]), `joint ${j} at ${xy} not drawn`);
   // Between the strands, half way between the shafts, there is nothing.
   const mid = await page.evaluate(() => {
     const { run, view } = window.cvtView, c = run.layout.pulleys.map((p) => p.centre);
@@ -103,6 +110,11 @@ test("draws the chain where the snapshot puts it, in the colours of the tension 
   await page.click("#sheaves");
   png = await shot("viewer-first-no-sheaves.png");
   await page.click("#sheaves");
+  // Without the translucent sheaves over it, the chain alone: each strand joint and every
+  // pin half along the line between its ends.
+  for (const { j, xy } of joints) assert.ok(drawnNear(png, xy[0], xy[1]), `joint ${j} at ${xy} not drawn`);
+  for (const { j, ends } of joints)
+    for (const e of ends) assert.ok(drawnNear(png, e[0], e[1], 2), `pin half of joint ${j} at ${e} not drawn`);
   assert.ok(near(pixel(png, mid[0], mid[1]), BG, 8), `background expected between the strands at ${mid}`);
   let found = 0;
   for (const { x } of joints) {
@@ -132,7 +144,10 @@ test("the slider moves the chain to the snapshot it names", async () => {
   assert.equal(first, await page.evaluate(() => window.cvtView.frames >> 1));
   assert.equal(state.frame, state.frames - 1);
   assert.match(state.label, /t = 5\.000 ms/);
-  const png = await shot("viewer-last.png");
+  await shot("viewer-last.png");
+  await page.click("#sheaves");
+  const png = await shot("viewer-last-no-sheaves.png");
+  await page.click("#sheaves");
   const after = await strandJoints();
   for (const { j, xy } of after) assert.ok(drawnNear(png, xy[0], xy[1]), `joint ${j} at ${xy} not drawn`);
   // The chain has moved on the screen: the joints are elsewhere.
