@@ -55,6 +55,21 @@ std::function<void(const std::string&)> line_log(const py::object& log, std::opt
   };
 }
 
+// f() with the GIL released and the study's progress lines (o.log) sent to `log`; raises
+// what `log` raised once the engine has returned.
+template <class F>
+auto released(SweepOptions& o, const py::object& log, F&& f) {
+  std::optional<py::error_already_set> error;
+  o.log = line_log(log, error);
+  std::optional<decltype(f())> result;
+  {
+    py::gil_scoped_release nogil;
+    result.emplace(f());
+  }
+  if (error) throw *error;
+  return std::move(*result);
+}
+
 // The run: the summary as JSON text (the same as --summary-json), to be parsed by the
 // package, and the signal that stopped the run (0: none).
 std::pair<std::string, int> run(const Config& cfg, const std::string& out, const std::string& scheduler, int threads, int grain,
@@ -112,30 +127,13 @@ long sweep(SweepOptions o, const std::vector<std::string>& axes, const std::stri
            double warm_ramp, const py::object& log) {
   o.keep_runs = keep_runs;
   o.warm_ramp = warm_ramp;
-  std::optional<py::error_already_set> error;
-  o.log = line_log(log, error);
   const SweepPlan plan = sweep_plan(o, axes, points);
-  long unsteady = 0;
-  {
-    py::gil_scoped_release nogil;
-    unsteady = run_sweep(o, plan);
-  }
-  if (error) throw *error;
-  return unsteady;
+  return released(o, log, [&] { return run_sweep(o, plan); });
 }
 
 py::list slip_study(SlipStudyOptions o, const py::object& log) {
-  std::optional<py::error_already_set> error;
-  o.sweep.log = line_log(log, error);
-  o.sweep.out = o.csv;
-  std::vector<SlipRow> rows;
-  {
-    py::gil_scoped_release nogil;
-    rows = run_slip_study(o);
-  }
-  if (error) throw *error;
   py::list out;
-  for (const SlipRow& r : rows)
+  for (const SlipRow& r : released(o.sweep, log, [&] { return run_slip_study(o); }))
     out.append(py::dict(py::arg("clamping_driving") = r.clamping_driving, py::arg("clamping_driven") = r.clamping_driven,
                         py::arg("ratio") = r.ratio, py::arg("theory_torque") = r.theory_torque,
                         py::arg("slip_torque") = r.slip_torque, py::arg("slips_at") = r.slips_at,
@@ -144,16 +142,8 @@ py::list slip_study(SlipStudyOptions o, const py::object& log) {
 }
 
 py::list shift_study(ShiftStudyOptions o, const py::object& log) {
-  std::optional<py::error_already_set> error;
-  o.sweep.log = line_log(log, error);
-  std::vector<ShiftRow> rows;
-  {
-    py::gil_scoped_release nogil;
-    rows = run_shift_study(o);
-  }
-  if (error) throw *error;
   py::list out;
-  for (const ShiftRow& r : rows)
+  for (const ShiftRow& r : released(o.sweep, log, [&] { return run_shift_study(o); }))
     out.append(py::dict(py::arg("input_speed") = r.input_speed, py::arg("thrust_ratio") = r.thrust_ratio,
                         py::arg("ln_thrust_ratio") = r.ln_thrust_ratio,
                         py::arg("steady_thrust_ratio") = r.steady_thrust_ratio, py::arg("shift_rate") = r.shift_rate,
