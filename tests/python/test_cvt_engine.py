@@ -171,7 +171,17 @@ def test_the_efficiency_curve_example_runs(tmp_path):
     assert "load 8 N m" in out.stdout and "load 14 N m" in out.stdout
 
 
-def test_ctrl_c_stops_the_run_and_raises_keyboard_interrupt(tmp_path):
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler, as in an interactive session (a job started in the
+    background of a shell inherits SIGINT ignored, and Python then leaves it so)."""
+    import signal
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
+def test_ctrl_c_stops_the_run_and_raises_keyboard_interrupt(tmp_path, python_sigint):
     import signal
     timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
@@ -205,7 +215,7 @@ def test_a_stop_asked_once_holds_and_any_false_value_stops():
         cvt.run(MINI, t_end=0.002, progress=lambda p: Undecided(), progress_seconds=0)
 
 
-def test_runs_side_by_side_in_threads_give_their_own_bits():
+def test_runs_side_by_side_in_threads_give_their_own_bits(python_sigint):
     import signal
     results = {}
 
