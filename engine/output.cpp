@@ -6,16 +6,9 @@
 #include <cstdio>
 #include <random>
 
-namespace cvt {
+#include "engine/io/json.hpp"
 
-namespace {
-// x to 17 significant digits (JSON).
-std::string exact_text(double x) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  return b;
-}
-}  // namespace
+namespace cvt {
 
 void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
   f.set_string_attribute("/parameters", "version", CVT_VERSION);
@@ -28,17 +21,17 @@ void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
   // The layout the 3D viewer draws (docs/output.md): shaft axes, sheave faces, links.
   std::string layout = "{\"links\": " + std::to_string(m.links) + ", \"tracked_pin\": " +
                        std::to_string(m.cfg.run.tracked_pin) + ", \"cone_angle\": " +
-                       exact_text(m.cfg.sheave.cone_angle * M_PI / 180) + ", \"hub_radius\": " +
-                       exact_text(m.cfg.sheave.hub_radius) + ", \"outer_radius\": " +
-                       exact_text(m.cfg.sheave.outer_radius) + ", \"pin_length\": " + exact_text(m.cfg.pin.length) +
-                       ", \"plate_spread\": " + exact_text(m.cfg.chain.plate_spread) +
-                       ", \"pitch\": " + exact_text(m.cfg.chain.pitch) + ", \"pulleys\": [";
+                       json_number(m.cfg.sheave.cone_angle * M_PI / 180) + ", \"hub_radius\": " +
+                       json_number(m.cfg.sheave.hub_radius) + ", \"outer_radius\": " +
+                       json_number(m.cfg.sheave.outer_radius) + ", \"pin_length\": " + json_number(m.cfg.pin.length) +
+                       ", \"plate_spread\": " + json_number(m.cfg.chain.plate_spread) +
+                       ", \"pitch\": " + json_number(m.cfg.chain.pitch) + ", \"pulleys\": [";
   for (int k = 0; k < 2; ++k) {
     const Pulley& p = m.pulley[k];
-    layout += std::string(k ? ", " : "") + "{\"centre\": [" + exact_text(p.centre.x()) + ", " +
-              exact_text(p.centre.y()) + "], \"face_z\": [" + exact_text(p.face_z[0]) + ", " +
-              exact_text(p.face_z[1]) + "], \"moving_side\": " + std::to_string(p.moving_side) +
-              ", \"running_radius\": " + exact_text(p.running_radius) + "}";
+    layout += std::string(k ? ", " : "") + "{\"centre\": [" + json_number(p.centre.x()) + ", " +
+              json_number(p.centre.y()) + "], \"face_z\": [" + json_number(p.face_z[0]) + ", " +
+              json_number(p.face_z[1]) + "], \"moving_side\": " + std::to_string(p.moving_side) +
+              ", \"running_radius\": " + json_number(p.running_radius) + "}";
   }
   f.set_string_attribute("/parameters", "layout", layout + "]}");
 }

@@ -415,7 +415,6 @@ std::string json_rows(const std::vector<ModeRow>& rows) {
   return s + (rows.empty() ? "]" : "\n  ]");
 }
 
-std::string json_number(double x) { return std::isfinite(x) ? fmt("%.17g", x) : std::string("null"); }
 
 }  // namespace
 
