@@ -1,5 +1,5 @@
 // Explicit steps of the generic integrators: DOPRI5(4), RKC and adaptive RK4
-// (docs/integrators.md 2-4). Fixed-step RK4 is cvt::Rk4 itself (engine/ode/rk4.hpp), called
+// (docs/integrators.md 2-4); DUMKA3 is in dumka3.cpp. Fixed-step RK4 is cvt::Rk4 itself (engine/ode/rk4.hpp), called
 // from the fixed-step driver.
 #include <algorithm>
 #include <cmath>
@@ -79,17 +79,21 @@ void OdeSolverImpl::step_rk4_doubling(double t, double h, const Eigen::VectorXd&
 // 88 (1997) 315-326, transcribed from their rkc.f (subroutines STEP and RKCLOW). Its
 // stability interval on the negative real axis is about 0.653 s^2 for s stages, so the
 // step needs s = 1 + sqrt(1 + 1.54 h rho) stages for a spectral radius rho.
+// The spectral radius for RKC and DUMKA3 when it is due: the user's bound, or 1.2 times the
+// power method's estimate (rkc.f's and Medovikov's dumka3 safety factor), with f0_ = f(t, y).
+void OdeSolverImpl::update_spectral_radius(double t, const Eigen::VectorXd& y) {
+  if (!need_rho_) return;
+  int evals = 0;
+  rho_ = opt_.spectral_radius ? opt_.spectral_radius(t, y.data()) : 1.2 * rho_est_->estimate(sys_, t, y, f0_, &evals);
+  stats.rhs_evals += evals;
+  ++stats.rho_estimates;
+  stats.rho_last = rho_;
+  need_rho_ = false, rho_fresh_ = true;
+  steps_since_rho_ = 0;
+}
+
 void OdeSolverImpl::step_rkc(double t, double& h, const Eigen::VectorXd& y, double* err) {
-  if (need_rho_) {
-    int evals = 0;
-    rho_ = opt_.spectral_radius ? opt_.spectral_radius(t, y.data())
-                                : 1.2 * rho_est_->estimate(sys_, t, y, f0_, &evals);
-    stats.rhs_evals += evals;
-    ++stats.rho_estimates;
-    stats.rho_last = rho_;
-    need_rho_ = false, rho_fresh_ = true;
-    steps_since_rho_ = 0;
-  }
+  update_spectral_radius(t, y);
   // The most stages rkc.f allows: beyond them rounding errors of the recursion grow past
   // the tolerance. In fixed-step mode the step is given and the stage count follows.
   const int s_max = std::max(2, static_cast<int>(std::sqrt(opt_.rtol / (10 * std::numeric_limits<double>::epsilon()))));

@@ -33,6 +33,7 @@ const char* to_string(OdeMethod method) {
     case OdeMethod::Esdirk3: return "esdirk3";
     case OdeMethod::Ros2: return "ros2";
     case OdeMethod::Ros34pw2: return "ros34pw2";
+    case OdeMethod::Dumka3: return "dumka3";
   }
   return "?";
 }
@@ -206,6 +207,10 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       rho_est_.emplace(n_);
       yjm1_.setZero(n_), yjm2_.setZero(n_);
       break;
+    case OdeMethod::Dumka3:
+      rho_est_.emplace(n_);
+      for (auto* k : {&k2_, &k3_, &k4_}) k->setZero(n_);
+      break;
     case OdeMethod::Trapezoid:
     case OdeMethod::TrBdf2:
     case OdeMethod::Esdirk3:
@@ -237,13 +242,15 @@ int OdeSolverImpl::order() const {
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
     case OdeMethod::Ros2: return 1;  // the estimate is that of the embedded first-order solution
     case OdeMethod::Ros34pw2: return 2;  // and here of the embedded second-order one
+    case OdeMethod::Dumka3: return 2;  // third order, but its estimate goes like h^3 (dumka3.f's exponent 1/3)
     default: return 2;  // RKC, trapezoid, TR-BDF2; ESDIRK3's estimate is its 2nd-order embedding
   }
 }
 
-// Hairer's RMS norm of err weighted by atol_i + rtol max(|y0_i|, |y1_i|): 1 is the tolerance.
+// The system's norm if it has one; else Hairer's RMS norm of err weighted by atol_i + rtol max(|y0_i|, |y1_i|): 1 is the tolerance.
 double OdeSolverImpl::error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0,
                                  const Eigen::VectorXd& y1) const {
+  if (sys_.error_norm) return sys_.error_norm(err.data(), y0.data(), y1.data());
   double sum = 0, worst = 0;
   for (int i = 0; i < n_; ++i) {
     const double sk = atol_[i] + opt_.rtol * std::max(std::abs(y0[i]), std::abs(y1[i]));
@@ -291,6 +298,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::Ros2: step_ros2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Rk4: step_rk4_doubling(t, h, y, err); return Attempt::Ok;
+    case OdeMethod::Dumka3: step_dumka3(t, h, y, err); return Attempt::Ok;
   }
   throw std::logic_error("OdeSolver: unknown method");
 }
@@ -298,7 +306,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
 void OdeSolverImpl::accepted(double t, double h) {
   ++stats.steps;
   stats.h_last = h;
-  if (method_ == OdeMethod::Rkc) {
+  if (stabilized()) {
     ++steps_since_rho_;
     rho_fresh_ = false;
     if (opt_.rkc_rho_every > 0 && steps_since_rho_ >= opt_.rkc_rho_every) need_rho_ = true;
@@ -318,8 +326,8 @@ void OdeSolverImpl::accepted(double t, double h) {
 
 void OdeSolverImpl::rejected() {
   ++stats.rejected;
-  // RKC: a rejected step may come from a stale radius; re-estimate unless just done.
-  if (method_ == OdeMethod::Rkc && !rho_fresh_) need_rho_ = true;
+  // RKC, DUMKA3: a rejected step may come from a stale radius; re-estimate unless just done.
+  if (stabilized() && !rho_fresh_) need_rho_ = true;
 }
 
 void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
@@ -391,7 +399,8 @@ void OdeSolverImpl::integrate_fixed(double t0, double t1, Eigen::VectorXd& y, co
 void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   fixed_ = false;
   if (!is_w_method(method_) || !(opt_.h0 > 0)) eval(t0, y, f0_);  // W-methods evaluate it per step
-  if (method_ == OdeMethod::Rkc) need_rho_ = true;
+  if (stabilized()) need_rho_ = true;
+  dk_err_prev_ = dk_h_prev_ = 0;
   double h = opt_.h0 > 0 ? std::min({opt_.h0, opt_.h_max, t1 - t0}) : initial_step(t0, y, t1);
   // Controller (Hairer & Wanner I, II.4): h_new = h * safe / err^(1/(q+1)) * err_old^beta,
   // beta = 0.04 (the PI part) for DOPRI5 as in dopri5.f, 0 for the others. The step grows
@@ -399,12 +408,13 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
   // implicit and W-methods: their estimates hold only where the step is small against the
   // solution's own time scales, and a step that jumps far past the last one that was
   // checked can be accepted with a small estimate and a large error (ESDIRK3 on VDPOL at
-  // tol 1e-4 grew 5x into a step with a true error 7600 times the tolerance).
+  // tol 1e-4 grew 5x into a step with a true error 7600 times the tolerance). DUMKA3 takes
+  // dumka3.f's own controller instead (dumka3.cpp), which starts each call without history.
   const double beta = method_ == OdeMethod::Dopri5 ? 0.04 : 0.0;
   const double expo = 1.0 / (order() + 1) - 0.75 * beta;
   const double safe = 0.9, fac_min = 0.2, fac_max = implicit() || is_w_method(method_) ? 2.0 : 10.0;
   double err_old = 1e-4;
-  bool last_rejected = false, last_newton_failed = false;
+  bool last_rejected = false, last_newton_failed = false, first_attempt = true;
   double t = t0;
   while (t < t1) {
     if (stats.steps + stats.rejected >= opt_.max_steps) throw OdeError(t, h, "max_steps reached");
@@ -422,7 +432,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
     double err = 0;
     const double h_tried = h;
     const Attempt a = attempt(t, h, y, &err);
-    if (h != h_tried) last = false;  // RKC shortened it
+    if (h != h_tried) last = false;  // RKC or DUMKA3 shortened it
     last_newton_failed = a == Attempt::NewtonFailed;
     if (a == Attempt::NewtonFailed) {
       ++stats.newton_failures;
@@ -443,6 +453,7 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
       fac = std::clamp(fac, 1.0 / fac_max, 1.0 / fac_min);
       double h_new = h / fac;
       if (last_rejected) h_new = std::min(h_new, h);  // no growth right after a rejection
+      if (method_ == OdeMethod::Dumka3) h_new = dumka3_step_accepted(h, err);  // its own controller
       // Implicit methods: a small increase is not worth a new LU (RADAU5's quot1/quot2).
       if (implicit() && h_new >= h && h_new <= opt_.keep_h_ratio * h) h_new = h;
       err_old = std::max(err, 1e-4);
@@ -452,9 +463,10 @@ void OdeSolverImpl::integrate_adaptive(double t0, double t1, Eigen::VectorXd& y,
     } else {
       rejected();
       const double fac = std::min(1.0 / fac_min, std::pow(err, expo + 0.75 * beta) / safe);
-      h = h / fac;
+      h = method_ == OdeMethod::Dumka3 ? dumka3_step_rejected(h, err, first_attempt) : h / fac;
       last_rejected = true;
     }
+    first_attempt = false;
   }
 }
 
