@@ -30,6 +30,17 @@ bool divides(double h, double x) {
 }  // namespace
 
 void check_step_grid(const Config& c) {
+  if (adaptive_steps(c)) {
+    // The run's grid is the sample interval; the steps in between are the driver's.
+    for (const auto& [key, x] : {std::pair<const char*, double>{"run.snapshot_interval", c.run.snapshot_interval},
+                                 std::pair<const char*, double>{"run.t_end", c.run.t_end}})
+      if (x > 0 && !divides(c.run.sample_interval, x))
+        throw ConfigError("run.sample_interval", shortest(c.run.sample_interval),
+                          "does not divide " + std::string(key) + " = " + shortest(x) +
+                              " s: with adaptive steps (integrator.tolerance > 0) the steps end on the sample times, "
+                              "so run.t_end and run.snapshot_interval must be multiples of run.sample_interval");
+    return;
+  }
   const double h = c.integrator.step;
   const std::vector<std::pair<const char*, double>> keys = {{"run.sample_interval", c.run.sample_interval},
                                                             {"run.snapshot_interval", c.run.snapshot_interval},

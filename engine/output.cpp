@@ -87,6 +87,8 @@ void write_summary(H5File& f, const RunSummary& s) {
   f.set_int_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? 1 : 0);
   f.set_int_attribute("/summary", "interrupted", s.interrupted ? 1 : 0);
   f.set_int_attribute("/summary", "steps", s.steps);
+  f.set_int_attribute("/summary", "rejected_steps", s.rejected_steps);
+  f.set_double_attribute("/summary", "mean_step", s.mean_step);
   for (auto [name, v] : std::initializer_list<std::pair<const char*, double>>{
            {"step", s.step},
            {"drive_speed", s.drive_speed},

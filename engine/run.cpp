@@ -123,6 +123,7 @@ class Run {
   const bool tty_ = isatty(fileno(stderr));
   WallClock::time_point t0_ = WallClock::now(), last_progress_ = t0_, last_flush_ = t0_;
   double step_wall_ = 0;
+  long steps0_ = 0, rejected0_ = 0;  // the simulation's integrator steps at the start
   // run.until_steady: the windows' length, the first model time at which two fit after the
   // ramps, and the steps between checks (on the sample grid, at steps a continuation
   // repeats bit for bit).
@@ -136,7 +137,7 @@ class Run {
 // continuation repeats the bits only from a step that rebuilds all of it, a multiple of
 // integrator.w_k_every; periodic checkpoints and stops on a signal fall on such steps.
 Run::Run(const Model& m, const RunOptions& opt)
-    : m_(m), c_(m.cfg), opt_(opt), h_(c_.integrator.step), total_(std::max(1L, std::lround(c_.run.t_end / h_))),
+    : m_(m), c_(m.cfg), opt_(opt), h_(grid_step(c_)), total_(std::max(1L, std::lround(c_.run.t_end / h_))),
       every_sample_(steps_for(c_.run.sample_interval, h_)), every_snapshot_(steps_for(c_.run.snapshot_interval, h_)),
       append_(opt.append && opt.resume),
       ckpt_path_(opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path),
@@ -157,6 +158,7 @@ Run::Run(const Model& m, const RunOptions& opt)
     }
   }
   start_ = done_ = sim_.steps();
+  steps0_ = sim_.steps_taken(), rejected0_ = sim_.steps_rejected();
   if (start_ >= total_)
     throw std::runtime_error("the checkpoint is at step " + std::to_string(start_) + " (t = " +
                              std::to_string(sim_.time()) + " s), not before t_end = " + std::to_string(c_.run.t_end) +
@@ -377,15 +379,17 @@ RunResult Run::finish() {
   const double t_start = opt_.resume ? opt_.resume->t : 0.0;
   r_.profile = prof_.report(seconds_since(t0_), sim_.time() - t_start, sim_.schedule().numa_nodes(),
                             scheduler_name(opt_.schedule.kind));
-  const long steps = done_ - start_;
+  const long steps = sim_.steps_taken() - steps0_;
   r_.steps = steps;
+  r_.rejected_steps = sim_.steps_rejected() - rejected0_;
+  r_.mean_step = (sim_.time() - t_start) / static_cast<double>(std::max(1L, steps));
   r_.interrupted = g_stop_signal != 0 || stop_asked_;
   r_.signal = g_stop_signal;
   r_.t_start = t_start;
   r_.model_time = sim_.time();
   r_.wall_s = step_wall_;
   r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
-  r_.model_s_per_hour = static_cast<double>(steps) * h_ / step_wall_ * 3600.0;
+  r_.model_s_per_hour = static_cast<double>(done_ - start_) * h_ / step_wall_ * 3600.0;
   r_.stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : stopped_;
   r_.steady_window = window_;
   summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * window_ : -1.0);

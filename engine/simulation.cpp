@@ -47,6 +47,7 @@ void Simulation::step(double h, bool update_status) {
 // RK4 (docs/model.md 7): the four stages through the schedule, each with its stage update
 // inside the graph, then (unless frozen) the contact statuses for the next step.
 void Simulation::rk4_step(double h, bool update_status) {
+  ++steps_taken_;
   schedule_->within([&] {
     rk_.step([this](double t, const double* y, double* dy, const StageOp* op) { schedule_->rhs(t, y, dy, op); },
              clock_.t, h, y_);
@@ -63,12 +64,20 @@ void Simulation::rk4_step(double h, bool update_status) {
 void Simulation::w_step(double h) {
   const int sub = startup_substeps(m_.cfg.integrator, h);
   const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
-  OdeDriver& drv = w_driver(startup ? h / sub : h, startup);
+  const bool adaptive = adaptive_steps(m_.cfg);
+  OdeDriver& drv = w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h, startup);
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
   if (y_.allFinite()) {
     try {
-      drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), clock_.steps);
+      const std::int64_t rejected0 = drv.stats().rejected;
+      // The matrix's rebuild schedule counts the driver's steps: the run's (fixed steps), or
+      // with adaptive steps the sub-steps taken so far (the clock then ticks per sample).
+      const long first = adaptive ? steps_taken_ : clock_.steps;
+      const long n = drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), first);
+      // Adaptive: the driver's steps between two ticks of the clock (start-up sub-steps too).
+      steps_taken_ += adaptive ? n : 1;
+      steps_rejected_ += drv.stats().rejected - rejected0;
     } catch (const std::exception&) {
       if (y_.allFinite()) throw;
       w_driver_.reset(), w_startup_.reset();

@@ -57,6 +57,11 @@ class Simulation {
   const Model& model() const { return m_; }
   double time() const { return clock_.t; }
   long steps() const { return clock_.steps; }
+  // The integrator's accepted steps since construction: the clock's steps, or with adaptive
+  // W-steps (integrator.tolerance) the driver's, start-up sub-steps included; and the
+  // adaptive steps it rejected.
+  long steps_taken() const { return steps_taken_; }
+  long steps_rejected() const { return steps_rejected_; }
   const StepClock& clock() const { return clock_; }
   const Eigen::VectorXd& state() const { return y_; }
   Eigen::VectorXd& mutable_state() { return y_; }
@@ -121,6 +126,7 @@ class Simulation {
   Eigen::VectorXd y_, dy_;
   StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;
+  long steps_taken_ = 0, steps_rejected_ = 0;
   Eigen::VectorXd good_y_;  // last state that passed check_finite, with its time and statuses
   double good_t_ = 0;
   long good_steps_ = 0;

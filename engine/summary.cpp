@@ -367,6 +367,8 @@ std::string summary_json(const RunSummary& s) {
   num("t_start", s.t_start);
   num("model_time", s.model_time);
   num("steps", static_cast<double>(s.steps));
+  num("rejected_steps", static_cast<double>(s.rejected_steps));
+  num("mean_step", s.mean_step);
   num("wall_s", s.wall_s);
   num("us_per_step", s.us_per_step);
   os << "  \"model_s_per_hour\": " << (std::isfinite(s.model_s_per_hour) ? s.model_s_per_hour : 0.0) << "\n}\n";

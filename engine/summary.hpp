@@ -43,7 +43,9 @@ struct SteadyCriteria {
 
 struct RunSummary {
   // The run.
-  long steps = 0;
+  long steps = 0;           // the integrator's accepted steps (adaptive: its own, start-up sub-steps too)
+  long rejected_steps = 0;  // adaptive steps rejected by the error test
+  double mean_step = 0;     // model time / steps [s]
   double t_start = 0, model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
   bool interrupted = false;  // stopped by SIGINT, SIGTERM or a progress callback (the file holds the run so far)
   int signal = 0;

@@ -212,10 +212,18 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
              fmt_g(cfg.integrator.startup_time) + " s";
       w += ")";
     }
-    std::printf("  t_end = %g s%s, %s step = %g s%s, friction %s\n", cfg.run.t_end,
+    const std::string step = cvt::adaptive_steps(cfg)
+                                 ? "adaptive steps (tolerance " + fmt_g(cfg.integrator.tolerance) + ", first " +
+                                       fmt_g(cfg.integrator.step) + " s, at most " + fmt_g(cfg.run.sample_interval) + " s)"
+                                 : "step = " + fmt_g(cfg.integrator.step) + " s";
+    if (cvt::adaptive_steps(cfg) && startup_sub > 1)
+      w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+          std::to_string(cfg.integrator.w_k_every) + "; ros2 sub-steps of " + fmt_g(cfg.integrator.startup_step) +
+          " s before t = " + fmt_g(cfg.integrator.startup_time) + " s)";
+    std::printf("  t_end = %g s%s, %s %s%s, friction %s\n", cfg.run.t_end,
                 cfg.run.until_steady ? (" (or until steady: two windows of " + fmt_g(steady_window(model)) + " s)").c_str()
                                      : "",
-                to_string(cfg.integrator.method), cfg.integrator.step, w.c_str(), to_string(cfg.friction.law));
+                to_string(cfg.integrator.method), step.c_str(), w.c_str(), to_string(cfg.friction.law));
     std::fflush(stdout);
   }
   RunOptions opt;
@@ -242,8 +250,10 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
     else
       std::printf("\nrun complete: t = %.9g s in %s\n", r.model_time, out.c_str());
     std::printf("%s", format_summary(r).c_str());
-    std::printf("  throughput: %ld steps in %.1f s, %.1f us per step, %s per model second (%s, %d thread%s)\n",
-                r.steps, r.wall_s, r.us_per_step, per_model_second(r.model_s_per_hour).c_str(),
+    const std::string rejected =
+        cvt::adaptive_steps(cfg) ? " (mean " + fmt_g(r.mean_step) + " s, " + std::to_string(r.rejected_steps) + " rejected)" : "";
+    std::printf("  throughput: %ld steps%s in %.1f s, %.1f us per step, %s per model second (%s, %d thread%s)\n",
+                r.steps, rejected.c_str(), r.wall_s, r.us_per_step, per_model_second(r.model_s_per_hour).c_str(),
                 r.profile.scheduler.c_str(), r.profile.threads, r.profile.threads == 1 ? "" : "s");
     if (ra.profile) std::printf("\n%s", format_profile(r.profile).c_str());
   }
@@ -512,8 +522,8 @@ Command add_study_command(CLI::App& app) {
   study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
-  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,trapezoid,trbdf2,esdirk3,ros2,ros34pw2")->delimiter(',')
-      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2"}))->capture_default_str();
+  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,dumka3,trapezoid,trbdf2,esdirk3,ros2,ros34pw2")->delimiter(',')
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "dumka3", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2"}))->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();
@@ -544,6 +554,12 @@ Command add_study_command(CLI::App& app) {
   add_study_w_options(study_int, si, si_exact_slope);
   study_int->add_option("--jac-theta", si.jac_theta, "new Jacobian when Newton's rate exceeds this")->capture_default_str();
   study_int->add_flag("--max-norm", si.max_norm, "error and Newton tests in the max norm (default: RMS)");
+  study_int->add_flag("--newton-w", si.newton_w,
+                      "implicit methods: Newton with the chain's structured matrix (the W-methods' block LU) instead of "
+                      "the coloured Jacobian and a sparse LU");
+  study_int->add_flag("--chain-norm", si.chain_norm,
+                      "adaptive candidates: the error test per pin (the largest over the pins, shafts and load) instead "
+                      "of the RMS over the state");
   study_int->add_flag("--plain-friction", si_plain_friction, "do not freeze the friction branch within a step");
   study_int->add_flag("--no-one-step", si_no_one_step, "skip part (a)");
   study_int->add_flag("--no-curve", si_no_curve, "skip part (b)");
@@ -571,7 +587,7 @@ Command add_study_command(CLI::App& app) {
     const cvt::Model model = cvt::build_model(cvt::load_config(a->si_config, a->si_overrides));
     if (!a->si_w_steps.empty()) si.w_steps = cvt::parse_w_candidates(a->si_w_steps);
     else  // the configuration's own step and matrix intervals
-      si.w_steps = {{model.cfg.integrator.step, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
+      si.w_steps = {{model.cfg.integrator.step, 0, model.cfg.integrator.w_every, model.cfg.integrator.w_k_every, "ros34pw2"}};
     if (si.w_every == 0) si.w_every = model.cfg.integrator.w_every;
     if (si.w_k_every == 0) si.w_k_every = model.cfg.integrator.w_k_every;
     return cvt::run_integrator_study(model, si);

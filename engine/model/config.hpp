@@ -174,6 +174,12 @@ struct Config {
     // docs/integrators.md 12.3)
     double startup_time = 1.0e-4;   // [s]; 0: none
     double startup_step = 6.25e-8;  // [s]
+    // W-methods: > 0 chooses every step by error control after the start-up
+    // (docs/integrators.md 16): each step's estimated error at the pin, shaft or load that
+    // errs most is at most tolerance x (1 um, 1 mm/s); `step` is then the first step, the
+    // steps end on the sample times, and no longer than run.sample_interval. 0: fixed steps
+    // of `step`.
+    double tolerance = 0.0;  // [1]
   } integrator;
   struct Run {
     double t_end = 2.0e-2;            // [s]
@@ -216,6 +222,13 @@ const char* to_string(IntegratorMethod method);
 
 // The W-methods' start-up phase: the sub-steps per step of h before integrator.startup_time,
 // the fewest whose length h / n is at most integrator.startup_step; 1 without a phase.
+// Adaptive W-steps (integrator.tolerance > 0, not RK4).
+inline bool adaptive_steps(const Config& c) {
+  return c.integrator.tolerance > 0 && c.integrator.method != IntegratorMethod::rk4;
+}
+// The run's grid step: the clock's tick, between which the run samples, snapshots and checks:
+// the step itself, or with adaptive steps the sample interval (the driver's steps in between).
+inline double grid_step(const Config& c) { return adaptive_steps(c) ? c.run.sample_interval : c.integrator.step; }
 inline int startup_substeps(const Config::Integrator& in, double h) {
   if (!(in.startup_time > 0)) return 1;
   return std::max(1, static_cast<int>(std::ceil(h / in.startup_step * (1 - 1e-12))));

@@ -133,6 +133,16 @@ void NewtonMatrix::solve_in_place(Eigen::VectorXd& x) {
 // A Jacobian at the step's start when flagged (first step, slow convergence, Newton
 // failure), and an LU whenever J or dh changed.
 void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y) {
+  theta_max_ = 0;
+  if (newton_on_w()) {
+    // The system's matrix I - dh J~, prepared right after a fresh f(t, y) as w_factor asks.
+    eval(t, y, tmp_);
+    const auto c0 = std::chrono::steady_clock::now();
+    sys_.w_factor(t, y.data(), dh);
+    ++stats.lu_factorizations;
+    stats.lu_seconds += seconds_since(c0);
+    return;
+  }
   if (need_jac_) {
     // Finite differences need f(t, y) to full precision: f0_ of an implicit step is the
     // stage formula's (z - psi) / dh, off by the Newton error over dh, which divided by a
@@ -150,7 +160,15 @@ void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y
     newton_->factorize(dh, stats);
     stats.lu_seconds += seconds_since(c0);
   }
-  theta_max_ = 0;
+}
+
+void OdeSolverImpl::newton_solve(Eigen::VectorXd& x) {
+  const auto c0 = std::chrono::steady_clock::now();
+  if (newton_on_w())
+    sys_.w_solve(x.data());
+  else
+    newton_->solve_in_place(x);
+  stats.solve_seconds += seconds_since(c0);
 }
 
 // Simplified Newton with RADAU5's convergence control (Hairer & Wanner II, IV.8): the rate
@@ -159,7 +177,7 @@ void OdeSolverImpl::prepare_newton(double t, double dh, const Eigen::VectorXd& y
 // theta >= 1 or when the prediction says max_iter will not be enough.
 bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale,
                            Eigen::VectorXd& z, Eigen::VectorXd& fz) {
-  if (!newton_->ok()) return false;
+  if (!newton_on_w() && !newton_->ok()) return false;
   const double fnewt = std::max(10 * kEps / opt_.rtol, std::min(0.03, std::sqrt(opt_.rtol)));
   for (int i = 0; i < n_; ++i) scale_[i] = atol_[i] + opt_.rtol * std::abs(y_scale[i]);
   double faccon = std::pow(std::max(faccon_, kEps), 0.8);
@@ -169,9 +187,7 @@ bool OdeSolverImpl::newton(double tz, double dh, const Eigen::VectorXd& psi, con
     eval(tz, z, fz);
     ++stats.newton_iterations;
     delta_ = psi + dh * fz - z;  // -G(z)
-    const auto c0 = std::chrono::steady_clock::now();
-    newton_->solve_in_place(delta_);
-    stats.solve_seconds += seconds_since(c0);
+    newton_solve(delta_);
     const double dyno = opt_.max_norm ? (delta_.array() / scale_.array()).abs().maxCoeff()
                                       : std::sqrt((delta_.array() / scale_.array()).square().sum() / n_);
     if (!std::isfinite(dyno)) return false;
@@ -204,7 +220,7 @@ OdeSolverImpl::Attempt OdeSolverImpl::newton_failed() {
 
 // The error estimate err_vec_ filtered by the Newton matrix (I - dh J)^-1, as its norm.
 OdeSolverImpl::Attempt OdeSolverImpl::filtered_error(const Eigen::VectorXd& y, double* err) {
-  newton_->solve_in_place(err_vec_);
+  newton_solve(err_vec_);
   *err = error_norm(err_vec_, y, y_new_);
   return Attempt::Ok;
 }

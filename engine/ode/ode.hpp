@@ -2,7 +2,7 @@
 //
 // The engine's production path keeps the fixed-step Rk4 of engine/ode/rk4.hpp, whose
 // fused stage update the parallel runtime relies on bit for bit. This library sits beside
-// it: explicit (RK4, DOPRI5(4), RKC) and implicit (trapezoid, TR-BDF2, ESDIRK3) methods
+// it: explicit (RK4, DOPRI5(4), RKC, DUMKA3) and implicit (trapezoid, TR-BDF2, ESDIRK3) methods
 // behind one driver, with error control, Newton with a reused Jacobian and factorization,
 // and a finite-difference Jacobian that needs one right-hand side per column colour when
 // the sparsity pattern is known.
@@ -75,6 +75,13 @@ struct OdeSystem {
   // t-column is zero. The other methods do not use it.
   using TimeDerivative = std::function<void(double t, const double* y, double* dfdt)>;
   TimeDerivative time_derivative;
+  // The error test's norm, optional: the scaled size of a step's error estimate err (1 is
+  // the tolerance) given the step's start and end states. Without it every adaptive method
+  // takes Hairer's weighted RMS norm (or the max norm) over atol / rtol. For systems whose
+  // error concentrates in a few groups of many components (the CVT: the pins entering a
+  // sheave), a norm per group, maximized over the groups, is not diluted by the others.
+  using ErrorNorm = std::function<double(const double* err, const double* y0, const double* y1)>;
+  ErrorNorm error_norm;
   // The pattern from a list of (row, column) nonzeros; duplicates are fine.
   void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
 };
@@ -88,6 +95,11 @@ enum class OdeMethod {
   Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
   Ros2,       // Verwer et al.'s ROS2 W-method, 2 stages, order 2 for any J~, L-stable for J~ = J
   Ros34pw2,   // Rang & Angermann's ROS34PW2 W-method, 4 stages, order 3 for any J~, stiffly accurate
+  // Medovikov's DUMKA3 (BIT 38 (1998) 372-390, dumka3.f): 3rd order, stabilized explicit, one of
+  // 15 optimal stability polynomials of degree 3 ... 576 (the stages of a step) chosen from the
+  // spectral radius; real stability interval 2.5 ... 142602 (about 0.3-0.5 s^2). A fixed
+  // step with h rho beyond the largest interval throws OdeError.
+  Dumka3,
 };
 
 // The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
@@ -113,10 +125,11 @@ struct OdeOptions {
   // h0 = 0 it is adaptive (step doubling).
   bool fixed_step = false;
 
-  // RKC: re-estimate the spectral radius after this many accepted steps (and after a
-  // rejection); 0 never again after the first.
+  // RKC and DUMKA3: re-estimate the spectral radius after this many accepted steps (and after
+  // a rejection); 0 never again after the first.
   int rkc_rho_every = 25;
-  // A user-supplied bound on the spectral radius of df/dy replaces the power iteration.
+  // RKC and DUMKA3: a user-supplied bound on the spectral radius of df/dy replaces the power
+  // iteration (whose estimate both take times 1.2).
   std::function<double(double t, const double* y)> spectral_radius;
 
   // Newton (implicit methods). max iterations per stage; recompute the Jacobian at the next
@@ -149,6 +162,12 @@ struct OdeOptions {
   // which the Jacobian changes much: HIRES at tol 1e-4, a step of 212 estimated at 0.55 of
   // the tolerance, true error 57 times it. One more evaluation of f per attempt.
   bool w_linearization_test = true;
+  // Implicit methods (trapezoid, TR-BDF2, ESDIRK3): simplified Newton with the system's
+  // W-method matrix (w_factor(t, y, d h) at each step's start, after a fresh f(t, y); w_solve
+  // for every iteration and for the error filter) in place of a Jacobian and an LU of the
+  // library's own. The system decides when its matrix is rebuilt; Newton only needs it to
+  // contract. Ignored without w_factor / w_solve.
+  bool newton_uses_w = false;
 };
 
 struct OdeStats {
@@ -159,8 +178,8 @@ struct OdeStats {
   std::int64_t lu_factorizations = 0;
   std::int64_t newton_iterations = 0;
   std::int64_t newton_failures = 0;
-  std::int64_t rho_estimates = 0;  // RKC
-  int max_stages = 0;              // RKC: most stages used in one step
+  std::int64_t rho_estimates = 0;  // RKC, DUMKA3
+  int max_stages = 0;              // RKC, DUMKA3: most stages (f-evaluations) used in one step
   int colors = 0;                  // colours of the finite-difference Jacobian (0: dense or analytic)
   double h_last = 0;
   // Adaptive mode: the step the controller proposed for after the last accepted one (a
@@ -169,7 +188,7 @@ struct OdeStats {
   // Adaptive mode: the scaled error estimate of the last accepted step (<= 1; 0 in fixed
   // steps), for observers that watch the error control.
   double err_last = 0;
-  double rho_last = 0;  // RKC: last spectral radius used
+  double rho_last = 0;  // RKC, DUMKA3: last spectral radius used
   // Wall time of the implicit methods' linear algebra [s]: Jacobians (with their f
   // evaluations), LU factorizations, and the Newton iterations' solves.
   double jac_seconds = 0, lu_seconds = 0, solve_seconds = 0;

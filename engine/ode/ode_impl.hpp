@@ -1,6 +1,7 @@
 // Internals of the generic integrators (engine/ode/ode.hpp): one workspace class whose step
-// functions live in ode_explicit.cpp and ode_implicit.cpp, and whose driver (step-size
-// control, fixed-step loop) lives in ode.cpp. Not part of the public interface.
+// functions live in explicit.cpp, dumka3.cpp, implicit.cpp and rosenbrock.cpp, and whose
+// driver (step-size control, fixed-step loop) lives in ode.cpp. Not part of the public
+// interface.
 #pragma once
 
 #include <optional>
@@ -67,9 +68,11 @@ class OdeSolverImpl {
   bool implicit() const {
     return method_ == OdeMethod::Trapezoid || method_ == OdeMethod::TrBdf2 || method_ == OdeMethod::Esdirk3;
   }
+  // The stabilized explicit methods, whose stage count follows the spectral radius.
+  bool stabilized() const { return method_ == OdeMethod::Rkc || method_ == OdeMethod::Dumka3; }
 
   // One step attempt from (t, y) with f0_ = f(t, y) valid: writes y_new_, f_new_ and the
-  // scaled error (<= 1: acceptable). RKC may shorten h (stage count limit).
+  // scaled error (<= 1: acceptable). RKC and DUMKA3 may shorten h (stage count limit).
   Attempt attempt(double t, double& h, const Eigen::VectorXd& y, double* err);
   void accepted(double t, double h);  // bookkeeping after an accepted step, before f0_ moves on
   void rejected();
@@ -77,9 +80,18 @@ class OdeSolverImpl {
   // ode_explicit.cpp
   void step_dopri5(double t, double h, const Eigen::VectorXd& y, double* err);
   void step_rkc(double t, double& h, const Eigen::VectorXd& y, double* err);
+  void update_spectral_radius(double t, const Eigen::VectorXd& y);  // RKC, DUMKA3: when need_rho_
   void step_rk4_doubling(double t, double h, const Eigen::VectorXd& y, double* err);
   // One classical RK4 step of h from (t, y) with k1 = f(t, y) given; out must not alias y or k1.
   void rk4_from(double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& k1, Eigen::VectorXd& out);
+  // dumka3.cpp: one step (h may be shortened to the stability limit in adaptive mode), the
+  // choice of its polynomial, and dumka3.f's controller: the next step after an accepted or a
+  // rejected attempt of h with scaled error err.
+  void step_dumka3(double t, double& h, const Eigen::VectorXd& y, double* err);
+  int dumka3_polynomial(double t, double& h) const;
+  double dumka3_step_accepted(double h, double err);
+  double dumka3_step_rejected(double h, double err, bool first_attempt) const;
+  double dk_err_prev_ = 0, dk_h_prev_ = 0;  // the last accepted step's error and size (its controller)
   // ode_implicit.cpp
   Attempt step_trapezoid(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt newton_failed();
@@ -103,6 +115,9 @@ class OdeSolverImpl {
   bool newton(double tz, double dh, const Eigen::VectorXd& psi, const Eigen::VectorXd& y_scale, Eigen::VectorXd& z,
               Eigen::VectorXd& fz);
   void prepare_newton(double t, double dh, const Eigen::VectorXd& y);  // fresh J / LU as flagged
+  // OdeOptions::newton_uses_w with a system W: Newton's matrix is the system's.
+  bool newton_on_w() const { return opt_.newton_uses_w && sys_.w_factor && sys_.w_solve; }
+  void newton_solve(Eigen::VectorXd& x);  // x <- (Newton's matrix)^-1 x
 
   const OdeSystem& sys_;
   OdeMethod method_;
@@ -112,11 +127,11 @@ class OdeSolverImpl {
 
   Eigen::VectorXd f0_, f_new_, y_new_, err_vec_, tmp_;
   Eigen::VectorXd atol_;  // the absolute tolerance of each component (OdeOptions::atol or atol_vector)
-  // DOPRI5 stages (k2_, k3_ also ESDIRK3's; k2_..k6_ adaptive RK4's)
+  // DOPRI5 stages (k2_, k3_ also ESDIRK3's; k2_..k6_ adaptive RK4's; k2_..k4_ DUMKA3's)
   Eigen::VectorXd k2_, k3_, k4_, k5_, k6_;
   // RK4
   std::optional<Rk4> rk4_;
-  // RKC
+  // RKC (rho_est_ and the fields after yjm2_ also DUMKA3's)
   std::optional<SpectralRadius> rho_est_;
   Eigen::VectorXd yjm1_, yjm2_;
   double rho_ = 0;

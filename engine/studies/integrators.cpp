@@ -43,6 +43,7 @@ void pin_forces(const Model& m, const Eigen::VectorXd& y, const ContactStatus& s
 struct CurveRun {
   std::string method, param_kind;  // "h" or "tol"
   double param = 0;
+  bool w_adaptive = false;         // a W-method at a tolerance, as `cvt-engine run` takes it
   std::string status = "ok";       // ok | blow-up | timeout | error: ...
   double deviation = kNaN;         // max |F - F_ref| / range(F_ref)
   double wall_s = 0;
@@ -183,13 +184,16 @@ std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::ve
         throw std::invalid_argument("--w-steps: '" + entry + "' names no W-method (ros2, ros34pw2) before '@'");
     }
     char tail = 0;
-    const int n = std::sscanf(item.c_str(), "%lf:%d:%d%c", &c.h, &c.w_every, &c.w_k_every, &tail);
+    const bool tol = item.rfind("tol=", 0) == 0;
+    const int n = std::sscanf(item.c_str() + (tol ? 4 : 0), "%lf:%d:%d%c", &c.h, &c.w_every, &c.w_k_every, &tail);
     const bool plain = n == 1 && item.find(':') == std::string::npos;
     if (!(plain || n == 3) || !(c.h > 0) ||
         (n == 3 && (c.w_every < 1 || c.w_k_every < 1 || c.w_k_every % c.w_every != 0)))
       throw std::invalid_argument("--w-steps: '" + entry +
-                                  "' is not [METHOD@]H or [METHOD@]H:W:K (a step > 0 s; K a positive multiple of W > 0)");
+                                  "' is not [METHOD@]H, [METHOD@]tol=T or either with :W:K (a step > 0 s, a tolerance > 0; K "
+                                  "a positive multiple of W > 0)");
     if (plain) c.w_every = c.w_k_every = 0;
+    if (tol) c.tol = c.h, c.h = 0;
     out.push_back(c);
   }
   return out;
@@ -215,9 +219,9 @@ class Study {
   static Model rk4_model(const Model& model, const IntegratorStudyOptions& opt);
   void matrix_options();
   Reference compute_reference(long n_samples) const;
-  CurveRun run_once(const std::string& name, double p, int w_every, int w_k_every) const;
+  CurveRun run_once(const std::string& name, double p, int w_every, int w_k_every, bool w_tol = false) const;
   void rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_point w0) const;
-  void driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, CurveRun& r,
+  void driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, bool w_tol, CurveRun& r,
                     WallClock::time_point w0) const;
   void sample(Simulation& s, CurveRun& r) const;
   double deviation(const std::vector<double>& c) const;
@@ -474,9 +478,9 @@ void Study::rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_poin
 // The other methods through an OdeDriver: tolerance p, or the W-methods' fixed step p with
 // their matrix intervals. Fixed-step W-methods as `cvt-engine run` takes them: unscaled
 // (the units only serve error norms, which fixed steps do not use).
-void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, CurveRun& r,
-                         WallClock::time_point w0) const {
-  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty();
+void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, bool w_tol,
+                         CurveRun& r, WallClock::time_point w0) const {
+  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty() && !w_tol;
   OdeRunOptions ro;
   ro.method = method;
   ro.ode = base_;
@@ -490,6 +494,16 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
   ro.jac = jac_opt_;
   if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
   if (w_fixed) ro.jac.scaled = false;
+  const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
+  if (implicit && opt_.newton_w) {
+    ro.ode.newton_uses_w = true;
+    ro.jac.w_h_grow = ro.jac.w_h_shrink = 1.25;  // Newton contracts with a matrix for a nearby d h
+  }
+  if (opt_.chain_norm && !w_fixed) ro.jac.error_tol = p;
+  if (w_tol) {  // adaptive as `cvt-engine run` takes it
+    ro.ode.h0 = m_.cfg.integrator.step;
+    w_adaptive_options(ro, p, opt_.sample_dt);
+  }
   ro.status_interval = opt_.status_interval;
   OdeDriver drv(s.model(), s.workspace(), s.schedule(), ro);
   for (size_t k = 1; k < times_.size(); ++k) {
@@ -506,12 +520,12 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
 
 // One run of a candidate of a method (step or tolerance p; W-methods: their matrix
 // intervals) from the running state over the window.
-CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k_every) const {
+CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k_every, bool w_tol) const {
   const OdeMethod method = parse_ode_method(name);
   const bool fixed = method == OdeMethod::Rk4;
-  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty();
+  const bool w_fixed = is_w_method(method) && !opt_.w_steps.empty() && !w_tol;
   CurveRun r;
-  r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p;
+  r.method = name, r.param_kind = fixed || w_fixed ? "h" : "tol", r.param = p, r.w_adaptive = w_tol;
   r.w_every = w_every, r.w_k_every = w_k_every;
   Simulation s(m_, opt_.schedule);
   s.restore(start_);
@@ -526,7 +540,7 @@ CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k
     if (fixed)
       rk4_curve(s, p, r, w0);
     else
-      driver_curve(s, method, p, w_every, w_k_every, r, w0);
+      driver_curve(s, method, p, w_every, w_k_every, w_tol, r, w0);
   } catch (const BlowUpError&) {
     r.status = "blow-up";
   } catch (const OdeError& e) {
@@ -554,12 +568,12 @@ void Study::candidates() {
     }
     bool found = false;
     for (const auto& cand : cands) {
-      const double p = cand.h;
+      const double p = cand.tol > 0 ? cand.tol : cand.h;
       const bool own = is_w_method(method) && cand.w_every > 0;  // H:W:K
       const int we = !is_w_method(method) ? 0 : own ? cand.w_every : opt_.w_every;
       const int wk = !is_w_method(method) ? 0 : own ? cand.w_k_every : opt_.w_k_every;
       // The first round; --repeat adds rounds over all runs (repeats()).
-      CurveRun r = run_once(name, p, we, wk);
+      CurveRun r = run_once(name, p, we, wk, cand.tol > 0);
       r.walls = {r.wall_s};
       r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times_.back() - t0_) / r.steps : kNaN;
       if (r.status == "timeout")
@@ -591,7 +605,7 @@ void Study::repeats() {
   for (int rep = 1; rep < opt_.repeat; ++rep)
     for (CurveRun& r : runs_) {
       if (r.status != "ok") continue;
-      CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every);
+      CurveRun again = run_once(r.method, r.param, r.w_every, r.w_k_every, r.w_adaptive);
       if (again.status != r.status || again.curve != r.curve)
         throw std::runtime_error("study: a repeated run of " + r.method + " gave other bits (not reproducible)");
       r.walls.push_back(again.wall_s);

@@ -35,6 +35,7 @@ struct IntegratorStudyOptions {
   // the study's), for one method where `method` is set (else for every W-method studied).
   struct WCandidate {
     double h = 0;
+    double tol = 0;  // > 0: adaptive at this tolerance (the production norm, w_adaptive_options) in place of h
     int w_every = 0, w_k_every = 0;
     std::string method = "";  // empty: every W-method
   };
@@ -56,6 +57,12 @@ struct IntegratorStudyOptions {
   double status_interval = 0;   // OdeRunOptions::status_interval
   int newton_max_iter = 7;      // OdeOptions
   bool max_norm = false;
+  // The implicit methods (trapezoid, TR-BDF2, ESDIRK3): simplified Newton with the chain's
+  // structured matrix (OdeOptions::newton_uses_w, the W-methods' block-cyclic LU) in place of
+  // the coloured Jacobian and a sparse LU; and the chain's error norm (per pin, maximized;
+  // ModelOdeOptions::error_tol) for every adaptive candidate.
+  bool newton_w = false;
+  bool chain_norm = false;
   double jac_theta = 0.3;
   int w_every = 0;              // ModelOdeOptions::w_every (ROS2; 0: the config's integrator.w_every)
   int w_k_every = 0;            // ModelOdeOptions::w_k_every (ROS2; 0: the config's integrator.w_k_every)

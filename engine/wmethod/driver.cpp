@@ -1,16 +1,17 @@
 #include "engine/wmethod/driver.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 namespace cvt {
 
 OdeMethod parse_ode_method(const std::string& name) {
-  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Trapezoid, OdeMethod::TrBdf2,
-                      OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
+  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Dumka3, OdeMethod::Trapezoid,
+                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
     if (name == to_string(m)) return m;
   throw std::invalid_argument("unknown method '" + name +
-                              "' (rk4, dopri5, rkc, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
+                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
 }
 
 OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
@@ -25,7 +26,23 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   ro.jac.w_secant = in.w_secant;
   ro.jac.w_fresh = in.w_fresh;  // ModelOde leaves it off without the secant
   ro.jac.w_fresh_max = in.w_fresh_max;
+  if (!startup && in.tolerance > 0) w_adaptive_options(ro, in.tolerance, c.run.sample_interval);
   return ro;
+}
+
+namespace {
+// gamma of W = I - gamma h J~ (engine/ode/rosenbrock.cpp).
+double w_gamma(OdeMethod m) { return m == OdeMethod::Ros2 ? 1 + 1 / std::sqrt(2.0) : 4.3586652150845900e-01; }
+}  // namespace
+
+void w_adaptive_options(OdeRunOptions& ro, double tol, double h_max) {
+  if (!(tol > 0)) throw std::invalid_argument("w_adaptive_options: the tolerance must be > 0");
+  ro.ode.fixed_step = false;
+  ro.ode.h_max = h_max;
+  ro.jac.scaled = false;
+  ro.jac.error_tol = tol;
+  ro.jac.w_h_grow = 1.25;
+  ro.jac.w_h_shrink = 4;
 }
 
 OdeDriver::OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const OdeRunOptions& opt)
@@ -34,6 +51,18 @@ OdeDriver::OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const Od
   solver_.options().keep_jacobian_across_calls = true;
   if (!(opt.ode.h0 > 0)) throw std::invalid_argument("OdeRunOptions: ode.h0 (first or fixed step) must be > 0");
   h_next_ = opt.ode.h0;
+}
+
+// integrate() from t to t_end with the statuses frozen (in the scaled state if asked).
+void OdeDriver::integrate_piece(double t, double t_end, Eigen::VectorXd& y) {
+  if (opt_.jac.scaled) {
+    ode_.offset() = y;
+    ode_.to_z(y, z_);
+    solver_.integrate(t, t_end, z_);
+    ode_.to_y(z_, y);
+  } else {
+    solver_.integrate(t, t_end, y);
+  }
 }
 
 long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step) {
@@ -45,30 +74,42 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
   const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
                       (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
                        opt_.method == OdeMethod::Esdirk3);
-  const bool w_blocks = is_w_method(opt_.method) && opt_.jac.w_blocks;
+  // The chain's matrix: the W-methods', or Newton's for the implicit methods (newton_uses_w).
+  const bool w_blocks = (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
   schedule_.within([&] {
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
       double t_end = fixed ? grid.time_after(k + 1, H) : t + H;
       // No sliver shorter than 1 % of a macro step before t1.
+      const bool clipped = t_end > t1;
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
-      if (!fixed) solver_.options().h0 = std::min(h_next_, t_end - t);
+      const std::int64_t rejected0 = solver_.stats().rejected;
       if (freeze) ode_.record_friction_branches();
-      if (w_blocks) ode_.ask_friction_jacobian(first_step + static_cast<long>(solver_.stats().steps - steps0));
-      if (opt_.jac.scaled) {
-        ode_.offset() = y;
-        ode_.to_z(y, z_);
-        solver_.integrate(t, t_end, z_);
-        ode_.to_y(z_, y);
-      } else {
-        solver_.integrate(t, t_end, y);
+      // The step's index: the run's (fixed steps) or the driver's own count (adaptive).
+      const long index = fixed ? first_step + static_cast<long>(solver_.stats().steps - steps0)
+                               : static_cast<long>(solver_.stats().steps);
+      if (w_blocks) ode_.ask_friction_jacobian(index);
+      if (!fixed) {
+        // Between the scheduled rebuilds the step grows no further than the factorized W
+        // allows (ModelOdeOptions::w_h_grow): a longer one would refactorize out of turn.
+        double h = std::min(h_next_, t_end - t);
+        const double gamma = w_gamma(opt_.method);
+        if (w_blocks && ode_.w_gh() > 0 && !ode_.w_due()) h = std::min(h, ode_.w_gh() / gamma * opt_.jac.w_h_grow);
+        solver_.options().h0 = h;
+        if (h < t_end - t) t_end = t + h;
       }
-      if (!fixed && solver_.stats().h_next > 0) h_next_ = solver_.stats().h_next;
-      t = t_end;
-      ++k;
+      integrate_piece(t, t_end, y);
+      if (!fixed && solver_.stats().h_next > 0) {
+        h_next_ = solver_.stats().h_next;
+        // A step cut short to end on t1 and accepted at once says nothing against the step
+        // that was proposed before the cut.
+        if (clipped && solver_.stats().rejected == rejected0) h_next_ = std::max(h_next_, H);
+      }
       const bool watch = w_blocks && opt_.jac.w_status_rebuild;
       if (watch) rocker0_ = ws_.status.rocker, pulley0_ = ws_.status.pulley;
-      update_statuses_after_step(m_, schedule_, ws_, t, y);
+      update_statuses_after_step(m_, schedule_, ws_, t_end, y);
+      t = t_end;
+      ++k;
       if (watch && (rocker0_ != ws_.status.rocker || pulley0_ != ws_.status.pulley)) ode_.w_invalidate();
     }
   });

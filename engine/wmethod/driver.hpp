@@ -24,9 +24,16 @@ struct OdeRunOptions {
 };
 
 // The OdeRunOptions of `cvt-engine run`'s W-methods for steps of size h, from the
-// configuration's [integrator] (the one place that maps it): fixed steps, unscaled, the
-// matrix intervals and the friction settings; startup: ROS2 (its start-up sub-steps).
+// configuration's [integrator] (the one place that maps it): fixed steps (or adaptive ones,
+// h the first, with integrator.tolerance > 0 after the start-up), unscaled, the matrix
+// intervals and the friction settings; startup: ROS2 (its start-up sub-steps).
 OdeRunOptions w_run_options(const Config& c, double h, bool startup);
+
+// Turns a W-method's OdeRunOptions adaptive at tolerance tol (ModelOdeOptions::error_tol: the
+// largest error of any pin, shaft or the load per step, in units of tol x (1 um, 1 mm/s)),
+// steps no longer than h_max, the first one ro.ode.h0; the factorized W is kept while the
+// step stays within [h' / 4, 1.25 h'] of the one it was made for.
+void w_adaptive_options(OdeRunOptions& ro, double tol, double h_max);
 
 // Runs any OdeMethod on the model. Each macro step: integrate() from t to t + H with the
 // statuses frozen, where H is the fixed step, the controller's proposed step
@@ -38,8 +45,8 @@ class OdeDriver {
   // workspace and schedule must outlive the driver.
   OdeDriver(const Model& m, Workspace& ws, Schedule& schedule, const OdeRunOptions& opt);
   // Advances the state y from time t to exactly t1; first_step is the run's index of the
-  // first step taken (the W-method's matrix is rebuilt at fixed step indices). Returns the
-  // number of steps taken.
+  // first step taken (the W-method's matrix is rebuilt at fixed step indices; adaptive steps
+  // count their own, from the driver's first). Returns the number of steps taken.
   long advance(double t, Eigen::VectorXd& y, double t1, long first_step);
   const OdeStats& stats() const { return solver_.stats(); }
   const ModelOde& model_ode() const { return ode_; }
@@ -52,12 +59,13 @@ class OdeDriver {
   OdeRunOptions opt_;
   ModelOde ode_;
   OdeSolver solver_;
+  void integrate_piece(double t, double t_end, Eigen::VectorXd& y);
   double h_next_ = 0;
   Eigen::VectorXd z_;
   std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
 };
 
-// Parses "rk4" | "dopri5" | "rkc" | "trapezoid" | "trbdf2" | "esdirk3"; throws
+// Parses "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" | "esdirk3"; throws
 // std::invalid_argument otherwise.
 OdeMethod parse_ode_method(const std::string& name);
 

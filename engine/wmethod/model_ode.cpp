@@ -179,9 +179,40 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_solve(x); };
   }
+  if (opt.error_tol > 0) {
+    ModelOdeOptions units = opt;
+    units.scaled = true;
+    const Eigen::VectorXd u = model_state_units(m, units);
+    norm_weight_.assign(ns, 0.0);
+    for (int i = 0; i < 2 * m.ndof; ++i) norm_weight_[i] = unit_[i] / (opt.error_tol * u[i]);
+    for (int j = 0; j <= N; ++j) norm_group_.push_back(j < N ? m.joint(j) : m.shaft(0));
+    norm_group_.push_back(m.shaft(1)), norm_group_.push_back(m.load_index()), norm_group_.push_back(m.ndof);
+    sys_.error_norm = [this](const double* err, const double*, const double*) { return chain_error_norm(err); };
+  } else if (opt.error_tol < 0) {
+    throw std::invalid_argument("ModelOdeOptions: error_tol must be >= 0");
+  }
+  if (!(opt.w_h_grow >= 1 && opt.w_h_shrink >= 1))
+    throw std::invalid_argument("ModelOdeOptions: w_h_grow and w_h_shrink must be >= 1");
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
   pdiss0_.resize(N), pdiss1_ = pdiss0_;
+}
+
+// The largest, over the joints, shafts and load, of the RMS of a group's error (its
+// positions and their velocities) in units of error_tol * (1 um, 1 mm/s).
+double ModelOde::chain_error_norm(const double* err) const {
+  const int n = m_.ndof;
+  double worst = 0;
+  for (size_t g = 0; g + 1 < norm_group_.size(); ++g) {
+    double sum = 0;
+    const int b = norm_group_[g], e = norm_group_[g + 1];
+    for (int i = b; i < e; ++i) {
+      const double q = err[i] * norm_weight_[i], v = err[n + i] * norm_weight_[n + i];
+      sum += q * q + v * v;
+    }
+    worst = std::max(worst, sum / (2 * (e - b)));
+  }
+  return std::sqrt(worst);
 }
 
 void ModelOde::read_slots(std::vector<double>& shaft, std::vector<double>& pdiss) const {

@@ -80,6 +80,19 @@ struct ModelOdeOptions {
   // without w_secant.
   double w_fresh = Config::Integrator{}.w_fresh;
   int w_fresh_max = Config::Integrator{}.w_fresh_max;
+  // Adaptive steps (OdeSystem::error_norm): > 0 gives the system the norm of the chain's
+  // error, per joint (its two pin halves and its plate pack, positions and velocities), per
+  // shaft and for the load, each the RMS of its components in units of tol * (length_unit,
+  // velocity_unit), maximized over these groups; the work integrals are left out. So
+  // error_tol = 1 accepts a step whose estimate is about 1 um and 1 mm/s at the pin that errs
+  // most, however smoothly the other 83 run. 0: the library's norm over atol / rtol.
+  double error_tol = 0;
+  // Adaptive steps: W = I - gh' J~ is kept while the step's gh stays within
+  // [gh' / w_h_shrink, gh' w_h_grow] (a W-method keeps its order with J~' = (h'/h) J~; with
+  // the exact J ROS34PW2 stays stable for h'/h >= 0.67, |R(-inf)| <= 0.2 for h'/h in
+  // 0.67 .. 4, docs/integrators.md 16), and refactorized outside it. 1, 1: any change of gh
+  // (beyond rounding) refactorizes, as fixed steps need.
+  double w_h_grow = 1, w_h_shrink = 1;
   double length_unit = 1e-6;    // [m] for positions; slopes and angles: length_unit / 0.05 m
   double velocity_unit = 1e-3;  // [m/s] for velocities; angular: velocity_unit / 0.05 m
   double energy_unit = 1e-3;    // [J] for the work integrals
@@ -147,6 +160,8 @@ class ModelOde {
   bool w_due() const {
     return w_gh_ == 0 || w_invalid_ || wf_force_ || opt_.w_every <= 1 || w_index_ % opt_.w_every == 0;
   }
+  // gamma h of the factorized W (0: none yet).
+  double w_gh() const { return w_gh_; }
   // The contact statuses changed (OdeDriver): the next step rebuilds the whole matrix, its
   // stiffness included (a contact that turned on is stiff in J but absent from a stale W).
   void w_invalidate() { w_invalid_ = true; }
@@ -172,6 +187,9 @@ class ModelOde {
     frozen_.record = false;  // the evaluation that recorded the branches was this one
   }
   void eval_scaled(double t, const double* z, double* dz);
+  double chain_error_norm(const double* err) const;  // ModelOdeOptions::error_tol's norm
+  std::vector<double> norm_weight_;  // per state component: 1 / (error_tol * its unit), 0: left out
+  std::vector<int> norm_group_;      // group boundaries in state order (joints, shafts, load)
   template <class F>
   void for_joints(const F& f) const;  // f(j) for every joint, over the schedule's threads
   void w_assemble_link(int l, double gh);

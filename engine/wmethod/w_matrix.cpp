@@ -27,7 +27,11 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   // they are taken at the rebuilding steps whose index is a multiple of w_k_every.
   const long index = w_index_;
   const bool first = w_gh_ == 0 || w_invalid_;
-  const bool rebuild = w_due() || std::abs(gh / w_gh_ - 1) > 1e-9;
+  // A new gh refactorizes outside the band of ModelOdeOptions::w_h_grow / w_h_shrink (with
+  // the defaults, at any change beyond rounding: a fixed step taken as t1 - t0 varies in its
+  // last bits).
+  const bool gh_out = gh > w_gh_ * opt_.w_h_grow * (1 + 1e-9) || gh * opt_.w_h_shrink * (1 + 1e-9) < w_gh_;
+  const bool rebuild = w_due() || gh_out;
   ++w_index_;
   Profiler* prof = schedule_.profiler();
   // Times f as section s of the profile (wall time on the master).

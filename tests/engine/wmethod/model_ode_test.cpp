@@ -489,7 +489,8 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   const std::string t2 = slurp(dir / "second.csv");
   EXPECT_NE(t2.find(",0,2,4,2\n"), std::string::npos) << t2;  // not chosen (--all), W 2 / 4, 2 repeats
   EXPECT_NE(study("bad", "--ros2-steps 1e-7:2:3"), 0);
-  EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not [METHOD@]H or [METHOD@]H:W:K"), std::string::npos);
+  EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not [METHOD@]H, [METHOD@]tol=T or either with :W:K"),
+            std::string::npos);
   EXPECT_NE(study("bad2", "--w-steps rk4@1e-7"), 0);
   EXPECT_NE(slurp(dir / "bad2.txt").find("'rk4@1e-7' names no W-method"), std::string::npos);
   // Candidates kept to one method: ROS2 runs only its own, ROS34PW2 (from the cache's start)
@@ -505,6 +506,14 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   EXPECT_NE(per.find("curve,ros34pw2,h,2e-07"), std::string::npos);
   EXPECT_EQ(per.find("curve,ros2,h,2e-07"), std::string::npos);
   EXPECT_EQ(per.find("curve,ros34pw2,h,1e-07"), std::string::npos);
+  // An adaptive W candidate (tol=), the implicit methods with Newton on the chain's matrix
+  // and DUMKA3, each with the chain's error norm: their rows.
+  ASSERT_EQ(study("adaptive", "--methods ros34pw2,trbdf2,dumka3 --w-steps ros34pw2@tol=1 --tols 1 --newton-w --chain-norm"), 0);
+  const std::string ad = slurp(dir / "adaptive.csv");
+  std::printf("%s", ad.c_str());
+  EXPECT_NE(ad.find("curve,ros34pw2,tol,1,,,,ok"), std::string::npos) << ad;
+  EXPECT_NE(ad.find("curve,trbdf2,tol,1,"), std::string::npos) << ad;
+  EXPECT_NE(ad.find("curve,dumka3,tol,1,"), std::string::npos) << ad;
   // --perturb: the same seed gives the same curve, which is not the unperturbed one; the
   // table says that the runs were perturbed; a negative size is refused.
   ASSERT_EQ(study("pert", "--ros2-steps 1e-7 --perturb 1e-9 --seed 3"), 0);
