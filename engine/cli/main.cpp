@@ -27,6 +27,7 @@
 #include "engine/studies/sweep_mpi.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
+#include "engine/wmethod/driver.hpp"
 #include "graph/schedule.hpp"
 #include "numa/arenas.hpp"
 #include "numa/describe.hpp"
@@ -63,13 +64,21 @@ void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
       ->capture_default_str();
 }
 
-int cmd_graph(const std::string& config_path, const std::vector<std::string>& overrides, const ScheduleArgs& sa) {
+int cmd_graph(const std::string& config_path, const std::vector<std::string>& overrides, const ScheduleArgs& sa,
+              bool w_step) {
   using namespace cvt;
   const Model model = build_model(load_config(config_path, overrides));
   Workspace ws(model);
   const auto schedule = make_schedule(model, ws, sa.options());
+  if (w_step) {  // the W-method's step around the stage graph (docs/performance.md)
+    if (model.cfg.integrator.method == IntegratorMethod::rk4)
+      throw ConfigError("integrator.method", "rk4", "--w-step draws a W-method's step (ros2, ros34pw2)");
+    std::printf("// %s\n%s", schedule->describe().c_str(), w_step_graphviz(model.cfg, schedule->threads()).c_str());
+    return kExitOk;
+  }
   std::printf("// %s\n// view: cvt-engine graph CONFIG > graph.dot && dot -Tsvg graph.dot -o graph.svg (graphviz)\n%s",
               schedule->describe().c_str(), schedule->graphviz().c_str());
+
   if (isatty(fileno(stdout)))
     std::fprintf(stderr, "(GraphViz text: save it and draw it with dot, e.g. cvt-engine graph %s > graph.dot && dot -Tsvg "
                          "graph.dot -o graph.svg)\n", config_path.c_str());
@@ -395,19 +404,24 @@ Command add_graph_command(CLI::App& app) {
   std::string graph_config;
   std::vector<std::string> graph_overrides;
   ScheduleArgs graph_sched;
+  bool graph_w_step = false;
   };
   auto a = std::make_shared<Args>();
   auto& graph_config = a->graph_config;
   auto& graph_overrides = a->graph_overrides;
   auto& graph_sched = a->graph_sched;
   auto* graph = app.add_subcommand("graph", "print the flow graph of one RK4 stage as GraphViz");
-  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg");
+  graph->footer("Example: cvt-engine graph configs/reference.toml --threads 2 > graph.dot && dot -Tsvg graph.dot -o graph.svg\n"
+                "         cvt-engine graph configs/reference.toml --threads 2 --w-step > w_step.dot");
   graph_sched.scheduler = "flowgraph";
   graph->add_option("CONFIG", graph_config, "TOML configuration")->required();
   graph->add_option("--set", graph_overrides, "override a key: section.key=value (repeatable)");
+  graph->add_flag("--w-step", a->graph_w_step,
+                  "print the W-method's whole step (stages, block-LU solves on two sweeps, rebuilds) instead of the "
+                  "stage graph");
   add_schedule_options(graph, graph_sched);
   return {graph, [a] {
-    return cmd_graph(a->graph_config, a->graph_overrides, a->graph_sched);
+    return cmd_graph(a->graph_config, a->graph_overrides, a->graph_sched, a->graph_w_step);
   }};
 }
 

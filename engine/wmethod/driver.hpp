@@ -65,6 +65,11 @@ class OdeDriver {
   std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
 };
 
+// The W-method's step of `cvt-engine run` as GraphViz (`cvt-engine graph`): its stages, each an
+// evaluation (the schedule's graph) and a solve with the block LU on two sweeps, the matrix's
+// rebuilds, and for adaptive steps the error test; `threads` the schedule's.
+std::string w_step_graphviz(const Config& c, int threads);
+
 // Parses "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" | "esdirk3"; throws
 // std::invalid_argument otherwise.
 OdeMethod parse_ode_method(const std::string& name);

@@ -375,6 +375,25 @@ TEST_F(CliTest, GraphPrintsTheStageAsGraphViz) {
     EXPECT_NE(r.out.find(node), std::string::npos) << node << " missing:\n" << r.out;
 }
 
+// --w-step: the W-method's whole step around the stage graph: its four stages, each an
+// evaluation and a solve on the block LU's two sweeps, the rebuilds, and for adaptive steps
+// the error test; refused for RK4.
+TEST_F(CliTest, GraphDrawsTheWStep) {
+  const RunResult r = run({"graph", kReference, "--threads", "2", "--w-step"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* node : {"digraph w_step", "evaluation 4", "solve4", "top sweep (thread 0) | bottom sweep (thread 1)",
+                           "every 8 steps (stiffness every 64)", "stage sums"})
+    EXPECT_NE(r.out.find(node), std::string::npos) << node << " missing:\n" << r.out;
+  EXPECT_EQ(r.out.find("error norm"), std::string::npos);
+  const RunResult a = run({"graph", kReference, "--w-step", "--set", "integrator.tolerance=3"});
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  EXPECT_NE(a.out.find("error norm per pin"), std::string::npos) << a.out;
+  EXPECT_NE(a.out.find("top sweep, then bottom sweep"), std::string::npos) << a.out;
+  const RunResult k = run({"graph", kReference, "--w-step", "--set", "integrator.method=rk4"});
+  EXPECT_NE(k.exit_code, 0);
+  EXPECT_NE(k.err.find("--w-step draws a W-method's step"), std::string::npos) << k.err;
+}
+
 TEST_F(CliTest, TopologyReportsNodesPinsAndBinding) {
   const RunResult r = run({"topology", kReference, "--threads", "2"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
