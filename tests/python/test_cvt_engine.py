@@ -173,7 +173,7 @@ def test_the_efficiency_curve_example_runs(tmp_path):
 
 @pytest.fixture
 def python_sigint():
-    """Python's own SIGINT handler, as in an interactive session (a job started in the
+    """Python's own SIGINT handler, as in an interactive Python shell (a job started in the
     background of a shell inherits SIGINT ignored, and Python then leaves it so)."""
     import signal
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
