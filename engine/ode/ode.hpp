@@ -105,6 +105,13 @@ enum class OdeMethod {
 // The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
 // no Newton iteration; both take a system's w_factor / w_solve.
 inline bool is_w_method(OdeMethod m) { return m == OdeMethod::Ros2 || m == OdeMethod::Ros34pw2; }
+// gamma of a W-method's matrix W = I - gamma h J~ (1 + 1/sqrt 2 for ROS2, 0.4358665215 for
+// ROS34PW2); throws std::invalid_argument for the other methods.
+double w_method_gamma(OdeMethod m);
+// The implicit methods with Newton (trapezoid, TR-BDF2, ESDIRK3).
+inline bool is_implicit_method(OdeMethod m) {
+  return m == OdeMethod::Trapezoid || m == OdeMethod::TrBdf2 || m == OdeMethod::Esdirk3;
+}
 
 const char* to_string(OdeMethod method);
 

@@ -65,9 +65,7 @@ class OdeSolverImpl {
   double error_norm(const Eigen::VectorXd& err, const Eigen::VectorXd& y0, const Eigen::VectorXd& y1) const;
   double initial_step(double t0, const Eigen::VectorXd& y0, double t1);
   int order() const;  // of the propagated solution; err ~ h^(order+1)
-  bool implicit() const {
-    return method_ == OdeMethod::Trapezoid || method_ == OdeMethod::TrBdf2 || method_ == OdeMethod::Esdirk3;
-  }
+  bool implicit() const { return is_implicit_method(method_); }
   // The stabilized explicit methods, whose stage count follows the spectral radius.
   bool stabilized() const { return method_ == OdeMethod::Rkc || method_ == OdeMethod::Dumka3; }
 

@@ -19,6 +19,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "engine/base/timing.hpp"
 #include "engine/ode/ode_impl.hpp"
@@ -162,6 +164,12 @@ struct Ros34pw2Tableau {
 };
 const Ros34pw2Tableau kRos34pw2;
 }  // namespace
+
+double w_method_gamma(OdeMethod m) {
+  if (m == OdeMethod::Ros2) return kRos2Gamma;
+  if (m == OdeMethod::Ros34pw2) return kRos34pw2.gamma;
+  throw std::invalid_argument(std::string("w_method_gamma: ") + to_string(m) + " is not a W-method");
+}
 
 void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
   const Ros34pw2Tableau& tb = kRos34pw2;

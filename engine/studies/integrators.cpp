@@ -345,8 +345,7 @@ void Study::one_step_errors() {
       o.fixed_step = true;
       o.h0 = hs[i];
       OneStep r{name, hs[i]};
-      const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
-      if (implicit && opt_.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth)
+      if (is_implicit_method(method) && opt_.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth)
         ode.record_friction_branches();
       if (is_w_method(method) && !opt_.ros2_full_jacobian) ode.ask_friction_jacobian(0);  // the W-method's matrix
       ode.offset() = start_.state;
@@ -494,8 +493,7 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
   ro.jac = jac_opt_;
   if (is_w_method(method)) ro.jac.w_every = w_every, ro.jac.w_k_every = w_k_every;
   if (w_fixed) ro.jac.scaled = false;
-  const bool implicit = method == OdeMethod::Trapezoid || method == OdeMethod::TrBdf2 || method == OdeMethod::Esdirk3;
-  if (implicit && opt_.newton_w) {
+  if (is_implicit_method(method) && opt_.newton_w) {
     ro.ode.newton_uses_w = true;
     ro.jac.w_h_grow = ro.jac.w_h_shrink = 1.25;  // Newton contracts with a matrix for a nearby d h
   }

@@ -1,7 +1,6 @@
 #include "engine/wmethod/driver.hpp"
 
 #include <algorithm>
-#include <cmath>
 #include <sstream>
 #include <stdexcept>
 
@@ -69,11 +68,6 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   return ro;
 }
 
-namespace {
-// gamma of W = I - gamma h J~ (engine/ode/rosenbrock.cpp).
-double w_gamma(OdeMethod m) { return m == OdeMethod::Ros2 ? 1 + 1 / std::sqrt(2.0) : 4.3586652150845900e-01; }
-}  // namespace
-
 void w_adaptive_options(OdeRunOptions& ro, double tol, double h_max) {
   if (!(tol > 0)) throw std::invalid_argument("w_adaptive_options: the tolerance must be > 0");
   ro.ode.fixed_step = false;
@@ -111,8 +105,7 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
   const StepClock grid = StepClock::at(t, 0);
   std::int64_t k = 0;
   const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
-                      (opt_.method == OdeMethod::Trapezoid || opt_.method == OdeMethod::TrBdf2 ||
-                       opt_.method == OdeMethod::Esdirk3);
+                      is_implicit_method(opt_.method);
   // The chain's matrix: the W-methods', or Newton's for the implicit methods (newton_uses_w).
   const bool w_blocks = (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
   schedule_.within([&] {
@@ -132,8 +125,10 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
         // Between the scheduled rebuilds the step grows no further than the factorized W
         // allows (ModelOdeOptions::w_h_grow): a longer one would refactorize out of turn.
         double h = std::min(h_next_, t_end - t);
-        const double gamma = w_gamma(opt_.method);
-        if (w_blocks && ode_.w_gh() > 0 && !ode_.w_due()) h = std::min(h, ode_.w_gh() / gamma * opt_.jac.w_h_grow);
+        // (The implicit methods' Newton matrix, newton_uses_w, is I - d h J~ with their own d;
+        // the cap takes ROS34PW2's gamma for them: ESDIRK3's d, not the trapezoid's or TR-BDF2's.)
+        const OdeMethod as = is_w_method(opt_.method) ? opt_.method : OdeMethod::Ros34pw2;
+        if (w_blocks && ode_.w_gh() > 0 && !ode_.w_due()) h = std::min(h, ode_.w_gh() / w_method_gamma(as) * opt_.jac.w_h_grow);
         solver_.options().h0 = h;
         if (h < t_end - t) t_end = t + h;
       }

@@ -185,8 +185,8 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     const Eigen::VectorXd u = model_state_units(m, units);
     norm_weight_.assign(ns, 0.0);
     for (int i = 0; i < 2 * m.ndof; ++i) norm_weight_[i] = unit_[i] / (opt.error_tol * u[i]);
-    for (int j = 0; j <= N; ++j) norm_group_.push_back(j < N ? m.joint(j) : m.shaft(0));
-    norm_group_.push_back(m.shaft(1)), norm_group_.push_back(m.load_index()), norm_group_.push_back(m.ndof);
+    for (int j = 0; j < N; ++j) norm_group_.push_back(m.joint(j));
+    norm_group_.insert(norm_group_.end(), {m.shaft(0), m.shaft(1), m.load_index(), m.ndof});
     sys_.error_norm = [this](const double* err, const double*, const double*) { return chain_error_norm(err); };
   } else if (opt.error_tol < 0) {
     throw std::invalid_argument("ModelOdeOptions: error_tol must be >= 0");
