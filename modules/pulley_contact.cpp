@@ -71,8 +71,9 @@ inline bool near_pulley(const Model& m, const double* hq, int k) {
 // left out): c_dot, the cap's tilt, and the link spin through this half's mid-point (a_j:
 // +n/(2|Delta|), b_j: -n/(2|Delta|)) and through the link's other half (the opposite sign).
 // Columns: b_{j-1} 0..9, a_j 10..19 (link j-1); b_j 20..29, a_{j+1} 30..39 (link j). Then
-// the sheave's columns (its point's velocity enters u with the sign -). Kd, Xd: the joint's
-// blocks (nullptr unless asked); cols: record the contact's columns.
+// the sheave's columns (its point's velocity enters u with the sign -). Kd, Xd, Sd: the
+// joint's blocks (pins, pins x sheave, sheave x sheave; nullptr unless asked); cols: record
+// the contact's columns.
 struct PinEndSlip {
   int h, e, k, idx, link;
   double sigma, R;
@@ -83,8 +84,8 @@ struct PinEndSlip {
   double speed;
 };
 
-void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac, double* Kd, double* Xd, bool cols,
-                               const PinEndSlip& p, double mu, double mu_t) {
+void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac, double* Kd, double* Xd, double* Sd,
+                               bool cols, const PinEndSlip& p, double mu, double mu_t) {
   constexpr int kD = FrictionJacobian::kDim;
   const int h = p.h, e = p.e, k = p.k, idx = p.idx, link = p.link;
   const double sigma = p.sigma, R = p.R, ox = p.o[0], oy = p.o[1], oz = p.o[2];
@@ -111,7 +112,10 @@ void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac,
   Gs[kTy][0] = -rsz, Gs[kTy][2] = rsx;
   Gs[kPhi][0] = rsy, Gs[kPhi][1] = -rsx;
   if (p.axial) Gs[kW][2] = -1;
-  if (Kd) add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+  if (Kd) {
+    add_friction_cross(Xd + k * kD * kShaftSize, kD, G, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+    add_friction_cross(Sd + k * kShaftSize * kShaftSize, kShaftSize, Gs, kShaftSize, Gs, nrm, u, speed, mu, mu_t);
+  }
   if (cols) {
     double* U = jac.pulley_fresh.columns(idx);
     double* V = jac.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
@@ -136,7 +140,9 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   double* Kd = blocks ? jac->pulley_damping.data() + static_cast<std::size_t>(j) * kD * kD : nullptr;
   constexpr int kX = 2 * kD * kShaftSize;
   double* Xd = blocks ? jac->pulley_shaft_damping.data() + static_cast<std::size_t>(j) * kX : nullptr;
-  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0);
+  constexpr int kS = 2 * kShaftSize * kShaftSize;
+  double* Sd = blocks ? jac->pulley_shaft_self.data() + static_cast<std::size_t>(j) * kS : nullptr;
+  if (Kd) std::fill(Kd, Kd + kD * kD, 0.0), std::fill(Xd, Xd + kX, 0.0), std::fill(Sd, Sd + kS, 0.0);
   const bool rec_mu = jac && jac->mu;
   if (rec_mu) jac->pulley_fresh.clear(ContactStatus::pulley_index(j, 0, 0, 0), ContactStatus::kPulleyPerJoint, Kd != nullptr);
   for (int h = 0; h < 2; ++h) {
@@ -201,7 +207,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
           if (Kd || cols) {
             const PinEndSlip p{h, e, k, idx, link, sigma, R, {ox, oy, oz}, {rsx, rsy, rsz}, g.gw != 0, u, nrm, speed};
             const double mu_t = jac->secant ? mu : Nel * friction_slope(law, f0, v0, speed);
-            pin_end_friction_jacobian(ws.kin, *jac, Kd, Xd, cols, p, mu, mu_t);
+            pin_end_friction_jacobian(ws.kin, *jac, Kd, Xd, Sd, cols, p, mu, mu_t);
           }
         }
         // Pin: translation of c, and the slopes through c = tip - sigma R (sx, sy, 1).

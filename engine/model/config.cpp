@@ -166,6 +166,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
       CVT_KEY(integrator, w_fresh, real, "1", nonneg),
       CVT_KEY(integrator, w_fresh_max, integer, "", (Range{1, false, 1000, false})),
+      CVT_KEY(integrator, w_shafts, boolean, "", Range{}),
       CVT_KEY(integrator, startup_time, real, "s", nonneg),
       CVT_KEY(integrator, startup_step, real, "s", positive),
       CVT_KEY(integrator, tolerance, real, "1", nonneg),

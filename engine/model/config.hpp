@@ -169,6 +169,8 @@ struct Config {
     // at most; more make the next step rebuild the friction blocks.
     double w_fresh = 5.0;
     int w_fresh_max = 12;
+    // W-methods: the shafts' velocity rows in the matrix (ModelOdeOptions::w_shafts)
+    bool w_shafts = false;
     // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
     // no longer than startup_step (the pins settling onto the sheaves from rest;
     // docs/integrators.md 12.3)

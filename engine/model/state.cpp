@@ -27,6 +27,7 @@ FrictionJacobian::FrictionJacobian(const Model& m) {
   rocker_damping.assign(N * kDim * kDim, 0.0);
   pulley_damping.assign(N * kDim * kDim, 0.0);
   pulley_shaft_damping.assign(N * 2 * kDim * kShaftSize, 0.0);
+  pulley_shaft_self.assign(N * 2 * kShaftSize * kShaftSize, 0.0);
   const std::size_t nr = N * m.cfg.rocker.stations, np = N * ContactStatus::kPulleyPerJoint;
   rocker_fresh.resize(nr);
   pulley_fresh.resize(np);

@@ -152,6 +152,9 @@ struct FrictionJacobian {
   // coordinates of each shaft (the slip velocity's sheave part), per joint [j][shaft][40][7]
   // row-major: K_ps with the pins' friction force -K_ps v_shaft.
   std::vector<double> pulley_shaft_damping;
+  // The same contacts' damping among each shaft's own 7 coordinates (G_s^T D G_s), per joint
+  // [j][shaft][7][7] row-major: the shafts' rows of W (ModelOdeOptions::w_shafts).
+  std::vector<double> pulley_shaft_self;
 
   // The fresh friction record of one kind of contact.
   struct FreshMu {

@@ -176,7 +176,52 @@ class CyclicBlockLU {
         });
   }
 
+  // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C), the
+  // two halves as two tasks: the steps of solve() as block products.
+  template <int C, class Both>
+  void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both) const {
+    using Cols = Eigen::Matrix<double, B, C>;
+    const int n = n_, last = n - 1, m = (n - 1) / 2;
+    Cols xm_top = Cols::Zero(), xm_bot = Cols::Zero(), xl_top = Cols::Zero(), xl_bot = Cols::Zero();
+    both([&] { forward_columns(x, 0, +1, lsub_, xm_top, xl_top); },
+         [&] { forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
+    x[m] -= xm_top;
+    x[m] -= xm_bot;
+    x[last] -= xl_top;
+    x[last] -= xl_bot;
+    x[last].noalias() -= lrow_[m] * x[m];
+    Cols t = x[last];
+    x[last].noalias() = inv_[last] * t;
+    t = x[m];
+    t.noalias() -= ucol_[m] * x[last];
+    x[m].noalias() = inv_[m] * t;
+    both([&] { backward_columns(x, 0, +1); }, [&] { backward_columns(x, n - 2, -1); });
+  }
+
  private:
+  template <class Cols>
+  void forward_columns(Cols* x, int first, int dir, const std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult,
+                       Cols& xm, Cols& xl) const {
+    const int m = (n_ - 1) / 2;
+    if (first == m) return;
+    for (int l = first + dir; l != m; l += dir) x[l].noalias() -= mult[l] * x[l - dir];
+    xm.noalias() = mult[m] * x[m - dir];
+    for (int l = first; l != m; l += dir)
+      if (fill_[l]) xl.noalias() += lrow_[l] * x[l];
+  }
+  template <class Cols>
+  void backward_columns(Cols* x, int first, int dir) const {
+    const int m = (n_ - 1) / 2, last = n_ - 1;
+    if (first == m) return;
+    Cols u;
+    for (int l = m - dir;; l -= dir) {
+      u = x[l];
+      if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
+      u.noalias() -= band(l, l + dir) * x[l + dir];
+      x[l].noalias() = inv_[l] * u;
+      if (l == first) break;
+    }
+  }
   static bool invert(const Mat& D, Mat& Di) {
     const Eigen::PartialPivLU<Mat> lu(D);
     Di = lu.inverse();

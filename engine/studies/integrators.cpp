@@ -108,9 +108,27 @@ std::uint64_t fnv1a(const std::string& s) {
   return h;
 }
 
+// The resolved configuration without its [integrator] section: the study's RK4 runs set
+// their method and step and read no other integrator key.
+std::string without_integrator(const std::string& toml) {
+  std::string out;
+  bool skip = false;
+  std::size_t a = 0;
+  while (a < toml.size()) {
+    std::size_t b = toml.find('\n', a);
+    b = b == std::string::npos ? toml.size() : b + 1;
+    const std::string line = toml.substr(a, b - a);
+    if (!line.empty() && line[0] == '[') skip = line.rfind("[integrator]", 0) == 0;
+    if (!skip) out += line;
+    a = b;
+  }
+  return out;
+}
+
 // The study's cache (--cache DIR): the running state and the reference curve depend only on
-// the resolved configuration, t_warm, t_sample, sample_dt and ref_step (the bits are the
-// same on any thread count), so they are kept under a key of those and reused.
+// the resolved configuration (its physics and run keys), t_warm, t_sample, sample_dt and
+// ref_step (the bits are the same on any thread count), so they are kept under a key of
+// those and reused.
 struct StudyCache {
   std::string ckpt, ref;  // empty: no cache
   StudyCache(const Model& m, const IntegratorStudyOptions& opt) {
@@ -118,9 +136,10 @@ struct StudyCache {
     char warm[64], curve[128], key[32];
     std::snprintf(warm, sizeof warm, "|%.17g", opt.t_warm);
     std::snprintf(curve, sizeof curve, "|%.17g|%.17g|%.17g", opt.t_sample, opt.sample_dt, opt.ref_step);
-    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm)));
+    const std::string physics = without_integrator(m.cfg.resolved_toml);
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(physics + warm)));
     ckpt = opt.cache_dir + "/study-" + key + ".ckpt";
-    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(m.cfg.resolved_toml + warm + curve)));
+    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(physics + warm + curve)));
     ref = opt.cache_dir + "/study-" + key + "-reference.txt";
   }
   static bool exists(const std::string& p) { return !p.empty() && std::ifstream(p).good(); }
@@ -292,7 +311,7 @@ void Study::running_state() {
     std::printf("  (cache: running state %s, reference %s)\n", cache_.ckpt.c_str(), cache_.ref.c_str());
   if (StudyCache::exists(cache_.ckpt)) {
     const Checkpoint c = read_checkpoint(cache_.ckpt);
-    if (c.config_toml != m_.cfg.resolved_toml)
+    if (without_integrator(c.config_toml) != without_integrator(m_.cfg.resolved_toml))
       throw std::runtime_error("the study cache " + cache_.ckpt + " is of another configuration");
     warm.restore(c);
     std::printf("  (running state from the cache %s)\n", cache_.ckpt.c_str());

@@ -64,6 +64,7 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   ro.jac.w_secant = in.w_secant;
   ro.jac.w_fresh = in.w_fresh;  // ModelOde leaves it off without the secant
   ro.jac.w_fresh_max = in.w_fresh_max;
+  ro.jac.w_shafts = in.w_shafts;
   if (!startup && in.tolerance > 0) w_adaptive_options(ro, in.tolerance, c.run.sample_interval);
   return ro;
 }

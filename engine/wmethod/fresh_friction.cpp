@@ -16,6 +16,9 @@ namespace cvt {
 // contacts whose mu moved most in the correction, W' x = r - gh dC_ps x_s (the sheaves'
 // part of the same contacts, as the right side's C_ps term) by Woodbury:
 //   x = y0 - Z (p + (I + D G)^-1 D (U^T y0 - G p)),  y0 = W^-1 r, p = D V^T x_s.
+// With the shafts' rows in W (w_shafts) a contact's column is [U; V] over the chain and the
+// shafts, W the bordered matrix, and x = y0 - Z (I + D G)^-1 D [U; V]^T y0 with
+// Z = W^-1 [U; V], G = [U; V]^T Z (p = 0: the sheaves are unknowns, not a right side).
 
 void ModelOde::wf_clear() {
   for (const FreshContact& c : wf_set_) c.kind->in_correction[c.idx] = 0;
@@ -26,13 +29,21 @@ const double* ModelOde::FreshContact::columns() const {
   return kind->cols.data() + static_cast<std::size_t>(idx) * 2 * FrictionJacobian::kDim;
 }
 
-double ModelOde::wf_dot(const FreshContact& c, int col, const double* z) const {
+const double* ModelOde::FreshContact::sheave_columns(const FrictionJacobian& f) const {
+  return shaft < 0 ? nullptr : f.pulley_shaft_cols.data() + static_cast<std::size_t>(idx) * 2 * kShaftSize;
+}
+
+double ModelOde::wf_dot(const FreshContact& c, int col, const double* z, const double* zs) const {
   constexpr int kH = 2 * half::kSize, kD = FrictionJacobian::kDim;
   const double* u = c.columns() + col * kD;
   const double* zp = z + static_cast<std::size_t>(m_.wrap(c.joint - 1)) * kLinkDim;
   const double* zc = z + static_cast<std::size_t>(c.joint) * kLinkDim;
   double a = 0;
   for (int r = 0; r < kH; ++r) a += u[r] * zp[r] + u[kH + r] * zc[r];
+  if (zs && c.shaft >= 0) {
+    const double* v = c.sheave_columns(fjac_) + col * kShaftSize;
+    for (int s = 0; s < kShaftSize; ++s) a += v[s] * zs[c.shaft * kShaftSize + s];
+  }
   return a;
 }
 
@@ -52,16 +63,31 @@ void ModelOde::wf_join(const FreshContact& c) {
         for (int r = 0; r < kH; ++r) v[l][r] += u[kH + r];
     };
     const auto finish = [&](int l) { Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = v[l]; };
-    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+    if (opt_.w_shafts) {
+      // The bordered solve of [U; V]: the chain, the shafts' step, then z - Y x_s.
+      w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [](int) {});
+      ShaftVector rs = ShaftVector::Zero();
+      if (c.shaft >= 0)
+        for (int s = 0; s < kShaftSize; ++s) rs[c.shaft * kShaftSize + s] = c.sheave_columns(fjac_)[a * kShaftSize + s];
+      const ShaftVector xs = w_shaft_unknowns(rs);
+      wf_zs_.col(col + a) = xs;
+      for (int l = 0; l < m_.links; ++l) {
+        v[l].noalias() -= w_y_[l] * xs;
+        finish(l);
+      }
+    } else {
+      w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+    }
   }
   wf_set_.push_back(c);
   c.kind->in_correction[c.idx] = 1;
   ++wf_joined_;
   const int k = col + 2;
+  const auto zs = [this](int i) { return opt_.w_shafts ? wf_zs_.col(i).data() : nullptr; };
   for (int i = 0; i < k; ++i)
     for (int a = 0; a < 2; ++a) {
-      wf_g_(col + a, i) = wf_dot(c, a, wf_z_.col(i).data());
-      if (i < col) wf_g_(i, col + a) = wf_dot(wf_set_[i / 2], i % 2, wf_z_.col(col + a).data());
+      wf_g_(col + a, i) = wf_dot(c, a, wf_z_.col(i).data(), zs(i));
+      if (i < col) wf_g_(i, col + a) = wf_dot(wf_set_[i / 2], i % 2, wf_z_.col(col + a).data(), zs(col + a));
     }
 }
 
@@ -115,9 +141,20 @@ void ModelOde::wf_correct(double* x) const {
   const double* y0 = w_rhs_[0].data();  // W^-1 r, physical, link order
   auto p = wf_p_.head(k);
   auto t = wf_t_.head(k);
+  ShaftVector xs;  // w_shafts: the shafts' part of y0, physical
+  for (int k2 = 0; k2 < 2; ++k2)
+    for (int s = 0; s < kShaftSize; ++s) {
+      const int r = n + m_.shaft(k2) + s;
+      xs[k2 * kShaftSize + s] = opt_.scaled ? x[r] * unit_[r] : x[r];
+    }
   for (int i = 0; i < k; ++i) {
     const FreshContact& c = wf_set_[i / 2];
     double w = 0;
+    if (opt_.w_shafts) {
+      p[i] = 0;
+      t[i] = wf_dot(c, i % 2, y0, xs.data());
+      continue;
+    }
     if (c.shaft >= 0) {
       const double* v = fjac_.pulley_shaft_cols.data() + (static_cast<std::size_t>(c.idx) * 2 + i % 2) * kShaftSize;
       for (int s = 0; s < kShaftSize; ++s) {
@@ -128,7 +165,7 @@ void ModelOde::wf_correct(double* x) const {
     p[i] = wf_d_[i] * w;
     t[i] = wf_dot(c, i % 2, y0);
   }
-  t.noalias() -= wf_g_.topLeftCorner(k, k) * p;
+  if (!opt_.w_shafts) t.noalias() -= wf_g_.topLeftCorner(k, k) * p;
   // s = p + (I + D G)^-1 D t, formed in preallocated vectors (the sum in either order is
   // the same number).
   auto b = wf_b_.head(k);
@@ -145,6 +182,14 @@ void ModelOde::wf_correct(double* x) const {
     const double dv = corr[j] / uv[j];
     x[n + c] -= dv;
     x[c] -= gh * dv * ratio[c];
+  }
+  if (opt_.w_shafts) {
+    const ShaftVector ds = wf_zs_.leftCols(k) * s;
+    for (int k2 = 0; k2 < 2; ++k2)
+      for (int i = 0; i < kShaftSize; ++i) {
+        const int r = n + m_.shaft(k2) + i;
+        x[r] -= opt_.scaled ? ds[k2 * kShaftSize + i] / unit_[r] : ds[k2 * kShaftSize + i];
+      }
   }
 }
 

@@ -163,6 +163,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     if (opt.w_fresh_max < 1) throw std::invalid_argument("ModelOdeOptions: w_fresh_max must be >= 1");
     const int k = 2 * opt.w_fresh_max;
     wf_z_.setZero(static_cast<Eigen::Index>(N) * kLinkDim, k);
+    if (opt.w_shafts) wf_zs_.setZero(2 * kShaftSize, k);
     wf_g_.setZero(k, k);
     // Everything a step's correction uses, sized here: nothing is allocated inside a step.
     // The capacitance matrix and its LU for each number of contacts in the correction.
@@ -174,6 +175,11 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     wf_set_.reserve(opt.w_fresh_max);
     wf_cand_.reserve(fjac_.rocker_fresh.mu.size() + fjac_.pulley_fresh.mu.size());
     wf_corr_.setZero(static_cast<Eigen::Index>(N) * kLinkDim);
+  }
+  if (opt.w_shafts) {
+    // M_s: the inverse of A0^-1 on the shafts (their 14 x 14 block; the load is outside W).
+    w_ms_ = a0_shaft_inv_.topRows(2 * kShaftSize).inverse();
+    w_y_.resize(N);
   }
   if (opt.w_blocks) {
     sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };

@@ -79,6 +79,11 @@ struct ModelOdeOptions {
   // next step rebuild the friction blocks. 0: off (the stale blocks of docs/integrators.md 12.3); off too
   // without w_secant.
   double w_fresh = Config::Integrator{}.w_fresh;
+  // true: W holds the shafts' velocity rows too (their mass and the pulley friction's damping
+  // between sheaves and pins, both ways), solved by the Schur complement of the 14 shaft
+  // unknowns on the factorized chain (docs/integrators.md 12.2); false: the identity there
+  // (the shafts' increments are the right side's and drag the pins).
+  bool w_shafts = Config::Integrator{}.w_shafts;
   int w_fresh_max = Config::Integrator{}.w_fresh_max;
   // Adaptive steps (OdeSystem::error_norm): > 0 gives the system the norm of the chain's
   // error, per joint (its two pin halves and its plate pack, positions and velocities), per
@@ -250,6 +255,18 @@ class ModelOde {
               Eigen::aligned_allocator<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>>>
       w_cps_;
   std::vector<std::uint8_t> w_cps_on_;
+  // w_shafts: the shafts' mass matrix M_s (constant), Y = (chain's W)^-1 gh K_ps per link,
+  // and the LU of the Schur complement M_s + gh C_ss - gh K_ps^T Y (14 x 14).
+  using ShaftMatrix = Eigen::Matrix<double, 2 * kShaftSize, 2 * kShaftSize>;
+  using ShaftVector = Eigen::Matrix<double, 2 * kShaftSize, 1>;
+  ShaftMatrix w_ms_;
+  std::vector<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>,
+              Eigen::aligned_allocator<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>>>
+      w_y_;
+  Eigen::PartialPivLU<ShaftMatrix> w_schur_;
+  void w_shaft_factor(double gh);
+  ShaftVector w_shaft_solve(double* x) const;  // the bordered solve's shaft step (w_solve_untimed)
+  ShaftVector w_shaft_unknowns(const ShaftVector& rs) const;  // its x_s for the right side r_s
   CyclicBlockLU<kLinkDim> w_lu_;
   std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
   int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }
@@ -285,6 +302,7 @@ class ModelOde {
     FrictionJacobian::FreshMu* kind;  // fjac_.rocker_fresh or fjac_.pulley_fresh
     int idx, joint, shaft;     // shaft: the sheave of a pin end, -1 for a rocker station
     const double* columns() const;  // its U, 2 x 40 (a pin end's sheave part: ws_.pulley_shaft_cols)
+    const double* sheave_columns(const FrictionJacobian& f) const;  // its V, 2 x 7 (nullptr: a rocker station)
   };
   struct FreshCandidate {
     double dmu;
@@ -294,10 +312,12 @@ class ModelOde {
   void wf_clear();
   void wf_update(double gh);
   void wf_join(const FreshContact& c);
-  double wf_dot(const FreshContact& c, int col, const double* z) const;  // U(:, col)^T z
+  // [U; V](:, col)^T [z; zs] (zs: the shafts' part, 14 entries; nullptr: the chain's alone)
+  double wf_dot(const FreshContact& c, int col, const double* z, const double* zs = nullptr) const;
   void wf_correct(double* x) const;
   std::vector<FreshContact> wf_set_;
   Eigen::MatrixXd wf_z_, wf_g_;
+  Eigen::MatrixXd wf_zs_;  // w_shafts: Z's shaft rows (14 x columns), physical units
   Eigen::VectorXd wf_d_;
   // The capacitance matrix I + D G and its LU, one of each size 2, 4, .., 2 w_fresh_max.
   std::vector<Eigen::MatrixXd> wf_cap_m_;

@@ -55,6 +55,7 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   bool ok = false;
   timed(Section::w_factor, [&] { ok = w_lu_.factor(TwoTasks{schedule_.threads() > 1}); });
   if (!ok) throw std::runtime_error("W-method: the W matrix is singular");
+  if (opt_.w_shafts) timed(Section::w_factor, [&] { w_shaft_factor(gh); });
   if (w_fresh_on()) {
     wf_clear();
     fjac_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
@@ -217,6 +218,58 @@ void ModelOde::w_assemble_link(int l, double gh) {
   }
 }
 
+void ModelOde::w_shaft_factor(double gh) {
+  // The bordered matrix [Wc, B; B^T, Ds] over (chain velocities, shaft velocities), Wc the
+  // factorized chain block, B = gh K_ps, Ds = M_s + gh C_ss: Y = Wc^-1 B by 14 solves and the
+  // Schur complement S = Ds - B^T Y (the 14 columns solved together, as block products).
+  // C_ss sums the joints' sheave blocks (block-diagonal).
+  constexpr int kS = kShaftSize * kShaftSize;
+  ShaftMatrix S = w_ms_;
+  for (int j = 0; j < m_.links; ++j)
+    for (int k = 0; k < 2; ++k) {
+      const double* c = fjac_.pulley_shaft_self.data() + (static_cast<std::size_t>(j) * 2 + k) * kS;
+      for (int r = 0; r < kShaftSize; ++r)
+        for (int q = 0; q < kShaftSize; ++q) S(k * kShaftSize + r, k * kShaftSize + q) += gh * c[r * kShaftSize + q];
+    }
+  for (int l = 0; l < m_.links; ++l) {
+    if (w_cps_on_[l])
+      w_y_[l] = gh * w_cps_[l];
+    else
+      w_y_[l].setZero();
+  }
+  w_lu_.solve_columns(w_y_.data(), TwoTasks{schedule_.threads() > 1});
+  for (int l = 0; l < m_.links; ++l)
+    if (w_cps_on_[l]) S.noalias() -= (gh * w_cps_[l]).transpose() * w_y_[l];
+  w_schur_.compute(S);
+}
+
+ModelOde::ShaftVector ModelOde::w_shaft_unknowns(const ShaftVector& rs) const {
+  // With z = Wc^-1 r_v in w_rhs_: x_s = S^-1 (r_s - B^T z); the chain's x_v is then z - Y x_s.
+  const double gh = w_gh_;
+  ShaftVector r = rs;
+  for (int l = 0; l < m_.links; ++l)
+    if (w_cps_on_[l]) r.noalias() -= gh * (w_cps_[l].transpose() * w_rhs_[l]);
+  return w_schur_.solve(r);
+}
+
+ModelOde::ShaftVector ModelOde::w_shaft_solve(double* x) const {
+  // The bordered solve's shaft step on x's shafts (right side M_s b_s), their x_s into x.
+  const int n = m_.ndof;
+  ShaftVector b;
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const int r = n + m_.shaft(k) + i;
+      b[k * kShaftSize + i] = opt_.scaled ? x[r] * unit_[r] : x[r];
+    }
+  const ShaftVector xs = w_shaft_unknowns(w_ms_ * b);
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const int r = n + m_.shaft(k) + i;
+      x[r] = opt_.scaled ? xs[k * kShaftSize + i] / unit_[r] : xs[k * kShaftSize + i];
+    }
+  return xs;
+}
+
 void ModelOde::pack_columns(const LinkBlock& b, PackedColumns& p) {
   p.n = 0;
   for (int c = 0; c < kLinkDim; ++c)
@@ -270,7 +323,7 @@ void ModelOde::w_solve_untimed(double* x) const {
       for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * position(ln, sup.index[c]);
       y.noalias() -= gh * kb;
     }
-    if (w_cps_on_[l]) {
+    if (w_cps_on_[l] && !opt_.w_shafts) {
       // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
       Eigen::Matrix<double, 2 * kShaftSize, 1> xs;
       for (int k = 0; k < 2; ++k)
@@ -291,7 +344,17 @@ void ModelOde::w_solve_untimed(double* x) const {
       x[c] += gh * x[n + c] * ratio[c];
     }
   };
-  w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+  if (opt_.w_shafts) {
+    // The chain's solve z, the shafts' x_s from it, then x_v = z - Y x_s per link.
+    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [](int) {});
+    const ShaftVector xs = w_shaft_solve(x);
+    for_joints([&](int l) {
+      v[l].noalias() -= w_y_[l] * xs;
+      finish(l);
+    });
+  } else {
+    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+  }
   wf_correct(x);
   for (int c : w_other_coord_) x[c] += gh * x[n + c] * ratio[c];  // the shafts' and load's
 }

@@ -51,6 +51,19 @@ int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double d
   Eigen::VectorXd xs(N);
   for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l];
   const Eigen::VectorXd xd = M.partialPivLu().solve(b);
+  // A block of right sides at once (solve_columns): each column as its own solve gives.
+  constexpr int kC = 3;
+  const Eigen::MatrixXd R = Eigen::MatrixXd::Random(N, kC);
+  std::vector<Eigen::Matrix<double, B, kC>, Eigen::aligned_allocator<Eigen::Matrix<double, B, kC>>> X(n);
+  for (int l = 0; l < n; ++l) X[l] = R.middleRows(l * B, B);
+  lu.solve_columns(X.data(), typename C::Sequential());
+  for (int c = 0; c < kC; ++c) {
+    for (int l = 0; l < n; ++l) x[l] = R.col(c).segment(l * B, B);
+    lu.solve(x.data());
+    double diff = 0, size = 0;
+    for (int l = 0; l < n; ++l) diff += (X[l].col(c) - x[l]).squaredNorm(), size += x[l].squaredNorm();
+    EXPECT_LT(std::sqrt(diff), 1e-12 * std::sqrt(size)) << "n " << n << " column " << c;
+  }
   // Backward error at rounding level (no pivoting between blocks: the growth is that of the
   // matrix, compared with a dense partial-pivoting LU of it).
   // A coarser drop tolerance factors M + E, |E| ~ drop |M|: backward error of that order.

@@ -160,6 +160,19 @@ Eigen::MatrixXd assembled_damping(const Model& m, const FrictionJacobian& ws, in
         if (c != r) K(coord(c), coord(r)) += kr + kp;
       }
     *pulley_joints += pulley;
+    // The sheaves: pins x shaft k (both ways) and shaft k x shaft k.
+    for (int k = 0; k < 2; ++k) {
+      const int o = m.shaft(k);
+      for (int i = 0; i < kD; ++i)
+        for (int c = 0; c < kShaftSize; ++c) {
+          const double x = ws.pulley_shaft_damping[(static_cast<std::size_t>(j) * 2 + k) * kD * kShaftSize + i * kShaftSize + c];
+          K(coord(i), o + c) += x;
+          K(o + c, coord(i)) += x;
+        }
+      for (int r = 0; r < kShaftSize; ++r)
+        for (int c = 0; c < kShaftSize; ++c)
+          K(o + r, o + c) += ws.pulley_shaft_self[(static_cast<std::size_t>(j) * 2 + k) * kShaftSize * kShaftSize + r * kShaftSize + c];
+    }
   }
   return K;
 }
@@ -168,7 +181,7 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   const Running& r = running();
   const Model m = test::model("mini", {"ramp.time=1e-4", "friction.v0=1000", "rocker.damping=0",
                                        "pulley_contact.damping=0", "chain.plate_damping=0", "chain.pack_damping=0",
-                                       "pin.damping_time=0"});
+                                       "pin.damping_time=0", "damping.scale=0"});
   Workspace ws(m);
   ws.status = r.status;
   FrictionJacobian jac(m);
@@ -183,10 +196,12 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   double worst = 0, smallest_form = 1e300;
   // Perturb the half velocities of a few neighbouring joints at a time (and, last, of all
   // joints): the couplings between joints through the link spins are in the quadratic form.
-  auto trial = [&](int j0, int span) {
+  // With shafts, their velocities too (the sheave blocks).
+  auto trial = [&](int j0, int span, bool shafts = false) {
     Eigen::VectorXd d = Eigen::VectorXd::Zero(n);
     for (int k = 0; k < span; ++k)
       for (int i = 0; i < 2 * half::kSize; ++i) d[m.joint(j0 + k) + i] = 1e-2 * (std::rand() / double(RAND_MAX) - 0.5);
+    for (int i = 0; shafts && i < 2 * kShaftSize; ++i) d[m.shaft(0) + i] = 1e-2 * (std::rand() / double(RAND_MAX) - 0.5);
     auto power = [&](double sign) {
       Eigen::VectorXd yp = y;
       yp.segment(n, n) += sign * d;
@@ -201,6 +216,8 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
   for (int j = 0; j < m.links; ++j)
     for (int k = 0; k < 2; ++k) trial(j, 3);
   trial(0, m.links);
+  trial(0, 0, true);
+  trial(0, m.links, true);
   std::printf("[model_ode] friction blocks vs dissipation Hessian: worst relative difference %.2e over %d joints "
               "(%d with pulley contacts), smallest d^T K d %.3e W\n", worst, m.links, pulley_joints, smallest_form);
   // 3e-6 measured with joint-only perturbations (the second difference of a total power of
@@ -214,7 +231,8 @@ TEST(ModelOde, FrictionDampingBlocksAreTheDissipationHessian) {
 // (A its mass matrix, link inertia included; C the recorded friction damping; K = -dF/dq
 // by dense finite differences here) and, on the other velocities, the identity, whose
 // increments reach the pins through the pulley friction (-A^-1 C_ps): checked as
-//   (A + gh C + gh^2 K) x_v + gh C_ps x_s = A b_v - gh K b_q,   x_q = b_q + gh x_v.
+//   (A + gh C + gh^2 K) x_v + gh C_ps x_s = A b_v - gh K b_q,   x_q = b_q + gh x_v;
+// with w_shafts the shafts' velocity rows too: M_s x_s + gh (C_ps^T x_v + C_ss x_s) = M_s b_s.
 TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   const Running& r = running();
   const Model& m = r.m;
@@ -239,8 +257,10 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   ModelOdeOptions opt;
   opt.w_every = 1;
   opt.w_fresh = 0;
-  for (bool stiffness : {false, true}) {
+  for (int variant = 0; variant < 3; ++variant) {
+    const bool stiffness = variant > 0;
     opt.w_stiffness = stiffness;
+    opt.w_shafts = variant == 2;
     ModelOde ode(m, ws, *sched, opt);
     ode.ask_friction_jacobian(0);
     ode.system().rhs(r.t, r.y.data(), dy.data());
@@ -266,13 +286,27 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
     const Eigen::VectorXd xs = x.segment(n + tail, 2 * kShaftSize);
     Eigen::VectorXd lhs = (A + gh * C) * xv + gh * Cps * xs, rhs = A * bv;
     if (stiffness) lhs += gh * gh * K * xv, rhs -= gh * K * bq;
-    EXPECT_LT((lhs - rhs).norm(), 1e-6 * rhs.norm()) << "stiffness " << stiffness;
+    EXPECT_LT((lhs - rhs).norm(), 1e-6 * rhs.norm()) << "variant " << variant;
     // The stiffness matters at this gh: the same solve without it misses by more.
     if (stiffness) {
       EXPECT_GT((gh * gh * K * xv + gh * K * bq).norm(), 1e-3 * rhs.norm());
     }
+    const Eigen::VectorXd bs = b.segment(n + tail, 2 * kShaftSize);
+    if (opt.w_shafts) {
+      // The shafts' rows: M_s x_s + gh (C_sp x_v + C_ss x_s) = M_s b_s, C_sp = C_ps^T, M_s
+      // the shafts' block of the dense inertia.
+      const Eigen::MatrixXd Ms = dense_inertia(m, r.y.data()).block(tail, tail, 2 * kShaftSize, 2 * kShaftSize);
+      const Eigen::MatrixXd Css = assembled_damping(m, jac, &pj).block(tail, tail, 2 * kShaftSize, 2 * kShaftSize);
+      EXPECT_GT(Css.norm(), 0);
+      const Eigen::VectorXd ls = Ms * xs + gh * (Cps.transpose() * xv + Css * xs), rs = Ms * bs;
+      EXPECT_LT((ls - rs).norm(), 1e-9 * rs.norm());
+      // ... which the identity there misses.
+      EXPECT_GT((xs - bs).norm(), 1e-6 * bs.norm());
+    } else {
+      EXPECT_EQ(xs, bs);
+    }
     for (int i = 0; i < n; ++i) ASSERT_NEAR(x[i], b[i] + gh * x[n + i], 1e-12 * (std::abs(x[i]) + 1)) << i;
-    for (int i = n + tail; i < m.nstate; ++i) ASSERT_EQ(x[i], b[i]) << "unknown " << i;
+    for (int i = n + tail + 2 * kShaftSize; i < m.nstate; ++i) ASSERT_EQ(x[i], b[i]) << "unknown " << i;
   }
 }
 
@@ -289,9 +323,13 @@ TEST(ModelOde, WFreshCorrectionSolvesTheCurrentFrictionMatrix) {
   for (int i = 0; i < tail; ++i) y1[n + i] += 0.02 * std::sin(0.7 * i + 0.3);
   Eigen::VectorXd dy(m.nstate);
   const Eigen::VectorXd b = Eigen::VectorXd::Random(m.nstate);
+  // Without and with the shafts' rows in W (their part of each contact's column then in the
+  // correction too).
+  for (bool shafts : {false, true}) {
   ModelOdeOptions opt;
   opt.w_every = opt.w_k_every = 8;
   opt.w_stiffness = false;  // K = -dF/dq depends on the velocities through the damping forces
+  opt.w_shafts = shafts;
   // kind 0: rebuilt at y1; 1: rebuilt at y0, corrected at y1; 2: rebuilt at y0, stale.
   Eigen::VectorXd x[3];
   long long joined = 0, forced = -1;
@@ -317,12 +355,22 @@ TEST(ModelOde, WFreshCorrectionSolvesTheCurrentFrictionMatrix) {
     x[kind] = b;
     ode.system().w_solve(x[kind].data());
   }
-  std::printf("[model_ode] w_fresh: %lld contacts corrected; |x_fresh - x_rebuilt| / |x_rebuilt| = %.3g, stale %.3g\n",
-              joined, (x[1] - x[0]).norm() / x[0].norm(), (x[2] - x[0]).norm() / x[0].norm());
+  std::printf("[model_ode] w_fresh (shafts' rows %s): %lld contacts corrected; |x_fresh - x_rebuilt| / |x_rebuilt| = %.3g, stale %.3g\n",
+              shafts ? "in" : "out", joined, (x[1] - x[0]).norm() / x[0].norm(), (x[2] - x[0]).norm() / x[0].norm());
   EXPECT_GT(joined, 4);
   EXPECT_EQ(forced, 0);
   EXPECT_LT((x[1] - x[0]).norm(), 1e-9 * x[0].norm());
   EXPECT_GT((x[2] - x[0]).norm(), 1e-4 * x[0].norm());
+  if (shafts) {
+    // The shafts' velocities: what the matrix does to them (x_s - b_s), corrected as rebuilt.
+    const int sh = n + m.shaft(0);
+    const Eigen::VectorXd moved = x[0].segment(sh, 2 * kShaftSize) - b.segment(sh, 2 * kShaftSize);
+    const Eigen::VectorXd miss = x[1].segment(sh, 2 * kShaftSize) - x[0].segment(sh, 2 * kShaftSize);
+    std::printf("[model_ode] the shafts' part: |x_s - b_s| = %.3g, corrected vs rebuilt %.3g\n", moved.norm(), miss.norm());
+    EXPECT_GT(moved.norm(), 1e-4 * b.segment(sh, 2 * kShaftSize).norm());
+    EXPECT_LT(miss.norm(), 1e-9 * moved.norm());
+  }
+  }
 }
 
 TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {
