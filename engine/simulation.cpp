@@ -65,7 +65,12 @@ void Simulation::w_step(double h) {
   const int sub = startup_substeps(m_.cfg.integrator, h);
   const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
   const bool adaptive = adaptive_steps(m_.cfg);
-  OdeDriver& drv = w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h, startup);
+  // The settling phase: the method's own sub-steps (its driver, remade for the sub-step and
+  // again for h after the phase; the matrix schedule counts the sub-steps).
+  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg))
+                         ? 1
+                         : settle_substeps(m_.cfg.integrator, h);
+  OdeDriver& drv = w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h / settle, startup);
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
   if (y_.allFinite()) {
@@ -73,7 +78,8 @@ void Simulation::w_step(double h) {
       const std::int64_t rejected0 = drv.stats().rejected;
       // The matrix's rebuild schedule counts the driver's steps: the run's (fixed steps), or
       // with adaptive steps the sub-steps taken so far (the clock then ticks per sample).
-      const long first = adaptive ? steps_taken_ : clock_.steps;
+      // Sub-steps (start-up, settling) are counted one by one: step n's are n sub .. n sub + sub - 1.
+      const long first = adaptive ? steps_taken_ : clock_.steps * (startup ? sub : settle);
       const long n = drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), first);
       // Adaptive: the driver's steps between two ticks of the clock (start-up sub-steps too).
       steps_taken_ += adaptive ? n : 1;

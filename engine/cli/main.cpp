@@ -219,6 +219,10 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
       if (startup_sub > 1)
         w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
              fmt_g(cfg.integrator.startup_time) + " s";
+      const int settle_sub = cvt::settle_substeps(cfg.integrator, cfg.integrator.step);
+      if (settle_sub > 1)
+        w += ", " + std::to_string(settle_sub) + " sub-steps per step before t = " + fmt_g(cfg.integrator.settle_time) +
+             " s";
       w += ")";
     }
     const std::string step = cvt::adaptive_steps(cfg)

@@ -169,6 +169,8 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_shafts, boolean, "", Range{}),
       CVT_KEY(integrator, startup_time, real, "s", nonneg),
       CVT_KEY(integrator, startup_step, real, "s", positive),
+      CVT_KEY(integrator, settle_time, real, "s", nonneg),
+      CVT_KEY(integrator, settle_step, real, "s", positive),
       CVT_KEY(integrator, tolerance, real, "1", nonneg),
 
       CVT_KEY(run, t_end, real, "s", positive),
@@ -781,6 +783,8 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
   }
   val.throw_collected();
   if (cfg.ramp.load_time < 0) cfg.ramp.load_time = cfg.ramp.time;  // not given: the clamping's ramp
+  if (cfg.integrator.settle_time < 0)  // not given: until both ramps have ended (ramps_end)
+    cfg.integrator.settle_time = std::max(cfg.ramp.time, cfg.ramp.load_start + cfg.ramp.load_time);
   val.check_relations(root, cfg);
 
   cfg.resolved_toml = resolved_toml(cfg);

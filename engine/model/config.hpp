@@ -159,9 +159,9 @@ struct Config {
   } damping;
   struct Integrator {
     IntegratorMethod method = IntegratorMethod::ros34pw2;
-    double step = 8.333333333333333e-7;  // [s]: 1e-5 / 12, divides run.sample_interval and run.t_end
+    double step = 2.0e-6;  // [s]: 1e-5 / 5, divides run.sample_interval and run.t_end
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
-    int w_k_every = 64;    // ros2: and its stiffness blocks (finite differences) every this many
+    int w_k_every = 32;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
     // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
     // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
@@ -170,12 +170,18 @@ struct Config {
     double w_fresh = 5.0;
     int w_fresh_max = 12;
     // W-methods: the shafts' velocity rows in the matrix (ModelOdeOptions::w_shafts)
-    bool w_shafts = false;
+    bool w_shafts = true;
     // W-methods: before this model time each step is taken as the fewest equal ROS2 sub-steps
     // no longer than startup_step (the pins settling onto the sheaves from rest;
     // docs/integrators.md 12.3)
     double startup_time = 1.0e-4;   // [s]; 0: none
     double startup_step = 6.25e-8;  // [s]
+    // Fixed W-steps: after the start-up and before settle_time each step is taken as the
+    // fewest equal sub-steps of the method no longer than settle_step (the contacts loading
+    // up under the ramps, which a step tuned to the loaded chain does not follow;
+    // docs/integrators.md 12.3). < 0 (not given): the end of the ramps (ramps_end); 0: none.
+    double settle_time = -1.0;  // [s]
+    double settle_step = 8.333333333333333e-7;  // [s]
     // W-methods: > 0 chooses every step by error control after the start-up
     // (docs/integrators.md 16): each step's estimated error at the pin, shaft or load that
     // errs most is at most tolerance x (1 um, 1 mm/s); `step` is then the first step, the
@@ -234,6 +240,12 @@ inline double grid_step(const Config& c) { return adaptive_steps(c) ? c.run.samp
 inline int startup_substeps(const Config::Integrator& in, double h) {
   if (!(in.startup_time > 0)) return 1;
   return std::max(1, static_cast<int>(std::ceil(h / in.startup_step * (1 - 1e-12))));
+}
+// The settling phase after it: the sub-steps per step of h before integrator.settle_time,
+// the fewest whose length h / n is at most integrator.settle_step; 1 without a phase.
+inline int settle_substeps(const Config::Integrator& in, double h) {
+  if (in.settle_time == 0) return 1;  // < 0: until the ramps end (settle_end)
+  return std::max(1, static_cast<int>(std::ceil(h / in.settle_step * (1 - 1e-12))));
 }
 
 }  // namespace cvt

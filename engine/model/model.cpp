@@ -67,6 +67,8 @@ double slip_safe_gain(const Model& m) {
 
 double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }
 
+double settle_end(const Config& c) { return c.integrator.settle_time < 0 ? ramps_end(c) : c.integrator.settle_time; }
+
 double torsion_period(const Model& m) {
   const Config& c = m.cfg;
   const double i = c.geometry.ratio;  // pulley 2 turns at omega_1 / i: all referred to shaft 1

@@ -123,5 +123,7 @@ double slip_safe_gain(const Model& m);
 
 // The time from which every ramp (clamping forces and load torque) has ended.
 double ramps_end(const Config& c);
+// The end of the W-methods' settling phase: integrator.settle_time, or ramps_end when < 0.
+double settle_end(const Config& c);
 
 }  // namespace cvt

@@ -382,7 +382,7 @@ TEST_F(CliTest, GraphDrawsTheWStep) {
   const RunResult r = run({"graph", kReference, "--threads", "2", "--w-step"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   for (const char* node : {"digraph w_step", "evaluation 4", "solve4", "top sweep (thread 0) | bottom sweep (thread 1)",
-                           "every 8 steps (stiffness every 64)", "stage sums"})
+                           "every 8 steps (stiffness every 32)", "stage sums"})
     EXPECT_NE(r.out.find(node), std::string::npos) << node << " missing:\n" << r.out;
   EXPECT_EQ(r.out.find("error norm"), std::string::npos);
   const RunResult a = run({"graph", kReference, "--w-step", "--set", "integrator.tolerance=3"});
