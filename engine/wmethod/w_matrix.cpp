@@ -53,9 +53,11 @@ void ModelOde::w_factor(double t, const double* y, double gh) {
   w_gh_ = gh;
   timed(Section::w_assembly, [&] { for_joints([this, gh](int l) { w_assemble_link(l, gh); }); });
   bool ok = false;
-  timed(Section::w_factor, [&] { ok = w_lu_.factor(TwoTasks{schedule_.threads() > 1}); });
+  timed(Section::w_factor, [&] {
+    ok = w_lu_.factor(TwoTasks{schedule_.threads() > 1});
+    if (ok && opt_.w_shafts) w_shaft_factor(gh);
+  });
   if (!ok) throw std::runtime_error("W-method: the W matrix is singular");
-  if (opt_.w_shafts) timed(Section::w_factor, [&] { w_shaft_factor(gh); });
   if (w_fresh_on()) {
     wf_clear();
     fjac_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
