@@ -141,12 +141,8 @@ void ModelOde::wf_correct(double* x) const {
   const double* y0 = w_rhs_[0].data();  // W^-1 r, physical, link order
   auto p = wf_p_.head(k);
   auto t = wf_t_.head(k);
-  ShaftVector xs;  // w_shafts: the shafts' part of y0, physical
-  for (int k2 = 0; k2 < 2; ++k2)
-    for (int s = 0; s < kShaftSize; ++s) {
-      const int r = n + m_.shaft(k2) + s;
-      xs[k2 * kShaftSize + s] = opt_.scaled ? x[r] * unit_[r] : x[r];
-    }
+  // The shafts' velocities, physical: w_shafts, their part of y0; else the right side's b_s.
+  const ShaftVector xs = shaft_velocities(x);
   for (int i = 0; i < k; ++i) {
     const FreshContact& c = wf_set_[i / 2];
     double w = 0;
@@ -157,10 +153,7 @@ void ModelOde::wf_correct(double* x) const {
     }
     if (c.shaft >= 0) {
       const double* v = fjac_.pulley_shaft_cols.data() + (static_cast<std::size_t>(c.idx) * 2 + i % 2) * kShaftSize;
-      for (int s = 0; s < kShaftSize; ++s) {
-        const int r = n + m_.shaft(c.shaft) + s;
-        w += v[s] * (opt_.scaled ? x[r] * unit_[r] : x[r]);
-      }
+      for (int s = 0; s < kShaftSize; ++s) w += v[s] * xs[c.shaft * kShaftSize + s];
     }
     p[i] = wf_d_[i] * w;
     t[i] = wf_dot(c, i % 2, y0);

@@ -267,6 +267,7 @@ class ModelOde {
   void w_shaft_factor(double gh);
   ShaftVector w_shaft_solve(double* x) const;  // the bordered solve's shaft step (w_solve_untimed)
   ShaftVector w_shaft_unknowns(const ShaftVector& rs) const;  // its x_s for the right side r_s
+  ShaftVector shaft_velocities(const double* x) const;  // x's 14 shaft velocities, physical units
   CyclicBlockLU<kLinkDim> w_lu_;
   std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
   int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }

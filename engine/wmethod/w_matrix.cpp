@@ -257,19 +257,23 @@ ModelOde::ShaftVector ModelOde::w_shaft_unknowns(const ShaftVector& rs) const {
 ModelOde::ShaftVector ModelOde::w_shaft_solve(double* x) const {
   // The bordered solve's shaft step on x's shafts (right side M_s b_s), their x_s into x.
   const int n = m_.ndof;
-  ShaftVector b;
-  for (int k = 0; k < 2; ++k)
-    for (int i = 0; i < kShaftSize; ++i) {
-      const int r = n + m_.shaft(k) + i;
-      b[k * kShaftSize + i] = opt_.scaled ? x[r] * unit_[r] : x[r];
-    }
-  const ShaftVector xs = w_shaft_unknowns(w_ms_ * b);
+  const ShaftVector xs = w_shaft_unknowns(w_ms_ * shaft_velocities(x));
   for (int k = 0; k < 2; ++k)
     for (int i = 0; i < kShaftSize; ++i) {
       const int r = n + m_.shaft(k) + i;
       x[r] = opt_.scaled ? xs[k * kShaftSize + i] / unit_[r] : xs[k * kShaftSize + i];
     }
   return xs;
+}
+
+ModelOde::ShaftVector ModelOde::shaft_velocities(const double* x) const {
+  ShaftVector v;
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kShaftSize; ++i) {
+      const int r = m_.ndof + m_.shaft(k) + i;
+      v[k * kShaftSize + i] = opt_.scaled ? x[r] * unit_[r] : x[r];
+    }
+  return v;
 }
 
 void ModelOde::pack_columns(const LinkBlock& b, PackedColumns& p) {
@@ -296,6 +300,7 @@ void ModelOde::w_solve_untimed(double* x) const {
   const double* uq = w_unit_q_.data();
   const double* uv = w_unit_v_.data();
   const double* ratio = w_unit_ratio_.data();
+  const ShaftVector bs = shaft_velocities(x);  // the shafts' b_s, physical (read once, not per link)
   LinkVector* v = w_rhs_.data();
   // Entry i of b_q in link l's coordinates.
   const auto position = [&](int l, int i) { return x[w_coord_[l * kLinkDim + i]] * uq[l * kLinkDim + i]; };
@@ -325,16 +330,8 @@ void ModelOde::w_solve_untimed(double* x) const {
       for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * position(ln, sup.index[c]);
       y.noalias() -= gh * kb;
     }
-    if (w_cps_on_[l] && !opt_.w_shafts) {
-      // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
-      Eigen::Matrix<double, 2 * kShaftSize, 1> xs;
-      for (int k = 0; k < 2; ++k)
-        for (int i = 0; i < kShaftSize; ++i) {
-          const int r = n + m_.shaft(k) + i;
-          xs[k * kShaftSize + i] = opt_.scaled ? x[r] * unit_[r] : x[r];
-        }
-      y.noalias() -= gh * (w_cps_[l] * xs);
-    }
+    // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
+    if (w_cps_on_[l] && !opt_.w_shafts) y.noalias() -= gh * (w_cps_[l] * bs);
   };
   // x_v, then x_q = b_q + gh x_v (dq/dt = v exactly: W's position rows [I, -gh I]; scaled:
   // times the ratio of the units, w_unit_ratio_).
