@@ -21,18 +21,16 @@ class Recorder {
   Recorder(H5File& f, const Model& m) : f_(f), N_(m.links) {}
 
   void scalar(const std::string& name, const std::string& unit, double t, double value) {
-    H5Series& v = series(name, unit, {});
-    H5Series& tt = time(name);
+    const Slot& x = slot(name, unit, {});
     if (declare_only_) return;
-    v.append(value);
-    tt.append(t);
+    x.value->append(value);
+    x.time->append(t);
   }
   void vector(const std::string& name, const std::string& unit, double t, const double* v, hsize_t k) {
-    H5Series& s = series(name, unit, {k});
-    H5Series& tt = time(name);
+    const Slot& x = slot(name, unit, {k});
     if (declare_only_) return;
-    s.append(v);
-    tt.append(t);
+    x.value->append(v);
+    x.time->append(t);
   }
   // Creates (or opens, in a continued file) every series and its unit without appending:
   // in SWMR mode no object may be created later.
@@ -48,6 +46,7 @@ class Recorder {
     for (H5Series* x : snapshots_) x->truncate(snaps);
   }
   void record(const Sample& s) {
+    cursor_ = 0;
     scalar("input_speed", "rad/s", s.t, s.input_speed);
     scalar("output_speed", "rad/s", s.t, s.output_speed);
     scalar("load_speed", "rad/s", s.t, s.load_speed);
@@ -116,6 +115,16 @@ class Recorder {
   }
 
  private:
+  // An observable's value and time series. record() names them in one fixed order: the
+  // first call looks them up by path, later calls take them from slots_ by position.
+  struct Slot {
+    H5Series* value;
+    H5Series* time;
+  };
+  const Slot& slot(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
+    if (cursor_ == slots_.size()) slots_.push_back({&series(name, unit, std::move(shape)), &time(name)});
+    return slots_[cursor_++];
+  }
   H5Series& series(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
     const std::string path = "/observables/" + name + "/value";
     H5Series& s = f_.series(path, shape);
@@ -138,6 +147,8 @@ class Recorder {
   }
   H5File& f_;
   int N_;
+  std::vector<Slot> slots_;
+  std::size_t cursor_ = 0;
   bool snap_init_ = false, declare_only_ = false;
   std::set<std::string> units_done_;
   std::vector<H5Series*> observables_, snapshots_;
