@@ -159,7 +159,7 @@ struct Config {
   } damping;
   struct Integrator {
     IntegratorMethod method = IntegratorMethod::ros34pw2;
-    double step = 2.0e-6;  // [s]: 1e-5 / 5, divides run.sample_interval and run.t_end
+    double step = 2.5e-6;  // [s]: 1e-5 / 4, divides run.sample_interval and run.t_end
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 32;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)

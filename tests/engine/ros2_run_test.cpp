@@ -224,16 +224,18 @@ TEST(Ros2Run, Ros34pw2FromRestNeedsTheRos2StartUp) {
   EXPECT_LT(std::abs(s.energy_residual), 0.05);
 }
 
-// The step tuned to the running chain (2e-6 s, the shafts' rows in W) from rest: the
+// The step tuned to the running chain (the default, the shafts' rows in W) from rest: the
 // start-up's ROS2 sub-steps, counted one by one in the matrix's rebuild schedule, carry it
 // to 0.1 ms; without the settling phase's sub-steps of at most integrator.settle_step the
 // contacts that load up next go wrong (half a joule of energy error by 0.4 ms), with them the
 // energy balance holds (docs/integrators.md 12.3).
 TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
-  const double h = 2e-6, t_end = 4e-4;
+  const double h = Config::Integrator{}.step, t_end = 4e-4;
+  char step[64];
+  std::snprintf(step, sizeof step, "integrator.step=%.17g", h);
   double residual[2] = {0, 0};
   for (int settle = 0; settle < 2; ++settle) {
-    const Model m = test::model("reference", {"integrator.method=ros34pw2", "integrator.step=2e-6", "integrator.w_shafts=true",
+    const Model m = test::model("reference", {"integrator.method=ros34pw2", step, "integrator.w_shafts=true",
                                               settle ? "integrator.settle_time=1e-3" : "integrator.settle_time=0"});
     Simulation sim(m);
     const long n = std::lround(t_end / h);
@@ -242,8 +244,8 @@ TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
     const Sample s = sim.sample();
     residual[settle] = std::abs(s.energy_residual);
   }
-  std::printf("[ros34pw2] reference model from rest, h = 2e-6, 0.4 ms: energy residual %.3g J without the settling "
-              "sub-steps, %.3g J with them\n", residual[0], residual[1]);
+  std::printf("[ros34pw2] reference model from rest, h = %g, 0.4 ms: energy residual %.3g J without the settling "
+              "sub-steps, %.3g J with them\n", h, residual[0], residual[1]);
   EXPECT_GT(residual[0], 0.2);
   EXPECT_GT(residual[0], 20 * residual[1]);
   EXPECT_LT(residual[1], 0.05);

@@ -90,7 +90,7 @@ TEST(ConfigTest, ReferenceMatchesModel) {
   EXPECT_DOUBLE_EQ(c.clamping.driven, 30.0e3);
   EXPECT_DOUBLE_EQ(c.ramp.time, 2.0e-3);
   EXPECT_EQ(c.integrator.method, IntegratorMethod::ros34pw2);
-  EXPECT_DOUBLE_EQ(c.integrator.step, 1.0e-5 / 5);
+  EXPECT_DOUBLE_EQ(c.integrator.step, 1.0e-5 / 4);
   EXPECT_TRUE(c.integrator.w_shafts);
   EXPECT_DOUBLE_EQ(c.integrator.settle_time, 2.0e-3);  // not given: the end of the ramp
   EXPECT_DOUBLE_EQ(c.run.t_end, 2.0e-2);
