@@ -77,9 +77,27 @@ void BM_CyclicBlockLUSolve(benchmark::State& st) {
     }
   });
 }
+// C right sides at once (solve_columns), against C single solves in BM_CyclicBlockLUSolve:
+// the fresh-friction columns (C = 2 per contact) and the shafts' (C = 14).
+template <int C>
+void BM_CyclicBlockLUSolveColumns(benchmark::State& st) {
+  LU lu;
+  fill(lu, st.range(1) != 0);
+  lu.factor();
+  using Cols = Eigen::Matrix<double, kB, C>;
+  std::vector<Cols, Eigen::aligned_allocator<Cols>> x(kLinks, Cols::Ones());
+  in_arena(st, [&](const auto& both) {
+    for (auto _ : st) {
+      lu.solve_columns(x.data(), both);
+      benchmark::DoNotOptimize(x.data());
+    }
+  });
+}
 
 }  // namespace
 
+BENCHMARK(BM_CyclicBlockLUSolveColumns<2>)->ArgsProduct({{1, 2}, {1}})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CyclicBlockLUSolveColumns<14>)->ArgsProduct({{1, 2}, {1}})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_CyclicBlockLUFactor)->ArgsProduct({{1, 2}, {0, 1}})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_CyclicBlockLUSolve)->ArgsProduct({{1, 2}, {0, 1}})->Unit(benchmark::kMicrosecond);
 BENCHMARK_MAIN();

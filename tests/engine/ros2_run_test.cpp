@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
@@ -227,8 +228,8 @@ TEST(Ros2Run, Ros34pw2FromRestNeedsTheRos2StartUp) {
 // The step tuned to the running chain (the default, the shafts' rows in W) from rest: the
 // start-up's ROS2 sub-steps, counted one by one in the matrix's rebuild schedule, carry it
 // to 0.1 ms; without the settling phase's sub-steps of at most integrator.settle_step the
-// contacts that load up next go wrong (half a joule of energy error by 0.4 ms), with them the
-// energy balance holds (docs/integrators.md 12.3).
+// contacts that load up next go wrong (the energy balance off by more than 0.2 J by 0.4 ms,
+// or the run blows up), with them the energy balance holds (docs/integrators.md 12.3).
 TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
   const double h = Config::Integrator{}.step, t_end = 4e-4;
   char step[64];
@@ -240,7 +241,11 @@ TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
     Simulation sim(m);
     const long n = std::lround(t_end / h);
     for (long k = 0; k < n; ++k) sim.step(h);
-    ASSERT_TRUE(sim.state().allFinite()) << "settle " << settle;
+    if (!sim.state().allFinite()) {
+      ASSERT_EQ(settle, 0) << "the settled run blew up";
+      residual[settle] = std::numeric_limits<double>::infinity();
+      continue;
+    }
     const Sample s = sim.sample();
     residual[settle] = std::abs(s.energy_residual);
   }
