@@ -50,6 +50,60 @@ inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matri
   t.noalias() = A * x;
 #endif
 }
+// T = A X for C columns (solve_columns' kernel). With AVX2 two columns at a time share each
+// load of A's columns (2 x B/4 registers of sums); Eigen's product of a 21 x 21 block with
+// 2 or 14 columns took 2.5x (2) and 1.1x (14) the time of as many single products.
+template <int B, int C>
+inline void block_times_columns(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, C>& X,
+                                Eigen::Matrix<double, B, C>& T) {
+#if defined(__AVX2__) && defined(__FMA__)
+  constexpr int kFull = B / 4, kRest = B % 4, kRegs = kFull + (kRest > 0);
+  const __m256i mask = _mm256_set_epi64x(0, kRest > 2 ? -1 : 0, kRest > 1 ? -1 : 0, -1);
+  const double* a = A.data();
+  int j = 0;
+  for (; j + 1 < C; j += 2) {
+    __m256d s0[kRegs], s1[kRegs];
+    for (int i = 0; i < kRegs; ++i) s0[i] = _mm256_setzero_pd(), s1[i] = _mm256_setzero_pd();
+    const double* x0 = X.data() + B * j;
+    const double* x1 = x0 + B;
+    for (int c = 0; c < B; ++c) {
+      const __m256d b0 = _mm256_set1_pd(x0[c]), b1 = _mm256_set1_pd(x1[c]);
+      const double* col = a + B * c;
+      for (int i = 0; i < kFull; ++i) {
+        const __m256d v = _mm256_loadu_pd(col + 4 * i);
+        s0[i] = _mm256_fmadd_pd(v, b0, s0[i]);
+        s1[i] = _mm256_fmadd_pd(v, b1, s1[i]);
+      }
+      if constexpr (kRest > 0) {
+        const __m256d v = _mm256_maskload_pd(col + 4 * kFull, mask);
+        s0[kFull] = _mm256_fmadd_pd(v, b0, s0[kFull]);
+        s1[kFull] = _mm256_fmadd_pd(v, b1, s1[kFull]);
+      }
+    }
+    double* t0 = T.data() + B * j;
+    double* t1 = t0 + B;
+    for (int i = 0; i < kFull; ++i) _mm256_storeu_pd(t0 + 4 * i, s0[i]), _mm256_storeu_pd(t1 + 4 * i, s1[i]);
+    if constexpr (kRest > 0)
+      _mm256_maskstore_pd(t0 + 4 * kFull, mask, s0[kFull]), _mm256_maskstore_pd(t1 + 4 * kFull, mask, s1[kFull]);
+  }
+  if (j < C) {
+    Eigen::Matrix<double, B, 1> t;
+    block_times<B>(A, X.col(j), t);
+    T.col(j) = t;
+  }
+#else
+  T.noalias() = A * X;
+#endif
+}
+// Y -= A X for C columns.
+template <int B, int C>
+inline void block_subtract_columns(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, C>& X,
+                                   Eigen::Matrix<double, B, C>& Y) {
+  Eigen::Matrix<double, B, C> t;
+  block_times_columns<B, C>(A, X, t);
+  Y -= t;
+}
+
 // y -= A x.
 template <int B>
 inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, 1>& x,
@@ -190,12 +244,12 @@ class CyclicBlockLU {
     x[m] -= xm_bot;
     x[last] -= xl_top;
     x[last] -= xl_bot;
-    x[last].noalias() -= lrow_[m] * x[m];
+    block_subtract_columns<B, C>(lrow_[m], x[m], x[last]);
     Cols t = x[last];
-    x[last].noalias() = inv_[last] * t;
+    block_times_columns<B, C>(inv_[last], t, x[last]);
     t = x[m];
-    t.noalias() -= ucol_[m] * x[last];
-    x[m].noalias() = inv_[m] * t;
+    block_subtract_columns<B, C>(ucol_[m], x[last], t);
+    block_times_columns<B, C>(inv_[m], t, x[m]);
     both([&] { backward_columns(x, 0, +1); }, [&] { backward_columns(x, n - 2, -1); });
   }
 
@@ -205,21 +259,27 @@ class CyclicBlockLU {
                        Cols& xm, Cols& xl) const {
     const int m = (n_ - 1) / 2;
     if (first == m) return;
-    for (int l = first + dir; l != m; l += dir) x[l].noalias() -= mult[l] * x[l - dir];
-    xm.noalias() = mult[m] * x[m - dir];
+    constexpr int C = Cols::ColsAtCompileTime;
+    for (int l = first + dir; l != m; l += dir) block_subtract_columns<B, C>(mult[l], x[l - dir], x[l]);
+    block_times_columns<B, C>(mult[m], x[m - dir], xm);
+    Cols t;
     for (int l = first; l != m; l += dir)
-      if (fill_[l]) xl.noalias() += lrow_[l] * x[l];
+      if (fill_[l]) {
+        block_times_columns<B, C>(lrow_[l], x[l], t);
+        xl += t;
+      }
   }
   template <class Cols>
   void backward_columns(Cols* x, int first, int dir) const {
     const int m = (n_ - 1) / 2, last = n_ - 1;
     if (first == m) return;
+    constexpr int C = Cols::ColsAtCompileTime;
     Cols u;
     for (int l = m - dir;; l -= dir) {
       u = x[l];
-      if (fill_[l]) u.noalias() -= ucol_[l] * x[last];
-      u.noalias() -= band(l, l + dir) * x[l + dir];
-      x[l].noalias() = inv_[l] * u;
+      if (fill_[l]) block_subtract_columns<B, C>(ucol_[l], x[last], u);
+      block_subtract_columns<B, C>(band(l, l + dir), x[l + dir], u);
+      block_times_columns<B, C>(inv_[l], u, x[l]);
       if (l == first) break;
     }
   }

@@ -48,35 +48,35 @@ double ModelOde::wf_dot(const FreshContact& c, int col, const double* z, const d
 }
 
 void ModelOde::wf_join(const FreshContact& c) {
+  // Z's two new columns, W^-1 [U; V]: the chain's block solve of both at once (the same bits
+  // as one solve per column), then (w_shafts) each column's shafts' step and z - Y x_s.
   constexpr int kH = 2 * half::kSize, kD = FrictionJacobian::kDim;
   const int col = 2 * static_cast<int>(wf_set_.size());
   const int lp = m_.wrap(c.joint - 1), lc = c.joint;
-  LinkVector* v = w_rhs_.data();
+  LinkPair* v = wf_rhs_.data();
+  for (int l = 0; l < m_.links; ++l) v[l].setZero();
   for (int a = 0; a < 2; ++a) {
     const double* u = c.columns() + a * kD;
+    for (int r = 0; r < kH; ++r) v[lp](r, a) += u[r];
+    for (int r = 0; r < kH; ++r) v[lc](r, a) += u[kH + r];
+  }
+  w_lu_.solve_columns(v, TwoTasks{schedule_.threads() > 1});
+  for (int a = 0; a < 2; ++a) {
     double* z = wf_z_.col(col + a).data();
-    const auto prepare = [&](int l) {
-      v[l].setZero();
-      if (l == lp)
-        for (int r = 0; r < kH; ++r) v[l][r] += u[r];
-      if (l == lc)
-        for (int r = 0; r < kH; ++r) v[l][r] += u[kH + r];
-    };
-    const auto finish = [&](int l) { Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = v[l]; };
     if (opt_.w_shafts) {
-      // The bordered solve of [U; V]: the chain, the shafts' step, then z - Y x_s.
-      w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [](int) {});
+      LinkVector* w = w_rhs_.data();
+      for (int l = 0; l < m_.links; ++l) w[l] = v[l].col(a);
       ShaftVector rs = ShaftVector::Zero();
       if (c.shaft >= 0)
         for (int s = 0; s < kShaftSize; ++s) rs[c.shaft * kShaftSize + s] = c.sheave_columns(fjac_)[a * kShaftSize + s];
       const ShaftVector xs = w_shaft_unknowns(rs);
       wf_zs_.col(col + a) = xs;
       for (int l = 0; l < m_.links; ++l) {
-        v[l].noalias() -= w_y_[l] * xs;
-        finish(l);
+        w[l].noalias() -= w_y_[l] * xs;
+        Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = w[l];
       }
     } else {
-      w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
+      for (int l = 0; l < m_.links; ++l) Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = v[l].col(a);
     }
   }
   wf_set_.push_back(c);

@@ -134,7 +134,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int c : w_coord_) in_chain[c] = 1;
   for (int c = 0; c < m.ndof; ++c)
     if (!in_chain[c]) w_other_coord_.push_back(c);
-  w_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
+  w_rhs_.resize(N), wf_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
   a0_row_.assign(1, 0);
   for (int r = 0; r < kLinkDim; ++r) {
     for (int c = 0; c < kLinkDim; ++c)

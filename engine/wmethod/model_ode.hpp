@@ -274,6 +274,9 @@ class ModelOde {
   std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
   std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
   mutable LinkVectors w_rhs_;
+  // A fresh-friction contact's two columns [U; V], solved together (wf_join).
+  using LinkPair = Eigen::Matrix<double, kLinkDim, 2>;
+  std::vector<LinkPair, Eigen::aligned_allocator<LinkPair>> wf_rhs_;
   std::vector<int> w_other_coord_;            // the coordinates outside the chain's links (shafts, load)
   LinkVectors w_g_;  // per link: d psi / d(link coordinates) at the last rebuild
   // K = -dF/dq at the last stiffness rebuild: per link l, M(l, l), M(l, l-1), M(l-1, l).
