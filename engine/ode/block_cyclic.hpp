@@ -50,6 +50,52 @@ inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matri
   t.noalias() = A * x;
 #endif
 }
+// t = sum over a few column blocks of (B x n, column-major) times n scalars, in one set of
+// registers: the W solve's right side K b_q over a link's dense diagonal block and its
+// neighbours' packed nonzero columns (ModelOde::w_solve_untimed). add() sums column by
+// column as block_times does; n may be 0.
+template <int B>
+class ColumnSum {
+ public:
+#if defined(__AVX2__) && defined(__FMA__)
+  ColumnSum() {
+    for (auto& v : acc_) v = _mm256_setzero_pd();
+  }
+  void add(const double* cols, const double* x, int n) {
+    // The sums in locals while the loop runs: the members could alias `cols` for the
+    // compiler, which would then store them at every column.
+    const __m256i mask = _mm256_set_epi64x(0, kRest > 2 ? -1 : 0, kRest > 1 ? -1 : 0, -1);
+    __m256d acc[kRegs];
+    for (int i = 0; i < kRegs; ++i) acc[i] = acc_[i];
+    for (int c = 0; c < n; ++c) {
+      const __m256d xc = _mm256_set1_pd(x[c]);
+      const double* col = cols + B * c;
+      for (int i = 0; i < kFull; ++i) acc[i] = _mm256_fmadd_pd(_mm256_loadu_pd(col + 4 * i), xc, acc[i]);
+      if constexpr (kRest > 0) acc[kFull] = _mm256_fmadd_pd(_mm256_maskload_pd(col + 4 * kFull, mask), xc, acc[kFull]);
+    }
+    for (int i = 0; i < kRegs; ++i) acc_[i] = acc[i];
+  }
+  void get(Eigen::Matrix<double, B, 1>& t) const {
+    alignas(32) double out[4 * kRegs];
+    for (int i = 0; i < kRegs; ++i) _mm256_store_pd(out + 4 * i, acc_[i]);
+    for (int r = 0; r < B; ++r) t[r] = out[r];
+  }
+
+ private:
+  static constexpr int kFull = B / 4, kRest = B % 4, kRegs = kFull + (kRest > 0);
+  __m256d acc_[kRegs];
+#else
+  ColumnSum() { t_.setZero(); }
+  void add(const double* cols, const double* x, int n) {
+    for (int c = 0; c < n; ++c) t_ += Eigen::Map<const Eigen::Matrix<double, B, 1>>(cols + B * c) * x[c];
+  }
+  void get(Eigen::Matrix<double, B, 1>& t) const { t = t_; }
+
+ private:
+  Eigen::Matrix<double, B, 1> t_;
+#endif
+};
+
 // T = A X for C columns (solve_columns' kernel). With AVX2 two columns at a time share each
 // load of A's columns (2 x B/4 registers of sums); Eigen's product of a 21 x 21 block with
 // 2 or 14 columns took 2.5x (2) and 1.1x (14) the time of as many single products.

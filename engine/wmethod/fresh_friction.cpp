@@ -72,7 +72,7 @@ void ModelOde::wf_join(const FreshContact& c) {
       const ShaftVector xs = w_shaft_unknowns(rs);
       wf_zs_.col(col + a) = xs;
       for (int l = 0; l < m_.links; ++l) {
-        w[l].noalias() -= w_y_[l] * xs;
+        w_shaft_back(l, xs, w[l]);
         Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = w[l];
       }
     } else {

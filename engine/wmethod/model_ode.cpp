@@ -135,12 +135,6 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int c = 0; c < m.ndof; ++c)
     if (!in_chain[c]) w_other_coord_.push_back(c);
   w_rhs_.resize(N), wf_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
-  a0_row_.assign(1, 0);
-  for (int r = 0; r < kLinkDim; ++r) {
-    for (int c = 0; c < kLinkDim; ++c)
-      if (a0_link_(r, c) != 0) a0_entries_.push_back({c, a0_link_(r, c)});
-    a0_row_.push_back(static_cast<int>(a0_entries_.size()));
-  }
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
   w_k_packed_.resize(N);
   w_delta_.assign(N, 0.0);

@@ -243,12 +243,6 @@ class ModelOde {
   void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads
   void link_gradient(int l, LinkVector& g) const;
   LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
-  struct A0Entry {
-    int c;
-    double v;
-  };
-  std::vector<A0Entry> a0_entries_;  // its nonzeros by rows (row r: a0_row_[r] .. a0_row_[r + 1])
-  std::vector<int> a0_row_;
   // Per link: the pulley friction's K_ps on its rows (21 x 14, both shafts) at the last
   // rebuild, and whether it is nonzero (the link touches a sheave).
   std::vector<Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>,
@@ -268,6 +262,7 @@ class ModelOde {
   ShaftVector w_shaft_solve(double* x) const;  // the bordered solve's shaft step (w_solve_untimed)
   ShaftVector w_shaft_unknowns(const ShaftVector& rs) const;  // its x_s for the right side r_s
   ShaftVector shaft_velocities(const double* x) const;  // x's 14 shaft velocities, physical units
+  void w_shaft_back(int l, const ShaftVector& xs, LinkVector& z) const;  // z -= Y_l x_s (link l's chain part)
   CyclicBlockLU<kLinkDim> w_lu_;
   std::vector<int> w_coord_;                  // [l * kLinkDim + i]: link_coord(l, i)
   int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }

@@ -266,6 +266,16 @@ ModelOde::ShaftVector ModelOde::w_shaft_solve(double* x) const {
   return xs;
 }
 
+void ModelOde::w_shaft_back(int l, const ShaftVector& xs, LinkVector& z) const {
+  // z -= Y_l x_s, Y_l's 14 columns summed in registers (Eigen's out-of-line product of a
+  // 21 x 14 block with a vector took longer).
+  ColumnSum<kLinkDim> sum;
+  sum.add(w_y_[l].data(), xs.data(), 2 * kShaftSize);
+  LinkVector t;
+  sum.get(t);
+  z -= t;
+}
+
 ModelOde::ShaftVector ModelOde::shaft_velocities(const double* x) const {
   ShaftVector v;
   for (int k = 0; k < 2; ++k)
@@ -309,25 +319,28 @@ void ModelOde::w_solve_untimed(double* x) const {
     LinkVector b;
     for (int i = 0; i < kLinkDim; ++i) b[i] = x[n + w_coord_[o + i]] * uv[o + i];
     LinkVector& y = v[l];
-    // A0 b (73 nonzeros of 441), row by row (each row's sum in a register).
-    for (int r = 0; r < kLinkDim; ++r) {
-      double acc = 0;
-      for (int k = a0_row_[r]; k < a0_row_[r + 1]; ++k) acc += a0_entries_[k].v * b[a0_entries_[k].c];
-      y[r] = acc;
-    }
+    // A0 b: the links' common block, dense from L1 (73 nonzeros of 441, but a sparse loop
+    // over them with its index loads took longer than the 21 vector columns).
+    block_times(a0_link_, b, y);
     y += (m_.cfg.chain.link_inertia * w_g_[l].dot(b)) * w_g_[l];  // + J g g^T b
     if (opt_.w_stiffness) {
       const int lp = m_.wrap(l - 1), ln = m_.wrap(l + 1);
       LinkVector bq;
       for (int i = 0; i < kLinkDim; ++i) bq[i] = position(l, i);
-      // K b_q over link l's row: the dense diagonal block, the couplings by their nonzero
-      // columns (exact zeros skipped; the neighbours' b_q read at those columns only).
-      LinkVector kb;
-      block_times(w_k_diag_[l], bq, kb);
+      // K b_q over link l's row, summed in one set of registers: the dense diagonal block,
+      // then the couplings by their nonzero columns (exact zeros skipped; the neighbours'
+      // b_q read at those columns only).
       const PackedColumns& sub = w_k_packed_[l][0];
       const PackedColumns& sup = w_k_packed_[ln][1];
-      for (int c = 0; c < sub.n; ++c) kb += sub.cols.col(c) * position(lp, sub.index[c]);
-      for (int c = 0; c < sup.n; ++c) kb += sup.cols.col(c) * position(ln, sup.index[c]);
+      double xs[kLinkDim], xn[kLinkDim];
+      for (int c = 0; c < sub.n; ++c) xs[c] = position(lp, sub.index[c]);
+      for (int c = 0; c < sup.n; ++c) xn[c] = position(ln, sup.index[c]);
+      ColumnSum<kLinkDim> sum;
+      sum.add(w_k_diag_[l].data(), bq.data(), kLinkDim);
+      sum.add(sub.cols.data(), xs, sub.n);
+      sum.add(sup.cols.data(), xn, sup.n);
+      LinkVector kb;
+      sum.get(kb);
       y.noalias() -= gh * kb;
     }
     // - gh K_ps x_s: the sheaves' velocity increments (x_s = b_s) drag the pins in contact.
@@ -348,7 +361,7 @@ void ModelOde::w_solve_untimed(double* x) const {
     w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [](int) {});
     const ShaftVector xs = w_shaft_solve(x);
     for_joints([&](int l) {
-      v[l].noalias() -= w_y_[l] * xs;
+      w_shaft_back(l, xs, v[l]);
       finish(l);
     });
   } else {
