@@ -24,36 +24,10 @@
 
 namespace cvt {
 
-// t = A x for a small fixed-size block (B x B, column-major): the solves' kernel. With AVX2
-// the columns are summed in B/4 (rounded up) registers of four rows, the last one a masked
-// load, inline; Eigen's general matrix-vector product (an out-of-line call that splits 21
-// rows into packets of 4, 2 and 1) took 1.3-1.6x as long on the chain's 21 x 21 blocks.
-template <int B>
-inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, 1>& x,
-                        Eigen::Matrix<double, B, 1>& t) {
-#if defined(__AVX2__) && defined(__FMA__)
-  constexpr int kFull = B / 4, kRest = B % 4, kRegs = kFull + (kRest > 0);
-  alignas(32) double out[4 * kRegs];
-  __m256d acc[kRegs];
-  for (auto& v : acc) v = _mm256_setzero_pd();
-  const __m256i mask = _mm256_set_epi64x(0, kRest > 2 ? -1 : 0, kRest > 1 ? -1 : 0, -1);
-  const double* a = A.data();
-  for (int c = 0; c < B; ++c) {
-    const __m256d xc = _mm256_set1_pd(x[c]);
-    const double* col = a + B * c;
-    for (int i = 0; i < kFull; ++i) acc[i] = _mm256_fmadd_pd(_mm256_loadu_pd(col + 4 * i), xc, acc[i]);
-    if constexpr (kRest > 0) acc[kFull] = _mm256_fmadd_pd(_mm256_maskload_pd(col + 4 * kFull, mask), xc, acc[kFull]);
-  }
-  for (int i = 0; i < kRegs; ++i) _mm256_store_pd(out + 4 * i, acc[i]);
-  for (int r = 0; r < B; ++r) t[r] = out[r];
-#else
-  t.noalias() = A * x;
-#endif
-}
 // t = sum over a few column blocks of (B x n, column-major) times n scalars, in one set of
 // registers: the W solve's right side K b_q over a link's dense diagonal block and its
 // neighbours' packed nonzero columns (ModelOde::w_solve_untimed). add() sums column by
-// column as block_times does; n may be 0.
+// column; n may be 0.
 template <int B>
 class ColumnSum {
  public:
@@ -95,6 +69,18 @@ class ColumnSum {
   Eigen::Matrix<double, B, 1> t_;
 #endif
 };
+
+// t = A x for a small fixed-size block (B x B, column-major): the solves' kernel. With AVX2
+// the columns are summed in B/4 (rounded up) registers of four rows, the last one a masked
+// load, inline; Eigen's general matrix-vector product (an out-of-line call that splits 21
+// rows into packets of 4, 2 and 1) took 1.3-1.6x as long on the chain's 21 x 21 blocks.
+template <int B>
+inline void block_times(const Eigen::Matrix<double, B, B>& A, const Eigen::Matrix<double, B, 1>& x,
+                        Eigen::Matrix<double, B, 1>& t) {
+  ColumnSum<B> sum;
+  sum.add(A.data(), x.data(), B);
+  sum.get(t);
+}
 
 // T = A X for C columns (solve_columns' kernel). With AVX2 two columns at a time share each
 // load of A's columns (2 x B/4 registers of sums); Eigen's product of a 21 x 21 block with
