@@ -65,7 +65,7 @@ void ModelOde::wf_join(const FreshContact& c) {
     double* z = wf_z_.col(col + a).data();
     if (opt_.w_shafts) {
       LinkVector* w = w_rhs_.data();
-      for (int l = 0; l < m_.links; ++l) w[l] = v[l].col(a);
+      for (int l = 0; l < m_.links; ++l) w[l] = v[l].col(a), w_shaft_product(l);
       ShaftVector rs = ShaftVector::Zero();
       if (c.shaft >= 0)
         for (int s = 0; s < kShaftSize; ++s) rs[c.shaft * kShaftSize + s] = c.sheave_columns(fjac_)[a * kShaftSize + s];

@@ -261,6 +261,10 @@ class ModelOde {
   void w_shaft_factor(double gh);
   ShaftVector w_shaft_solve(double* x) const;  // the bordered solve's shaft step (w_solve_untimed)
   ShaftVector w_shaft_unknowns(const ShaftVector& rs) const;  // its x_s for the right side r_s
+  // K_ps,l^T z_l of link l's solved chain part z_l (w_rhs_[l]) into w_bz_[l]: on the solve's
+  // tasks, so that w_shaft_unknowns only sums them.
+  void w_shaft_product(int l) const;
+  mutable std::vector<ShaftVector, Eigen::aligned_allocator<ShaftVector>> w_bz_;
   ShaftVector shaft_velocities(const double* x) const;  // x's 14 shaft velocities, physical units
   void w_shaft_back(int l, const ShaftVector& xs, LinkVector& z) const;  // z -= Y_l x_s (link l's chain part)
   CyclicBlockLU<kLinkDim> w_lu_;

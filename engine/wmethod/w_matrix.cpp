@@ -250,8 +250,12 @@ ModelOde::ShaftVector ModelOde::w_shaft_unknowns(const ShaftVector& rs) const {
   const double gh = w_gh_;
   ShaftVector r = rs;
   for (int l = 0; l < m_.links; ++l)
-    if (w_cps_on_[l]) r.noalias() -= gh * (w_cps_[l].transpose() * w_rhs_[l]);
+    if (w_cps_on_[l]) r.noalias() -= gh * w_bz_[l];
   return w_schur_.solve(r);
+}
+
+void ModelOde::w_shaft_product(int l) const {
+  if (w_cps_on_[l]) w_bz_[l].noalias() = w_cps_[l].transpose() * w_rhs_[l];
 }
 
 ModelOde::ShaftVector ModelOde::w_shaft_solve(double* x) const {
@@ -358,7 +362,7 @@ void ModelOde::w_solve_untimed(double* x) const {
   };
   if (opt_.w_shafts) {
     // The chain's solve z, the shafts' x_s from it, then x_v = z - Y x_s per link.
-    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [](int) {});
+    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [&](int l) { w_shaft_product(l); });
     const ShaftVector xs = w_shaft_solve(x);
     for_joints([&](int l) {
       w_shaft_back(l, xs, v[l]);
