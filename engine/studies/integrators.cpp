@@ -44,7 +44,8 @@ struct CurveRun {
   std::string method, param_kind;  // "h" or "tol"
   double param = 0;
   bool w_adaptive = false;         // a W-method at a tolerance, as `cvt-engine run` takes it
-  std::string status = "ok";       // ok | blow-up | timeout | error: ...
+  std::string status = "ok";       // ok | blow-up | timeout | error
+  std::string why;                 // a blow-up's or error's message
   double deviation = kNaN;         // max |F - F_ref| / range(F_ref)
   double wall_s = 0;
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
@@ -477,7 +478,15 @@ void Study::sample(Simulation& s, CurveRun& r) const {
   std::vector<int> touch;
   pin_forces(m_, s.state(), s.workspace().status, f, touch);
   r.curve.push_back(f[tracked_]);
-  if (!s.state().allFinite() || std::abs(f[tracked_]) > 1e3 * range_ + 1e6) throw BlowUpError("blow-up");
+  char b[160];
+  if (!s.state().allFinite())
+    std::snprintf(b, sizeof b, "the state is not finite at t = %.9g s", s.time());
+  else if (std::abs(f[tracked_]) > 1e3 * range_ + 1e6)
+    std::snprintf(b, sizeof b, "the tracked force is %.3g N at t = %.9g s, far outside the reference's range", f[tracked_],
+                  s.time());
+  else
+    return;
+  throw BlowUpError(b);
 }
 
 // RK4 candidates: the production path (Simulation::step, fused stage update).
@@ -558,12 +567,11 @@ CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k
       rk4_curve(s, p, r, w0);
     else
       driver_curve(s, method, p, w_every, w_k_every, w_tol, r, w0);
-  } catch (const BlowUpError&) {
-    r.status = "blow-up";
-  } catch (const OdeError& e) {
-    r.status = "error";
+  } catch (const BlowUpError& e) {
+    r.status = "blow-up", r.why = e.what();
   } catch (const std::exception& e) {
     r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
+    if (r.status == "error") r.why = e.what();
   }
   r.wall_s = seconds_since(w0);
   return r;
@@ -592,7 +600,10 @@ void Study::candidates() {
       // The first round; --repeat adds rounds over all runs (repeats()).
       CurveRun r = run_once(name, p, we, wk, cand.tol > 0);
       r.walls = {r.wall_s};
-      r.h_mean = r.steps > 0 ? (r.status == "timeout" ? r.reached : times_.back() - t0_) / r.steps : kNaN;
+      // (A blow-up or an error stops the run somewhere in the window: no mean step.)
+      r.h_mean = r.steps > 0 && (r.status == "ok" || r.status == "timeout")
+                     ? (r.status == "timeout" ? r.reached : times_.back() - t0_) / r.steps
+                     : kNaN;
       if (r.status == "timeout")
         std::printf("  (%s %s %.3g stopped after %.3g s of model time)\n", name.c_str(), r.param_kind.c_str(), p, r.reached);
       if (r.status == "ok") r.deviation = deviation(r.curve);
@@ -604,6 +615,7 @@ void Study::candidates() {
                   name.c_str(), r.param_kind.c_str(), p, r.status.c_str(), 100 * r.deviation, r.wall_s, r.rhs, r.jac,
                   r.lu, r.steps, r.rejected, r.newton_iterations, r.newton_failures, r.h_mean, r.jac_s, r.lu_s, r.solve_s,
                   r.chosen ? "  <- chosen" : "");
+      if (!r.why.empty()) std::printf("             (%s: %s)\n", r.status.c_str(), r.why.c_str());
       if (is_w_method(method) && !opt_.ros2_full_jacobian)
         std::printf("             (%s: %lld of its matrix rebuilds forced by contact status changes; fresh friction: "
                     "%lld contacts corrected, %lld rebuilds forced)\n",

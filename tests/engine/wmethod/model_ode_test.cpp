@@ -480,7 +480,7 @@ std::string slurp(const std::filesystem::path& p) {
 }
 
 // `cvt-engine study integrators` in its short mode (mini model, 0.1 ms window): both parts,
-// the table, the CSV and the curves.
+// the table, the CSV and the curves; a candidate that blows up is reported with its reason.
 TEST(ModelOde, StudyIntegratorsShortMode) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / ("cvt_study_test_" + std::to_string(::getpid()));
@@ -489,7 +489,7 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   const std::string cmd = test::shell_quote(CVT_ENGINE_EXE) + " study integrators " +
                           test::shell_quote(test::config_path("mini")) +
                           " --t-warm 1e-4 --t-sample 1e-4 --set ramp.time=1e-4 --methods rk4,trbdf2,ros2 --one-step --no-cache "
-                          "--one-step-h 1e-8,1e-7 --rk4-steps 5e-8 --ros2-steps 1e-7 --tols 1 --max-dev 0.2 --out " +
+                          "--one-step-h 1e-8,1e-7 --rk4-steps 1e-5,5e-8 --ros2-steps 1e-7 --tols 1 --max-dev 0.2 --out " +
                           test::shell_quote(csv) + " > " + test::shell_quote((dir / "out.txt").string()) + " 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);
   const std::string out = slurp(dir / "out.txt"), table = slurp(csv), curves = slurp(dir / "study-curves.csv");
@@ -498,6 +498,10 @@ TEST(ModelOde, StudyIntegratorsShortMode) {
   EXPECT_NE(out.find("(b) sample curve"), std::string::npos);
   EXPECT_NE(table.find("one_step,trbdf2,h,1e-07"), std::string::npos);
   EXPECT_NE(table.find("curve,rk4,h,5e-08"), std::string::npos);
+  // RK4 at 1e-5 (past its stable step) blows up, and the study says where and why.
+  const size_t why = out.find("(blow-up: the ");
+  ASSERT_NE(why, std::string::npos);
+  EXPECT_NE(out.find(" at t = ", why), std::string::npos);
   EXPECT_NE(table.find("curve,trbdf2,tol,1"), std::string::npos);
   EXPECT_NE(table.find("one_step,ros2,h,1e-07"), std::string::npos);
   EXPECT_NE(table.find("curve,ros2,h,1e-07"), std::string::npos);
