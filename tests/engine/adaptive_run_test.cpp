@@ -7,6 +7,7 @@
 #include <cstring>
 
 #include "engine/simulation.hpp"
+#include "engine/wmethod/driver.hpp"
 #include "engine/wmethod/model_ode.hpp"
 #include "tests/test_util.hpp"
 
@@ -157,6 +158,24 @@ TEST(AdaptiveRun, SlowLightLoadRunsWithFixedAndAdaptiveSteps) {
   EXPECT_LT(bad[1], 0.0);
   EXPECT_LT(std::abs(f.energy_residual), 0.01 * turnover(f));
   EXPECT_LT(std::abs(a.energy_residual), 0.01 * turnover(a));
+}
+
+// A piece that ends a few ulps past the longest step the factorized matrix allows (1.25
+// times the step it was made for): the driver takes it as two equal steps, not as that step
+// and then a sliver of a few ulps, which no step can take (the solver stops with "step size
+// underflow", as a tolerance-30 run of the reference model did at 6.02 ms).
+TEST(AdaptiveRun, NoSliverBeforeThePiecesEnd) {
+  const double h0 = 1e-8;
+  const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.tolerance=1e6",
+                                       "integrator.step=1e-8", "integrator.w_every=8"});
+  Simulation s(m);
+  OdeDriver drv(s.model(), s.workspace(), s.schedule(), w_run_options(m.cfg, h0, false));
+  s.advance(drv, s.time() + h0);  // the matrix made for h0; the next step proposed at 2 h0
+  const double t = s.time(), t1 = t + 1.25 * h0 * (1 + 8e-16);
+  ASSERT_GT(t1 - (t + 1.25 * h0), 0.0);
+  EXPECT_NO_THROW(s.advance(drv, t1));
+  EXPECT_EQ(s.time(), t1);
+  EXPECT_TRUE(s.state().allFinite());
 }
 
 }  // namespace
