@@ -68,7 +68,9 @@ def slip_excess(f1):
     s = steady_run(f1).summary
     runs.append({"clamping_driving": f1, "slip": s["slip"], "efficiency": s["efficiency"], "status": s["status"],
                  "output_torque": s["output_torque"], "wall_s": s["wall_s"]})
-    print(f"  F1 = {f1:8.1f} N: {s['status']:10s} slip {100 * s['slip']:+6.2f} %  efficiency {s['efficiency']:.4f}"
+    # A run that slipped stops as soon as the verdict holds: its power ratio is no efficiency.
+    eff = "     -" if s["status"] == "slip" else f"{s['efficiency']:.4f}"
+    print(f"  F1 = {f1:8.1f} N: {s['status']:10s} slip {100 * s['slip']:+6.2f} %  efficiency {eff}"
           f"  output {s['output_torque']:.2f} N m  ({s['wall_s']:.1f} s)", flush=True)
     # The summary's verdict first: "slip" (gross, or creep growing across the window) fails
     # whatever the slip's value at the stop.
