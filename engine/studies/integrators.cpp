@@ -514,6 +514,15 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
   ro.ode.atol = ro.ode.rtol = p;
   ro.ode.h0 = 1e-8;
   if (w_fixed) {
+    // A step that does not divide the sample spacing would be cut to it at every sample
+    // (the driver ends its steps on the sample times): the row would not be the step it names.
+    const long per = std::lround(opt_.sample_dt / p);
+    if (per < 1 || std::abs(per * p - opt_.sample_dt) > 1e-6 * opt_.sample_dt) {
+      char b[160];
+      std::snprintf(b, sizeof b, "the step %.6g s does not divide the sample spacing %.6g s (--sample-dt)", p,
+                    opt_.sample_dt);
+      throw std::invalid_argument(b);
+    }
     ro.ode.fixed_step = true;
     ro.ode.h0 = p;
   }
@@ -532,14 +541,18 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
   }
   ro.status_interval = opt_.status_interval;
   OdeDriver drv(s.model(), s.workspace(), s.schedule(), ro);
-  for (size_t k = 1; k < times_.size(); ++k) {
-    s.advance(drv, times_[k]);
-    sample(s, r);
-    if (seconds_since(w0) > opt_.max_wall) {
-      take_stats(drv, r);
-      r.reached = times_[k] - t0_;
-      throw std::runtime_error("timeout");
+  try {
+    for (size_t k = 1; k < times_.size(); ++k) {
+      s.advance(drv, times_[k]);
+      sample(s, r);
+      if (seconds_since(w0) > opt_.max_wall) {
+        r.reached = times_[k] - t0_;
+        throw std::runtime_error("timeout");
+      }
     }
+  } catch (...) {
+    take_stats(drv, r);  // a blow-up's or an error's row shows the work done until it
+    throw;
   }
   take_stats(drv, r);
 }

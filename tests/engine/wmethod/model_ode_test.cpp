@@ -543,6 +543,10 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
   EXPECT_NE(study("bad", "--ros2-steps 1e-7:2:3"), 0);
   EXPECT_NE(slurp(dir / "bad.txt").find("'1e-7:2:3' is not [METHOD@]H, [METHOD@]tol=T or either with :W:K"),
             std::string::npos);
+  // A fixed step that does not divide the sample spacing (1e-5 s) is an error row, with why.
+  ASSERT_EQ(study("long", "--methods ros2 --ros2-steps 1e-7,2e-5 --all"), 0);
+  EXPECT_NE(slurp(dir / "long.txt").find("(error: the step 2e-05 s does not divide the sample spacing 1e-05 s"),
+            std::string::npos) << slurp(dir / "long.txt");
   EXPECT_NE(study("bad2", "--w-steps rk4@1e-7"), 0);
   EXPECT_NE(slurp(dir / "bad2.txt").find("'rk4@1e-7' names no W-method"), std::string::npos);
   // Candidates kept to one method: ROS2 runs only its own, ROS34PW2 (from the cache's start)
