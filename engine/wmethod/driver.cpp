@@ -132,7 +132,7 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
         if (w_blocks && ode_.w_gh() > 0 && !ode_.w_due()) h = std::min(h, ode_.w_gh() / w_method_gamma(as) * opt_.jac.w_h_grow);
         // A cap that would leave a sliver (under 1 % of h) before the piece's end splits the
         // piece into two equal steps instead: a sliver of a few ulps is below any step the
-        // solver can take (it stopped a tolerance-30 run with "step size underflow").
+        // solver can take (it would stop with "step size underflow").
         if (h < t_end - t && t_end - (t + h) < 0.01 * h) h = 0.5 * (t_end - t);
         solver_.options().h0 = h;
         if (h < t_end - t) t_end = t + h;

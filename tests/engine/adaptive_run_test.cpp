@@ -162,8 +162,8 @@ TEST(AdaptiveRun, SlowLightLoadRunsWithFixedAndAdaptiveSteps) {
 
 // A piece that ends a few ulps past the longest step the factorized matrix allows (1.25
 // times the step it was made for): the driver takes it as two equal steps, not as that step
-// and then a sliver of a few ulps, which no step can take (the solver stops with "step size
-// underflow", as a tolerance-30 run of the reference model did at 6.02 ms).
+// and then a sliver of a few ulps, which no step can take (the solver would stop with "step
+// size underflow").
 TEST(AdaptiveRun, NoSliverBeforeThePiecesEnd) {
   const double h0 = 1e-8;
   const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.tolerance=1e6",
