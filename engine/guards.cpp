@@ -21,13 +21,12 @@ std::string shortest(double x) {
   return b;
 }
 
-// Whether h divides x to within a millionth of a step.
+}  // namespace
+
 bool divides(double h, double x) {
   const double k = std::round(x / h);
   return k >= 1 && std::abs(k * h - x) <= 1e-6 * h;
 }
-
-}  // namespace
 
 void check_step_grid(const Config& c) {
   if (adaptive_steps(c)) {

@@ -29,6 +29,10 @@ struct EnergyGuard {
 // Jacobian's spectral radius at time t), or "" when h is within it.
 std::string rk4_stability_warning(double h, double rho, double t);
 
+// Whether the step h divides the interval x (x a whole number of steps, to within a
+// millionth of a step).
+bool divides(double h, double x);
+
 // A configuration whose step does not divide run.t_end, run.sample_interval or
 // run.snapshot_interval: ConfigError naming both keys (exit 78).
 void check_step_grid(const Config& c);

@@ -9,6 +9,7 @@
 #include <limits>
 #include <memory>
 
+#include "engine/guards.hpp"
 #include "engine/io/checkpoint.hpp"
 #include "engine/wmethod/driver.hpp"
 #include "engine/rhs/rhs.hpp"
@@ -240,6 +241,7 @@ class Study {
   void matrix_options();
   Reference compute_reference(long n_samples) const;
   CurveRun run_once(const std::string& name, double p, int w_every, int w_k_every, bool w_tol = false) const;
+  void check_divides_samples(double h) const;
   void rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_point w0) const;
   void driver_curve(Simulation& s, OdeMethod method, double p, int w_every, int w_k_every, bool w_tol, CurveRun& r,
                     WallClock::time_point w0) const;
@@ -489,11 +491,19 @@ void Study::sample(Simulation& s, CurveRun& r) const {
   throw BlowUpError(b);
 }
 
+// A fixed-step candidate's step must divide the sample spacing (its row an error otherwise).
+void Study::check_divides_samples(double h) const {
+  if (divides(h, opt_.sample_dt)) return;
+  char b[160];
+  std::snprintf(b, sizeof b, "the step %.6g s does not divide the sample spacing %.6g s (--sample-dt)", h,
+                opt_.sample_dt);
+  throw std::invalid_argument(b);
+}
+
 // RK4 candidates: the production path (Simulation::step, fused stage update).
 void Study::rk4_curve(Simulation& s, double h, CurveRun& r, WallClock::time_point w0) const {
+  check_divides_samples(h);
   const long per = std::lround(opt_.sample_dt / h);
-  if (std::abs(per * h - opt_.sample_dt) > 1e-6 * opt_.sample_dt)
-    throw std::invalid_argument("the RK4 step must divide sample_dt");
   for (size_t k = 1; k < times_.size(); ++k) {
     for (long i = 0; i < per; ++i) s.step(h);
     r.steps += per, r.rhs += 4 * per;
@@ -514,15 +524,9 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
   ro.ode.atol = ro.ode.rtol = p;
   ro.ode.h0 = 1e-8;
   if (w_fixed) {
-    // A step that does not divide the sample spacing would be cut to it at every sample
-    // (the driver ends its steps on the sample times): the row would not be the step it names.
-    const long per = std::lround(opt_.sample_dt / p);
-    if (per < 1 || std::abs(per * p - opt_.sample_dt) > 1e-6 * opt_.sample_dt) {
-      char b[160];
-      std::snprintf(b, sizeof b, "the step %.6g s does not divide the sample spacing %.6g s (--sample-dt)", p,
-                    opt_.sample_dt);
-      throw std::invalid_argument(b);
-    }
+    // (The driver ends its steps on the sample times: a step that does not divide their
+    // spacing would be cut to it at every sample, and the row would not be the step it names.)
+    check_divides_samples(p);
     ro.ode.fixed_step = true;
     ro.ode.h0 = p;
   }
