@@ -254,7 +254,7 @@ void Run::open_output() {
 // shorter), into the file, the summary's channels and the guards.
 void Run::record() {
   output([&] {
-    samples_.push_back(sim_.sample());
+    samples_.push_back(sim_.sample(h_));  // the next step's first evaluation, taken ahead
     Sample& s = samples_.back();
     const double t_from = s.t - c_.run.efficiency_window;
     const auto it = std::lower_bound(samples_.begin(), samples_.end(), t_from,

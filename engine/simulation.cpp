@@ -64,24 +64,14 @@ void Simulation::rk4_step(double h, bool update_status) {
 // at the next sample (with the replay and the diagnosis): the driver's own error ("solution
 // is not finite", or a singular matrix built from such a state) only ends this step.
 void Simulation::w_step(double h) {
-  const int sub = startup_substeps(m_.cfg.integrator, h);
-  const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
+  long first = 0;
+  OdeDriver& drv = w_next(h, &first);
   const bool adaptive = adaptive_steps(m_.cfg);
-  // The settling phase: the method's own sub-steps (its driver, remade for the sub-step and
-  // again for h after the phase; the matrix schedule counts the sub-steps).
-  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg))
-                         ? 1
-                         : settle_substeps(m_.cfg.integrator, h);
-  OdeDriver& drv = w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h / settle, startup);
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
   if (y_.allFinite()) {
     try {
       const std::int64_t rejected0 = drv.stats().rejected;
-      // The matrix's rebuild schedule counts the driver's steps: the run's (fixed steps), or
-      // with adaptive steps the sub-steps taken so far (the clock then ticks per sample).
-      // Sub-steps (start-up, settling) are counted one by one: step n's are n sub .. n sub + sub - 1.
-      const long first = adaptive ? steps_taken_ : clock_.steps * (startup ? sub : settle);
       const long n = drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), first);
       // Adaptive: the driver's steps between two ticks of the clock (start-up sub-steps too).
       steps_taken_ += adaptive ? n : 1;
@@ -100,6 +90,23 @@ void Simulation::w_step(double h) {
     prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
     prof_->call(Section::update);
   }
+}
+
+// The driver of the W-method's step of size h from the clock's time, and the index of its
+// first step. Before integrator.startup_time, ROS2 sub-steps; in the settling phase, the
+// method's own sub-steps (its driver, remade for the sub-step and again for h after the
+// phase). The matrix's rebuild schedule counts the driver's steps: the run's (fixed steps),
+// or with adaptive steps the sub-steps taken so far (the clock then ticks per sample).
+// Sub-steps (start-up, settling) are counted one by one: step n's are n sub .. n sub + sub - 1.
+OdeDriver& Simulation::w_next(double h, long* first) {
+  const int sub = startup_substeps(m_.cfg.integrator, h);
+  const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
+  const bool adaptive = adaptive_steps(m_.cfg);
+  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg))
+                         ? 1
+                         : settle_substeps(m_.cfg.integrator, h);
+  *first = adaptive ? steps_taken_ : clock_.steps * (startup ? sub : settle);
+  return w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h / settle, startup);
 }
 
 // The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and the
@@ -328,19 +335,31 @@ void Simulation::check_finite() {
   throw BlowUpError(buf + problem + "; " + (replay.empty() ? "" : replay + "; ") + cause);
 }
 
-Sample Simulation::sample() {
+Sample Simulation::sample(double next_step) {
   Sample s;
   s.t = clock_.t;
-  diag_.status = ws_.status;
-  // The diagnostic evaluation (into diag_) and the energies (pure functions of the state)
-  // are independent: on the schedule's threads they run side by side, the same bits.
   Energies e;
-  const auto evaluate = [&] { rhs_serial(m_, diag_, clock_.t, y_.data(), dy_.data()); };
   const auto energy = [&] { e = energies(m_, clock_.t, y_.data(), &ws_.status); };
-  if (schedule_->threads() > 1)
-    schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
-  else
-    evaluate(), energy();
+  // The evaluation the channels read. Ahead of a W-method's step: that step's first
+  // evaluation, taken now on the schedule (the step then starts from it), read from the
+  // integrator's workspace. Otherwise a diagnostic evaluation into diag_, beside the energies
+  // (pure functions of the state) on the schedule's threads; the same bits either way.
+  const bool ahead = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite();
+  if (ahead) {
+    const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
+    long first = 0;
+    w_next(next_step, &first).evaluate_ahead(clock_.t, y_, first, dy_.data());
+    if (prof_) prof_->add_step_ahead(Profiler::ticks() - t0);
+    energy();
+  } else {
+    diag_.status = ws_.status;
+    const auto evaluate = [&] { rhs_serial(m_, diag_, clock_.t, y_.data(), dy_.data()); };
+    if (schedule_->threads() > 1)
+      schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
+    else
+      evaluate(), energy();
+  }
+  Workspace& w = ahead ? ws_ : diag_;
   const double* q = y_.data();
   const double* v = q + m_.ndof;
   const double* aux = q + 2 * m_.ndof;
@@ -348,35 +367,35 @@ Sample Simulation::sample() {
   s.input_speed = v[p1];
   s.output_speed = v[p2];
   s.load_speed = v[m_.load_index()];
-  s.input_torque = diag_.other.input_torque;
-  s.output_torque = diag_.other.output_torque;
-  s.load_torque = diag_.other.load_torque;
+  s.input_torque = w.other.input_torque;
+  s.output_torque = w.other.output_torque;
+  s.load_torque = w.other.load_torque;
   s.speed_ratio = v[p2] != 0 ? v[p1] / v[p2] : 0.0;
-  const double r1 = wrapped_radius(m_, diag_, 0), r2 = wrapped_radius(m_, diag_, 1);
+  const double r1 = wrapped_radius(m_, w, 0), r2 = wrapped_radius(m_, w, 1);
   s.geometric_ratio = r1 > 0 ? r2 / r1 : 0.0;
   const double pin = s.input_torque * s.input_speed;
   s.efficiency = pin != 0 ? s.output_torque * s.output_speed / pin : 0.0;
   for (int k = 0; k < 2; ++k) {
-    s.clamp[k] = diag_.other.clamp[k];
+    s.clamp[k] = w.other.clamp[k];
     s.sheave_position[k] = q[m_.shaft(k) + kW];
-    for (int b = 0; b < 2; ++b) s.support_force[2 * k + b] = diag_.other.support_force[k][b];
+    for (int b = 0; b < 2; ++b) s.support_force[2 * k + b] = w.other.support_force[k][b];
   }
   const int jp = m_.cfg.run.tracked_pin;
   s.pin_axial_force[0] = half_axial_force(m_, q, v, m_.half_a(jp));
   s.pin_axial_force[1] = half_axial_force(m_, q, v, m_.half_b(jp));
   PinContactReport rep;
   JointSlot scratch;
-  pulley_contact_joint(m_, diag_, jp, scratch, &rep);
+  pulley_contact_joint(m_, w, jp, scratch, &rep);
   for (int h = 0; h < 2; ++h)
     for (int e = 0; e < 2; ++e) {
       s.pin_end_normal[2 * h + e] = rep.end[h][e].normal;
       s.pin_end_friction[2 * h + e] = rep.end[h][e].friction;
     }
-  s.link_tension = link_tension(m_, diag_, m_.cfg.run.tracked_link);
+  s.link_tension = link_tension(m_, w, m_.cfg.run.tracked_link);
   s.plate_tension.resize(m_.plate_zeta.size());
-  plate_tensions(m_, diag_, m_.cfg.run.tracked_link, s.plate_tension.data());
-  s.rocker_force = rocker_force(m_, diag_, jp);
-  s.chain_torsion_angle = chain_torsion_angle(m_, diag_, jp);
+  plate_tensions(m_, w, m_.cfg.run.tracked_link, s.plate_tension.data());
+  s.rocker_force = rocker_force(m_, w, jp);
+  s.chain_torsion_angle = chain_torsion_angle(m_, w, jp);
   s.input_angle = q[p1];
   s.output_angle = q[p2];
   s.load_angle = q[m_.load_index()];

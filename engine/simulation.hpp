@@ -82,8 +82,9 @@ class Simulation {
   // Advances to exactly t1 with a driver of another method or setting (studies, tests): its
   // steps count as the run's, and the clock's origin moves to t1.
   void advance(OdeDriver& driver, double t1);
-  // Channels of the current state.
-  Sample sample();
+  // Channels of the current state. With next_step > 0 and a W-method, the state's evaluation
+  // is the first of the next step (of that size), taken now: that step does not repeat it.
+  Sample sample(double next_step = 0);
   // Joint centres [N][3] and link tensions [N] of the current state; with pin_ends, the
   // ends of every pin half [N][2 halves a, b][2 ends z < 0, z > 0][3]; with contact_normal,
   // the normal force of each of those ends on a sheave [N][2][2] (0 off the sheaves).
@@ -112,10 +113,12 @@ class Simulation {
   void w_step(double h);
   // The W-method's driver for steps of size h (startup: ROS2 sub-steps), made when h changes.
   OdeDriver& w_driver(double h, bool startup);
+  // The driver of w_step(h) from the clock's time, and the index of its first step.
+  OdeDriver& w_next(double h, long* first);
 
   const Model& m_;
   Workspace ws_;     // the integrator's
-  Workspace diag_;   // sampling
+  Workspace diag_;   // sampling (RK4 and samples with no W-method step after them; snapshots)
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   std::unique_ptr<Profiler> prof_;
   Rk4 rk_;

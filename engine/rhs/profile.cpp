@@ -30,7 +30,7 @@ void Profiler::reset() {
   calls_.fill(0);
   master_.fill(0);
   rhs_wall_ = 0;
-  step_ticks_ = output_ticks_ = 0;
+  step_ticks_ = output_ticks_ = ahead_ticks_ = 0;
   steps_ = output_calls_ = 0;
   tick0_ = ticks();
   clock0_ = clock_s();

@@ -99,6 +99,17 @@ void OdeDriver::integrate_piece(double t, double t_end, Eigen::VectorXd& y) {
   }
 }
 
+void OdeDriver::evaluate_ahead(double t, const Eigen::VectorXd& y, long first_step, double* dy) {
+  // The step index and the request of advance's first step (below).
+  const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;
+  const long index = fixed ? first_step : static_cast<long>(solver_.stats().steps);
+  const bool w_blocks = (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
+  schedule_.within([&] {
+    if (w_blocks) ode_.ask_friction_jacobian(index);
+    ode_.eval_ahead(t, y.data(), dy);
+  });
+}
+
 long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step) {
   const std::int64_t steps0 = solver_.stats().steps;
   const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;

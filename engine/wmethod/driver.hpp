@@ -48,6 +48,10 @@ class OdeDriver {
   // first step taken (the W-method's matrix is rebuilt at fixed step indices; adaptive steps
   // count their own, from the driver's first). Returns the number of steps taken.
   long advance(double t, Eigen::VectorXd& y, double t1, long first_step);
+  // The first evaluation of advance(t, y, ..., first_step), taken now: f(t, y) into dy, the
+  // workspace left as that evaluation leaves it (ModelOde::eval_ahead). A W-method's step
+  // then starts from it without evaluating again; the implicit methods evaluate anew.
+  void evaluate_ahead(double t, const Eigen::VectorXd& y, long first_step, double* dy);
   const OdeStats& stats() const { return solver_.stats(); }
   const ModelOde& model_ode() const { return ode_; }
   std::int64_t rhs_evals() const { return ode_.rhs_evals(); }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <set>
 #include <stdexcept>
@@ -70,6 +71,32 @@ Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt) {
   s[n + m.load_index()] = opt.velocity_unit / r;
   for (int a = 0; a < kAuxSize; ++a) s[2 * n + a] = opt.energy_unit;
   return s;
+}
+
+void ModelOde::eval_ahead(double t, const double* y, double* dy) {
+  ahead_ = false;
+  eval(t, y, dy);
+  // A scaled system's steps evaluate at offset + z * unit, which need not repeat y's bits.
+  if (opt_.scaled || freeze_) return;
+  const int ns = m_.nstate;
+  ahead_ = true;
+  ahead_t_ = t;
+  ahead_index_ = w_index_;
+  ahead_y_.assign(y, y + ns);
+  ahead_dy_.assign(dy, dy + ns);
+  ahead_status_ = ws_.status;
+}
+
+bool ModelOde::take_ahead(double t, const double* y, double* dy) {
+  ahead_ = false;
+  const int ns = m_.nstate;
+  if (t != ahead_t_ || fjac_.requested() || freeze_ || ws_.status.rocker != ahead_status_.rocker ||
+      ws_.status.pulley != ahead_status_.pulley ||
+      std::memcmp(y, ahead_y_.data(), sizeof(double) * static_cast<std::size_t>(ns)) != 0)
+    return false;
+  std::copy(ahead_dy_.begin(), ahead_dy_.end(), dy);
+  set_stage_input(m_, ws_, t, y);  // the workspace as this evaluation would leave it: same values, this y
+  return true;
 }
 
 void ModelOde::eval_scaled(double t, const double* z, double* dz) {

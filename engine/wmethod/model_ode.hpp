@@ -150,11 +150,19 @@ class ModelOde {
   // The next step is the run's step `index`: its first evaluation also fills the friction
   // part of W (FrictionJacobian) where the step needs it: the blocks when it rebuilds the
   // matrix (w_due), each contact's mu for the fresh-friction correction (w_fresh_on).
+  // An evaluation taken ahead for that step (eval_ahead) has answered the request already.
   void ask_friction_jacobian(long index) {
     w_index_ = index;
+    if (ahead_ && index == ahead_index_) return;
     fjac_.blocks = w_due();
     fjac_.mu = w_fresh_on();
   }
+  // The first evaluation of the next step, taken now (for a sample of the state the step
+  // starts from, which then reads the workspace as this evaluation leaves it): f(t, y) into
+  // dy, after ask_friction_jacobian for that step. The step's own first evaluation, at the
+  // same t, y and statuses with nothing more asked of it, returns this one's f unevaluated;
+  // any other evaluation drops it.
+  void eval_ahead(double t, const double* y, double* dy);
   // The implicit methods' frozen friction branch (FrozenFriction): from now on the
   // evaluations keep each contact's branch, and the next one records it afresh (OdeDriver,
   // at the start of each macro step).
@@ -180,6 +188,7 @@ class ModelOde {
 
  private:
   void eval(double t, const double* y, double* dy) {
+    if (ahead_ && take_ahead(t, y, dy)) return;
     Profiler* prof = schedule_.profiler();
     const std::uint64_t t0 = prof ? Profiler::ticks() : 0;
     // The friction part of W comes from the first evaluation of a step that asks for it
@@ -192,6 +201,14 @@ class ModelOde {
     frozen_.record = false;  // the evaluation that recorded the branches was this one
   }
   void eval_scaled(double t, const double* z, double* dz);
+  // The evaluation taken ahead, if (t, y) and the statuses are its own and nothing more is
+  // asked (the friction blocks, the frozen branches): its f into dy, true. Drops it either way.
+  bool take_ahead(double t, const double* y, double* dy);
+  bool ahead_ = false;
+  double ahead_t_ = 0;
+  long ahead_index_ = -1;
+  std::vector<double> ahead_y_, ahead_dy_;
+  ContactStatus ahead_status_;
   double chain_error_norm(const double* err) const;  // ModelOdeOptions::error_tol's norm
   std::vector<double> norm_weight_;  // per state component: 1 / (error_tol * its unit), 0: left out
   std::vector<int> norm_group_;      // group boundaries in state order (joints, shafts, load)

@@ -256,5 +256,51 @@ TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
   EXPECT_LT(residual[1], 0.05);
 }
 
+
+// A sample ahead of a W-method's step (Simulation::sample(h), as a run takes them) reads that
+// step's first evaluation, taken now; the step then starts from it. The samples and the
+// states are those of samples with a diagnostic evaluation of their own, to the bit, and the
+// steps evaluate once less per sample: the profiled evaluations (the diagnostic one is not
+// profiled) are as many as without the samples ahead. From rest through the start-up's ROS2
+// sub-steps and the settling sub-steps, then the method's own steps; fixed and adaptive.
+TEST(Ros2Run, ASampleAheadIsTheNextStepsFirstEvaluation) {
+  for (const char* tol : {"0", "3"}) {
+    const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.startup_time=2e-5",
+                                         "ramp.time=5e-5", "integrator.tolerance=" + std::string(tol)});
+    const double h = std::string(tol) == "0" ? m.cfg.integrator.step : m.cfg.run.sample_interval;
+    const int steps = std::string(tol) == "0" ? 96 : 8, every = std::string(tol) == "0" ? 4 : 1;
+    std::vector<Sample> s[2];
+    long evaluations[2] = {0, 0};
+    Eigen::VectorXd y[2];
+    for (int ahead = 0; ahead < 2; ++ahead) {
+      ScheduleOptions so;
+      so.kind = SchedulerKind::flowgraph;
+      so.threads = 2;
+      Simulation sim(m, so);
+      Profiler& prof = sim.enable_profiling();
+      for (int k = 0; k <= steps; ++k) {
+        if (k % every == 0) s[ahead].push_back(ahead ? sim.sample(h) : sim.sample());
+        if (k < steps) sim.step(h);
+      }
+      for (const Profiler::Row& r : prof.report(1.0, 1.0, 1, "").rows)
+        if (r.name == "chain forces") evaluations[ahead] = r.calls;
+      y[ahead] = sim.state();
+    }
+    EXPECT_TRUE(same_bits(y[0], y[1])) << "tolerance " << tol;
+    ASSERT_EQ(s[0].size(), s[1].size());
+    for (std::size_t i = 0; i < s[0].size(); ++i) {
+      const Sample &a = s[0][i], &b = s[1][i];
+      for (const auto& [x, z] : {std::pair{a.input_torque, b.input_torque}, {a.output_torque, b.output_torque},
+                                 {a.geometric_ratio, b.geometric_ratio}, {a.power_dissipated, b.power_dissipated},
+                                 {a.rocker_force, b.rocker_force}, {a.pin_end_friction[0], b.pin_end_friction[0]},
+                                 {a.pin_end_normal[2], b.pin_end_normal[2]}, {a.link_tension, b.link_tension},
+                                 {a.energy_residual, b.energy_residual}, {a.chain_torsion_angle, b.chain_torsion_angle}})
+        EXPECT_EQ(std::memcmp(&x, &z, sizeof x), 0) << "tolerance " << tol << ", sample " << i;
+    }
+    // The last sample's evaluation ahead has no step to serve.
+    EXPECT_EQ(evaluations[1], evaluations[0] + 1) << "tolerance " << tol;
+  }
+}
+
 }  // namespace
 }  // namespace cvt
