@@ -102,27 +102,38 @@ void OdeDriver::integrate_piece(double t, double t_end, Eigen::VectorXd& y) {
   }
 }
 
+bool OdeDriver::fixed_steps() const { return opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step; }
+
+// The chain's matrix: the W-methods', or Newton's for the implicit methods (newton_uses_w).
+bool OdeDriver::asks_w_blocks() const {
+  return (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
+}
+
+// The index of the step the solver takes next: the run's (fixed steps: first_step plus the
+// steps taken since the solver's count was steps0) or the driver's own count (adaptive).
+long OdeDriver::step_index(long first_step, std::int64_t steps0) const {
+  const std::int64_t taken = solver_.stats().steps;
+  return fixed_steps() ? first_step + static_cast<long>(taken - steps0) : static_cast<long>(taken);
+}
+
 void OdeDriver::evaluate_ahead(double t, const Eigen::VectorXd& y, long first_step, double* dy) {
-  // The step index and the request of advance's first step (below).
-  const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;
-  const long index = fixed ? first_step : static_cast<long>(solver_.stats().steps);
-  const bool w_blocks = (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
+  // The request of advance's first step (below).
+  const long index = step_index(first_step, solver_.stats().steps);
   schedule_.within([&] {
-    if (w_blocks) ode_.ask_friction_jacobian(index);
+    if (asks_w_blocks()) ode_.ask_friction_jacobian(index);
     ode_.eval_ahead(t, y.data(), dy);
   });
 }
 
 long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step) {
   const std::int64_t steps0 = solver_.stats().steps;
-  const bool fixed = opt_.method == OdeMethod::Rk4 || opt_.ode.fixed_step;
+  const bool fixed = fixed_steps();
   // Fixed steps: their times from a clock of the driver's own that starts here.
   const StepClock grid = StepClock::at(t, 0);
   std::int64_t k = 0;
   const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
                       is_implicit_method(opt_.method);
-  // The chain's matrix: the W-methods', or Newton's for the implicit methods (newton_uses_w).
-  const bool w_blocks = (is_w_method(opt_.method) || opt_.ode.newton_uses_w) && opt_.jac.w_blocks;
+  const bool w_blocks = asks_w_blocks();
   schedule_.within([&] {
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
@@ -132,9 +143,7 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
       if (t_end > t1 || t1 - t_end < 0.01 * H) t_end = t1;
       const std::int64_t rejected0 = solver_.stats().rejected;
       if (freeze) ode_.record_friction_branches();
-      // The step's index: the run's (fixed steps) or the driver's own count (adaptive).
-      const long index = fixed ? first_step + static_cast<long>(solver_.stats().steps - steps0)
-                               : static_cast<long>(solver_.stats().steps);
+      const long index = step_index(first_step, steps0);
       if (w_blocks) ode_.ask_friction_jacobian(index);
       if (!fixed) {
         // Between the scheduled rebuilds the step grows no further than the factorized W

@@ -64,6 +64,9 @@ class OdeDriver {
   ModelOde ode_;
   OdeSolver solver_;
   void integrate_piece(double t, double t_end, Eigen::VectorXd& y);
+  bool fixed_steps() const;
+  bool asks_w_blocks() const;
+  long step_index(long first_step, std::int64_t steps0) const;
   double h_next_ = 0;
   Eigen::VectorXd z_;
   std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update

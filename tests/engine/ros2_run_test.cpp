@@ -256,7 +256,6 @@ TEST(Ros2Run, TheLongStepSettlesInSubSteps) {
   EXPECT_LT(residual[1], 0.05);
 }
 
-
 // A sample ahead of a W-method's step (Simulation::sample(h), as a run takes them) reads that
 // step's first evaluation, taken now; the step then starts from it. The samples and the
 // states are those of samples with a diagnostic evaluation of their own, to the bit, and the
@@ -267,8 +266,9 @@ TEST(Ros2Run, ASampleAheadIsTheNextStepsFirstEvaluation) {
   for (const char* tol : {"0", "3"}) {
     const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.startup_time=2e-5",
                                          "ramp.time=5e-5", "integrator.tolerance=" + std::string(tol)});
-    const double h = std::string(tol) == "0" ? m.cfg.integrator.step : m.cfg.run.sample_interval;
-    const int steps = std::string(tol) == "0" ? 96 : 8, every = std::string(tol) == "0" ? 4 : 1;
+    const bool fixed = std::string(tol) == "0";
+    const double h = fixed ? m.cfg.integrator.step : m.cfg.run.sample_interval;
+    const int steps = fixed ? 96 : 8, every = fixed ? 4 : 1;
     std::vector<Sample> s[2];
     long evaluations[2] = {0, 0};
     Eigen::VectorXd y[2];
