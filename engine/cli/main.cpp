@@ -42,12 +42,12 @@ std::string fmt_g(double x) {
 }
 
 struct ScheduleArgs {
-  std::string scheduler = "serial";
+  std::string scheduler;  // empty: serial on one thread, the flow graph on more
   int threads = 1;
   int grain = 4;
   cvt::ScheduleOptions options() const {
     cvt::ScheduleOptions o;
-    o.kind = cvt::parse_scheduler(scheduler);
+    o.kind = cvt::parse_scheduler(scheduler.empty() ? (threads > 1 ? "flowgraph" : "serial") : scheduler);
     o.threads = threads;
     o.grain = grain;
     return o;
@@ -55,10 +55,17 @@ struct ScheduleArgs {
 };
 
 void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
-  cmd->add_option("--scheduler", a.scheduler, "serial | flowgraph | paper-omp")
-      ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}))
-      ->capture_default_str();
+  auto* scheduler = cmd->add_option("--scheduler", a.scheduler,
+                                    "serial | flowgraph | paper-omp (default: serial on 1 thread, flowgraph on more)")
+                        ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}));
+  if (!a.scheduler.empty()) scheduler->capture_default_str();
   cmd->add_option("--threads", a.threads, "threads (flowgraph, paper-omp)")->check(CLI::Range(1, 4096))->capture_default_str();
+  // The serial schedule runs on one thread: more asked of it is a contradiction, not a hint.
+  cmd->callback([&a] {
+    if (a.scheduler == "serial" && a.threads > 1)
+      throw CLI::ValidationError("--threads", "--scheduler serial runs on one thread; " + std::to_string(a.threads) +
+                                                   " threads need --scheduler flowgraph or paper-omp (or no --scheduler)");
+  });
   cmd->add_option("--grain", a.grain, "pins per task in the flow-graph module nodes")
       ->check(CLI::Range(1, 100000))
       ->capture_default_str();

@@ -367,6 +367,21 @@ TEST_F(CliTest, BadSchedulerIsAUsageError) {
   }
 }
 
+// Threads without a scheduler run on the flow graph; the serial schedule with more than one
+// thread is a contradiction, refused before anything runs.
+TEST_F(CliTest, ThreadsAloneRunOnTheFlowGraphAndSerialRefusesThem) {
+  const RunResult two = run({"run", kMini, "--t-end", "2.5e-6", "-o", "two.h5", "--threads", "2"});
+  ASSERT_EQ(two.exit_code, 0) << two.err;
+  EXPECT_NE(two.out.find("schedule: flowgraph (2 threads"), std::string::npos) << two.out;
+  const RunResult one = run({"run", kMini, "--t-end", "2.5e-6", "-o", "one.h5"});
+  ASSERT_EQ(one.exit_code, 0) << one.err;
+  EXPECT_NE(one.out.find("schedule: serial (1 thread)"), std::string::npos) << one.out;
+  const RunResult bad = run({"run", kMini, "--quiet", "-o", "bad.h5", "--scheduler", "serial", "--threads", "2"});
+  EXPECT_EQ(bad.exit_code, 64) << bad.err;
+  EXPECT_NE(bad.err.find("--scheduler serial runs on one thread"), std::string::npos) << bad.err;
+  EXPECT_FALSE(fs::exists(dir_ / "bad.h5"));
+}
+
 TEST_F(CliTest, GraphPrintsTheStageAsGraphViz) {
   const RunResult r = run({"graph", kReference, "--threads", "2"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
