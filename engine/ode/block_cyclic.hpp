@@ -14,7 +14,10 @@
 #pragma once
 
 #include <Eigen/Dense>
+#include <array>
+#include <atomic>
 #include <cmath>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -145,6 +148,61 @@ inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Ma
   y -= t;
 }
 
+// Phases of work shared by the two tasks of one fork: each phase runs once, on the task that
+// claims it first, and a task that needs a phase claimed by the other waits for it. A task
+// waits only for a phase that the other has claimed and is running (it claims before it
+// runs, and runs without waiting), so the two never wait on each other in a cycle, and one
+// task alone (no second thread free, or the sequential fork) runs every phase itself. So a
+// chain of phases costs one fork and join instead of one per parallel phase, and each
+// phase's arithmetic, and so every bit of its result, is the same whichever task runs it.
+class TwoTaskPhases {
+ public:
+  static constexpr int kMax = 16;
+  TwoTaskPhases() {
+    for (auto& s : state_) s.store(kFree, std::memory_order_relaxed);
+  }
+  // Phase i: runs f, or waits until the task that claimed it has run it.
+  template <class F>
+  void one(int i, const F& f) {
+    if (claim(i)) run(i, f);
+    wait(i);
+  }
+  // Phases i (f) and i + 1 (g), the halves of one parallel phase: the task on `side` (0 or 1)
+  // runs its own half first, then the other's if still free, then waits for both.
+  template <class F, class G>
+  void two(int i, int side, const F& f, const G& g) {
+    if (side == 0) {
+      if (claim(i)) run(i, f);
+      if (claim(i + 1)) run(i + 1, g);
+    } else {
+      if (claim(i + 1)) run(i + 1, g);
+      if (claim(i)) run(i, f);
+    }
+    wait(i), wait(i + 1);
+  }
+
+ private:
+  enum : int { kFree = 0, kClaimed = 1, kDone = 2 };
+  bool claim(int i) {
+    int expected = kFree;
+    return state_[i].compare_exchange_strong(expected, kClaimed, std::memory_order_acq_rel);
+  }
+  template <class F>
+  void run(int i, const F& f) {
+    f();
+    state_[i].store(kDone, std::memory_order_release);
+  }
+  void wait(int i) const {
+    for (int spins = 0; state_[i].load(std::memory_order_acquire) != kDone; ++spins) {
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+      if (spins > 4096) std::this_thread::yield();
+    }
+  }
+  std::array<std::atomic<int>, kMax> state_;
+};
+
 template <int B>
 class CyclicBlockLU {
  public:
@@ -229,38 +287,63 @@ class CyclicBlockLU {
   // x[l] after it (the same split). Each block's prepare and finish run once, on one task.
   template <class Both, class Prepare, class Finish>
   void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish) const {
-    const int n = n_, last = n - 1, m = (n - 1) / 2;
+    solve(x, both, prepare, finish, [] {}, [](int) {});
+  }
+  // The same, then once serial(), then last(l) for every block (the same split into halves):
+  // a caller's step that needs the whole solution (a bordered system's Schur complement)
+  // and its per-block completion, all within the one fork and join (TwoTaskPhases).
+  template <class Both, class Prepare, class Finish, class Serial, class Last>
+  void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish, const Serial& serial,
+             const Last& last) const {
+    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
     // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
     Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
-    both(
-        [&] {
-          for (int l = 0; l <= m; ++l) prepare(l);
-          forward(x, 0, +1, lsub_, xm_top, xl_top);
-        },
-        [&] {
-          for (int l = m + 1; l < n; ++l) prepare(l);
-          forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
-        });
-    x[m] -= xm_top;
-    x[m] -= xm_bot;
-    x[last] -= xl_top;
-    x[last] -= xl_bot;
-    block_subtract(lrow_[m], x[m], x[last]);
-    // U x = y: the last block, the middle, then both halves outwards.
-    Vec t = x[last];
-    block_times(inv_[last], t, x[last]);
-    t = x[m];
-    block_subtract(ucol_[m], x[last], t);
-    block_times(inv_[m], t, x[m]);
-    both(
-        [&] {
-          backward(x, 0, +1);
-          for (int l = 0; l <= m; ++l) finish(l);
-        },
-        [&] {
-          backward(x, n - 2, -1);
-          for (int l = m + 1; l < n; ++l) finish(l);
-        });
+    TwoTaskPhases ph;
+    const auto task = [&](int side) {
+      ph.two(
+          0, side,
+          [&] {
+            for (int l = 0; l <= m; ++l) prepare(l);
+            forward(x, 0, +1, lsub_, xm_top, xl_top);
+          },
+          [&] {
+            for (int l = m + 1; l < n; ++l) prepare(l);
+            forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
+          });
+      ph.one(2, [&] {
+        x[m] -= xm_top;
+        x[m] -= xm_bot;
+        x[lastb] -= xl_top;
+        x[lastb] -= xl_bot;
+        block_subtract(lrow_[m], x[m], x[lastb]);
+        // U x = y: the last block, the middle, then both halves outwards.
+        Vec t = x[lastb];
+        block_times(inv_[lastb], t, x[lastb]);
+        t = x[m];
+        block_subtract(ucol_[m], x[lastb], t);
+        block_times(inv_[m], t, x[m]);
+      });
+      ph.two(
+          3, side,
+          [&] {
+            backward(x, 0, +1);
+            for (int l = 0; l <= m; ++l) finish(l);
+          },
+          [&] {
+            backward(x, n - 2, -1);
+            for (int l = m + 1; l < n; ++l) finish(l);
+          });
+      ph.one(5, serial);
+      ph.two(
+          6, side,
+          [&] {
+            for (int l = 0; l <= m; ++l) last(l);
+          },
+          [&] {
+            for (int l = m + 1; l < n; ++l) last(l);
+          });
+    };
+    both([&] { task(0); }, [&] { task(1); });
   }
 
   // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C), the

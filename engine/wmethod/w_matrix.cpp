@@ -308,7 +308,7 @@ void ModelOde::w_solve_untimed(double* x) const {
   // velocities): (A + gh C + gh^2 K) x_v = A b_v - gh K b_q, then x_q = b_q + gh x_v.
   // (Scaled: the chain's entries through w_unit_q_ / w_unit_v_, tables in link order.)
   // The right side of each link and the write-back of its solution run inside the block
-  // LU's two tasks (CyclicBlockLU::solve's prepare / finish): one fork and join per phase.
+  // LU's two tasks (CyclicBlockLU::solve's prepare / finish): one fork and join per solve.
   const int n = m_.ndof;
   const double gh = w_gh_;
   const double* uq = w_unit_q_.data();
@@ -361,13 +361,16 @@ void ModelOde::w_solve_untimed(double* x) const {
     }
   };
   if (opt_.w_shafts) {
-    // The chain's solve z, the shafts' x_s from it, then x_v = z - Y x_s per link.
-    w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, [&](int l) { w_shaft_product(l); });
-    const ShaftVector xs = w_shaft_solve(x);
-    for_joints([&](int l) {
-      w_shaft_back(l, xs, v[l]);
-      finish(l);
-    });
+    // The chain's solve z, the shafts' x_s from it, then x_v = z - Y x_s per link: one fork
+    // and join for the three (CyclicBlockLU::solve's serial and last phases).
+    ShaftVector xs;
+    w_lu_.solve(
+        v, TwoTasks{schedule_.threads() > 1}, prepare, [&](int l) { w_shaft_product(l); },
+        [&] { xs = w_shaft_solve(x); },
+        [&](int l) {
+          w_shaft_back(l, xs, v[l]);
+          finish(l);
+        });
   } else {
     w_lu_.solve(v, TwoTasks{schedule_.threads() > 1}, prepare, finish);
   }

@@ -7,9 +7,72 @@
 #include <cmath>
 #include <cstdio>
 #include <random>
+#include <thread>
 
 namespace cvt {
 namespace {
+
+// The two tasks on two threads at once, and the second task first and alone (it then runs
+// every phase: TwoTaskPhases).
+struct OnTwoThreads {
+  template <class F, class G>
+  void operator()(const F& f, const G& g) const {
+    std::thread t(f);
+    g();
+    t.join();
+  }
+};
+struct SecondFirst {
+  template <class F, class G>
+  void operator()(const F& f, const G& g) const {
+    g();
+    f();
+  }
+};
+
+// The solve with a serial and a last phase (a bordered system's step): every block's
+// prepare, finish and last run once, serial once after every finish and before every last,
+// and the result is the sequential solve's to the bit, whichever task runs which phase.
+template <class C, class Both>
+void check_phases(const C& lu, const Eigen::VectorXd& b, const std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>>& x0,
+                  const Both& both, const char* name) {
+  const int n = static_cast<int>(x0.size());
+  constexpr int B = C::Vec::RowsAtCompileTime;
+  std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>> y(n);
+  std::vector<int> prepared(n, 0), finished(n, 0), lasted(n, 0);
+  int serial_runs = 0;
+  double total = 0;
+  lu.solve(
+      y.data(), both,
+      [&](int l) {
+        y[l] = b.segment(l * B, B);
+        ++prepared[l];
+      },
+      [&](int l) { ++finished[l]; },
+      [&] {
+        ++serial_runs;
+        for (int l = 0; l < n; ++l) {
+          EXPECT_EQ(finished[l], 1) << name << ": block " << l << " not finished before the serial phase";
+          total += y[l].sum();
+        }
+      },
+      [&](int l) {
+        EXPECT_EQ(serial_runs, 1) << name;
+        y[l].array() += total;
+        ++lasted[l];
+      });
+  EXPECT_EQ(serial_runs, 1) << name;
+  double total0 = 0;
+  for (int l = 0; l < n; ++l) total0 += x0[l].sum();
+  EXPECT_EQ(total, total0) << name;
+  for (int l = 0; l < n; ++l) {
+    EXPECT_EQ(prepared[l], 1) << name << " block " << l;
+    EXPECT_EQ(lasted[l], 1) << name << " block " << l;
+    typename C::Vec want = x0[l];
+    want.array() += total0;
+    EXPECT_TRUE(y[l] == want) << name << ": block " << l << " differs from the sequential solve";
+  }
+}
 
 // Returns the factorization's fill_blocks().
 template <int B>
@@ -50,6 +113,9 @@ int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double d
   lu.solve(x.data());
   Eigen::VectorXd xs(N);
   for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l];
+  check_phases(lu, b, x, typename C::Sequential(), "sequential");
+  check_phases(lu, b, x, SecondFirst(), "second task first");
+  for (int rep = 0; rep < 20; ++rep) check_phases(lu, b, x, OnTwoThreads(), "two threads");
   const Eigen::VectorXd xd = M.partialPivLu().solve(b);
   // A block of right sides at once (solve_columns): each column as its own solve gives, to
   // the bit where both use the AVX2 kernels (the same sums in the same order), with an odd
