@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <utility>
 #include <array>
+#include <memory>
 #include <vector>
 
 #include "engine/ode/block_cyclic.hpp"
@@ -252,9 +253,21 @@ class ModelOde {
     return i < half::kSize ? m_.half_b(l) + i : i < 2 * half::kSize ? m_.half_a(l + 1) + i - half::kSize : m_.pack(l);
   }
   void w_stiffness(double t, const double* y);
+  // The differences of items [k0, k1) (item k: colour k / kLinkDim, link coordinate
+  // k % kLinkDim) on workspace w, from the unperturbed state ys_ copied in yp (left as it
+  // was), with delta as the per-link scratch; serial on the calling thread.
+  void w_stiffness_items(Workspace& w, Eigen::VectorXd& yp, std::vector<double>& delta, double t, int k0, int k1);
   // ws.force of the chain at (t, y); with a colour, the differences' evaluation that
   // perturbs that colour's links (only the joints next to them are computed).
   void chain_forces_at(double t, const double* y, int color = -1);
+  // The same on workspace w, serially on the calling thread or (threads) over the
+  // schedule's threads; not counted as an evaluation.
+  void chain_forces_on(Workspace& w, double t, const double* y, int color, bool threads);
+  // The second workspace of the differences on two threads (a copy of ws_ at the stiffness's
+  // unperturbed evaluation), its perturbed state and per-link steps.
+  std::unique_ptr<Workspace> w_ws2_;
+  Eigen::VectorXd w_yp2_;
+  std::vector<double> w_delta2_;
   std::vector<JointSlot> w_chain0_, w_pulley0_;  // the slots at the unperturbed state
   template <class F>
   void for_ranges(const F& f) const;  // f(begin, end) over the joints, on the schedule's threads

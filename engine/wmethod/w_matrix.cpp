@@ -69,10 +69,13 @@ void ModelOde::w_stiffness(double t, const double* y) {
   // K = -dF/dq on the chain by finite differences of the generalized forces (ws.force), in
   // link order: a link's coordinates reach the forces of itself and its two neighbours
   // only, so the links of one colour (3 or more apart) are perturbed together, one link
-  // coordinate at a time: 21 evaluations per colour.
+  // coordinate at a time: 21 evaluations per colour. On more than one thread the
+  // evaluations are split in two halves, each run serially on a workspace of its own (no
+  // synchronization per evaluation); the second half runs on ws_, so that ws_ ends as the
+  // serial loop leaves it (the assembly reads its link directions), and every column is
+  // the same number whichever thread takes it.
   const auto t0 = std::chrono::steady_clock::now();
-  const int n = m_.ndof, N = m_.links;
-  const double eps = std::numeric_limits<double>::epsilon();
+  const int N = m_.links;
   Eigen::VectorXd& yp = yp_;
   if (opt_.scaled)
     to_y(Eigen::Map<const Eigen::VectorXd>(y, m_.nstate), yp);
@@ -80,34 +83,25 @@ void ModelOde::w_stiffness(double t, const double* y) {
     yp = Eigen::Map<const Eigen::VectorXd>(y, m_.nstate);
   ys_ = yp;  // the unperturbed physical state
   chain_forces_at(t, ys_.data());
-  std::vector<double>& F0 = w_force0_;
-  F0.assign(ws_.force.begin(), ws_.force.begin() + n);
+  w_force0_.assign(ws_.force.begin(), ws_.force.begin() + m_.ndof);
   w_chain0_ = ws_.chain_slots, w_pulley0_ = ws_.pulley_slots;  // the joints a colour leaves alone
-  for (int color = 0; color < w_colors_; ++color) {
-    for (int i = 0; i < kLinkDim; ++i) {
-      for (int l = 0; l < N; ++l) {
-        if (w_color_[l] != color) continue;
-        const int c = coord(l, i);
-        w_delta_[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
-        yp[c] = ys_[c] + w_delta_[l];
-      }
-      chain_forces_at(t, yp.data(), color);
-      const double* F1 = ws_.force.data();
-      for_joints([&](int l) {
-        if (w_color_[l] != color) return;
-        const double inv = 1.0 / w_delta_[l];
-        // Column i of link l: rows of links l-1 (sub of l, as M(l-1, l): super(l)), l, l+1.
-        for (int r = 0; r < kLinkDim; ++r) {
-          const int rp = coord(m_.wrap(l - 1), r), ro = coord(l, r), rn = coord(m_.wrap(l + 1), r);
-          w_k_super_[l](r, i) = -(F1[rp] - F0[rp]) * inv;
-          w_k_diag_[l](r, i) = -(F1[ro] - F0[ro]) * inv;
-          w_k_sub_[m_.wrap(l + 1)](r, i) = -(F1[rn] - F0[rn]) * inv;
-        }
-      });
-      for (int l = 0; l < N; ++l)
-        if (w_color_[l] == color) yp[coord(l, i)] = ys_[coord(l, i)];
-    }
+  const int items = w_colors_ * kLinkDim;
+  if (schedule_.threads() > 1) {
+    if (w_ws2_)
+      *w_ws2_ = ws_;
+    else
+      w_ws2_ = std::make_unique<Workspace>(ws_);
+    w_yp2_ = yp;
+    w_delta2_.assign(N, 0.0);
+    const int half = items / 2;
+    const auto first = [&] { w_stiffness_items(*w_ws2_, w_yp2_, w_delta2_, t, 0, half); };
+    const auto second = [&] { w_stiffness_items(ws_, yp, w_delta_, t, half, items); };
+    TwoTaskPhases ph;
+    TwoTasks{true}([&] { ph.two(0, 0, first, second); }, [&] { ph.two(0, 1, first, second); });
+  } else {
+    w_stiffness_items(ws_, yp, w_delta_, t, 0, items);
   }
+  rhs_evals_ += items;  // each counted as an evaluation (about 3/4 of one)
   for_joints([this](int l) {
     pack_columns(w_k_sub_[l], w_k_packed_[l][0]);
     pack_columns(w_k_super_[l], w_k_packed_[l][1]);
@@ -116,7 +110,43 @@ void ModelOde::w_stiffness(double t, const double* y) {
   w_k_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+void ModelOde::w_stiffness_items(Workspace& w, Eigen::VectorXd& yp, std::vector<double>& delta, double t, int k0,
+                                 int k1) {
+  const int N = m_.links;
+  const double eps = std::numeric_limits<double>::epsilon();
+  const std::vector<double>& F0 = w_force0_;
+  for (int k = k0; k < k1; ++k) {
+    const int color = k / kLinkDim, i = k % kLinkDim;
+    for (int l = 0; l < N; ++l) {
+      if (w_color_[l] != color) continue;
+      const int c = coord(l, i);
+      delta[l] = std::sqrt(eps * std::max(1e-5, std::abs(ys_[c])));
+      yp[c] = ys_[c] + delta[l];
+    }
+    chain_forces_on(w, t, yp.data(), color, false);
+    const double* F1 = w.force.data();
+    for (int l = 0; l < N; ++l) {
+      if (w_color_[l] != color) continue;
+      const double inv = 1.0 / delta[l];
+      // Column i of link l: rows of links l-1 (sub of l, as M(l-1, l): super(l)), l, l+1.
+      for (int r = 0; r < kLinkDim; ++r) {
+        const int rp = coord(m_.wrap(l - 1), r), ro = coord(l, r), rn = coord(m_.wrap(l + 1), r);
+        w_k_super_[l](r, i) = -(F1[rp] - F0[rp]) * inv;
+        w_k_diag_[l](r, i) = -(F1[ro] - F0[ro]) * inv;
+        w_k_sub_[m_.wrap(l + 1)](r, i) = -(F1[rn] - F0[rn]) * inv;
+      }
+    }
+    for (int l = 0; l < N; ++l)
+      if (w_color_[l] == color) yp[coord(l, i)] = ys_[coord(l, i)];
+  }
+}
+
 void ModelOde::chain_forces_at(double t, const double* y, int color) {
+  chain_forces_on(ws_, t, y, color, schedule_.threads() > 1);
+  ++rhs_evals_;  // counted as an evaluation (about 3/4 of one)
+}
+
+void ModelOde::chain_forces_on(Workspace& w, double t, const double* y, int color, bool threads) {
   // The passes of an evaluation that the chain's generalized forces need: the link angles,
   // the chain and pulley kernels, the gather. The inertia's velocity terms keep the values of
   // the last full evaluation (a constant, which the differences cancel). With a colour: a
@@ -124,33 +154,38 @@ void ModelOde::chain_forces_at(double t, const double* y, int color) {
   // link j, the directions of links j-1 and j), so a joint next to no perturbed link keeps
   // the slots of the unperturbed state (w_chain0_, w_pulley0_), which its kernels would
   // reproduce bit for bit; only the others are computed (2 of 3 joints with 3 colours).
-  set_stage_input(m_, ws_, t, y);
-  for_ranges([this](int b, int e) { link_kinematics(m_, ws_, b, e); });
+  const auto ranges = [this, threads](const auto& f) {
+    if (threads)
+      for_ranges(f);
+    else
+      f(0, m_.links);
+  };
+  set_stage_input(m_, w, t, y);
+  ranges([this, &w](int b, int e) { link_kinematics(m_, w, b, e); });
   if (color < 0) {
-    for_ranges([this](int b, int e) {
-      chain_forces(m_, ws_, b, e);
-      pulley_contact(m_, ws_, b, e);
+    ranges([this, &w](int b, int e) {
+      chain_forces(m_, w, b, e);
+      pulley_contact(m_, w, b, e);
     });
   } else {
     // Joint j is next to a perturbed link when link j-1 or link j has the colour.
     const auto touched = [this, color](int j) { return w_color_[m_.wrap(j - 1)] == color || w_color_[j] == color; };
-    for_ranges([this, &touched](int b, int e) {
+    ranges([this, &w, &touched](int b, int e) {
       for (int j = b; j < e;) {
         if (!touched(j)) {
-          ws_.chain_slots[j] = w_chain0_[j], ws_.pulley_slots[j] = w_pulley0_[j];
+          w.chain_slots[j] = w_chain0_[j], w.pulley_slots[j] = w_pulley0_[j];
           ++j;
           continue;
         }
         int k = j + 1;
         while (k < e && touched(k)) ++k;
-        chain_forces(m_, ws_, j, k);
-        pulley_contact(m_, ws_, j, k);
+        chain_forces(m_, w, j, k);
+        pulley_contact(m_, w, j, k);
         j = k;
       }
     });
   }
-  for_ranges([this](int b, int e) { gather_joints(m_, ws_, b, e); });
-  ++rhs_evals_;  // counted as an evaluation (about 3/4 of one)
+  ranges([this, &w](int b, int e) { gather_joints(m_, w, b, e); });
 }
 
 void ModelOde::link_gradient(int l, LinkVector& g) const {
