@@ -25,7 +25,8 @@ std::string w_step_graphviz(const Config& c, int threads) {
      << (in.tolerance > 0 ? "(adaptive, tolerance " + tol.str() + ")" : "(fixed)") << "\";\n";
   os << "  f1 [label=\"evaluation 1: the stage graph\\n(cvt-engine graph, digraph stage)\\n+ friction blocks and mu\"];\n";
   os << "  subgraph cluster_rebuild {\n    label=\"every " << in.w_every << " steps (stiffness every " << in.w_k_every
-     << ")\";\n    stiffness [label=\"stiffness K: 63 force evaluations\\nper joint colour, over the threads\"];\n"
+     << ")\";\n    stiffness [label=\"stiffness K: 63 force evaluations\\n(per colour and coordinate; "
+     << (threads > 1 ? "two halves on two workspaces" : "one after the other") << ")\"];\n"
      << "    assembly [label=\"link blocks A + gh C + gh^2 K\\nper joint, over the threads\"];\n"
      << "    factor [label=\"block LU\\n" << sweeps << "\\nthen the middle and last block\"];\n"
      << "    stiffness -> assembly -> factor;\n  }\n";
@@ -37,7 +38,9 @@ std::string w_step_graphviz(const Config& c, int threads) {
     if (i > 1)
       os << "  " << f << " [label=\"evaluation " << i << ": the stage graph\\n(cvt-engine graph, digraph stage)\"];\n"
          << "  " << prev << " -> " << f << ";\n";
-    os << "  " << w << " [label=\"right side per link, then\\n" << sweeps << "\\n+ Woodbury correction\"];\n";
+    os << "  " << w << " [label=\"right side per link, then\\n" << sweeps
+       << "\\nmiddle block, shafts' Schur step, z - Y x_s per link\\n(one fork: claimed phases)"
+       << "\\n+ Woodbury correction\"];\n";
     os << "  " << (i > 1 ? f : prev) << " -> " << w << ";\n";
     prev = w;
   }
