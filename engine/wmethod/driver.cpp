@@ -39,7 +39,8 @@ std::string w_step_graphviz(const Config& c, int threads) {
       os << "  " << f << " [label=\"evaluation " << i << ": the stage graph\\n(cvt-engine graph, digraph stage)\"];\n"
          << "  " << prev << " -> " << f << ";\n";
     os << "  " << w << " [label=\"right side per link, then\\n" << sweeps
-       << "\\nmiddle block, shafts' Schur step, z - Y x_s per link\\n(one fork: claimed phases)"
+       << (in.w_shafts ? "\\nmiddle block, shafts' Schur step, z - Y x_s per link" : "\\nmiddle block")
+       << "\\n(one fork: claimed phases)"
        << "\\n+ Woodbury correction\"];\n";
     os << "  " << (i > 1 ? f : prev) << " -> " << w << ";\n";
     prev = w;
