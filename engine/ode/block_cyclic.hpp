@@ -152,7 +152,10 @@ inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Ma
 // claims it first, and a task that needs a phase claimed by the other waits for it. A task
 // waits only for a phase that the other has claimed and is running (it claims before it
 // runs, and runs without waiting), so the two never wait on each other in a cycle, and one
-// task alone (no second thread free, or the sequential fork) runs every phase itself. So a
+// task alone (no second thread free, or the sequential fork) runs every phase itself. A phase
+// must not itself wait for other tasks of the scheduler unless the fork isolates its two tasks
+// (TwoTasks does: a thread waiting inside a phase could otherwise pick up the other task of the
+// same fork and spin there on the phase it holds). So a
 // chain of phases costs one fork and join instead of one per parallel phase, and each
 // phase's arithmetic, and so every bit of its result, is the same whichever task runs it.
 class TwoTaskPhases {
@@ -187,17 +190,27 @@ class TwoTaskPhases {
     int expected = kFree;
     return state_[i].compare_exchange_strong(expected, kClaimed, std::memory_order_acq_rel);
   }
+  // A phase that throws is marked done before the exception goes on to the fork's join, so
+  // that the other task does not wait for it forever.
   template <class F>
   void run(int i, const F& f) {
-    f();
+    try {
+      f();
+    } catch (...) {
+      state_[i].store(kDone, std::memory_order_release);
+      throw;
+    }
     state_[i].store(kDone, std::memory_order_release);
   }
   void wait(int i) const {
-    for (int spins = 0; state_[i].load(std::memory_order_acquire) != kDone; ++spins) {
+    for (int spins = 0; state_[i].load(std::memory_order_acquire) != kDone;) {
 #if defined(__x86_64__) || defined(__i386__)
       __builtin_ia32_pause();
 #endif
-      if (spins > 4096) std::this_thread::yield();
+      if (spins < 4096)
+        ++spins;
+      else
+        std::this_thread::yield();
     }
   }
   std::array<std::atomic<int>, kMax> state_;

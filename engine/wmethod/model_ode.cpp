@@ -165,6 +165,11 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
   w_k_packed_.resize(N);
   w_delta_.assign(N, 0.0);
+  if (schedule_.threads() > 1) {  // the stiffness's second workspace, sized before any step
+    w_ws2_ = std::make_unique<Workspace>(ws_);
+    w_yp2_.resize(m.nstate);
+    w_delta2_.assign(N, 0.0);
+  }
   // Link colours for the stiffness differences: greedy around the cycle, links within two
   // of each other differ (3 colours when 3 divides N, at most 5).
   w_color_.assign(N, -1);

@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 #include <tbb/partitioner.h>
+#include <tbb/task_arena.h>
 
 #include "engine/wmethod/model_ode.hpp"
 
@@ -13,12 +14,14 @@ namespace cvt {
 
 // The block LU's two sweeps (CyclicBlockLU): concurrent on the schedule's threads (inside its
 // arena), one after the other without; the same arithmetic, so the same bits, either way.
+// Each task is isolated: a thread that waits inside one (a parallel loop within a phase of
+// TwoTaskPhases) takes no other task of the fork, which could spin on a phase it holds.
 struct TwoTasks {
   bool parallel;
   template <class F, class G>
   void operator()(const F& f, const G& g) const {
     if (parallel)
-      tbb::parallel_invoke(f, g);
+      tbb::parallel_invoke([&] { tbb::this_task_arena::isolate(f); }, [&] { tbb::this_task_arena::isolate(g); });
     else
       f(), g();
   }
