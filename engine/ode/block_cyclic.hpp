@@ -152,12 +152,12 @@ inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Ma
 // claims it first, and a task that needs a phase claimed by the other waits for it. A task
 // waits only for a phase that the other has claimed and is running (it claims before it
 // runs, and runs without waiting), so the two never wait on each other in a cycle, and one
-// task alone (no second thread free, or the sequential fork) runs every phase itself. A phase
-// must not itself wait for other tasks of the scheduler unless the fork isolates its two tasks
-// (TwoTasks does: a thread waiting inside a phase could otherwise pick up the other task of the
-// same fork and spin there on the phase it holds). So a
+// task alone (no second thread free, or the sequential fork) runs every phase itself. So a
 // chain of phases costs one fork and join instead of one per parallel phase, and each
 // phase's arithmetic, and so every bit of its result, is the same whichever task runs it.
+// A phase must not itself wait for other tasks of the scheduler unless the fork isolates its
+// two tasks (TwoTasks does: a thread waiting inside a phase could otherwise pick up the other
+// task of the same fork and spin there on the phase it holds).
 class TwoTaskPhases {
  public:
   static constexpr int kMax = 16;

@@ -75,7 +75,6 @@ void ModelOde::w_stiffness(double t, const double* y) {
   // serial loop leaves it (the assembly reads its link directions), and every column is
   // the same number whichever thread takes it.
   const auto t0 = std::chrono::steady_clock::now();
-  const int N = m_.links;
   Eigen::VectorXd& yp = yp_;
   if (opt_.scaled)
     to_y(Eigen::Map<const Eigen::VectorXd>(y, m_.nstate), yp);
@@ -86,13 +85,9 @@ void ModelOde::w_stiffness(double t, const double* y) {
   w_force0_.assign(ws_.force.begin(), ws_.force.begin() + m_.ndof);
   w_chain0_ = ws_.chain_slots, w_pulley0_ = ws_.pulley_slots;  // the joints a colour leaves alone
   const int items = w_colors_ * kLinkDim;
-  if (schedule_.threads() > 1) {
-    if (w_ws2_)
-      *w_ws2_ = ws_;
-    else
-      w_ws2_ = std::make_unique<Workspace>(ws_);
+  if (schedule_.threads() > 1) {  // w_ws2_ exists (the constructor makes it for more than one thread)
+    *w_ws2_ = ws_;
     w_yp2_ = yp;
-    w_delta2_.assign(N, 0.0);
     const int half = items / 2;
     const auto first = [&] { w_stiffness_items(*w_ws2_, w_yp2_, w_delta2_, t, 0, half); };
     const auto second = [&] { w_stiffness_items(ws_, yp, w_delta_, t, half, items); };
