@@ -15,6 +15,7 @@
 
 #include "engine/base/timing.hpp"
 #include "engine/output.hpp"
+#include "graph/side_job.hpp"
 
 namespace cvt {
 
@@ -94,6 +95,11 @@ class Run {
   void record();
   void watch(const Sample& s);
   void snapshot();
+  // The file writes of the step's sample and snapshot, staged by record() and snapshot():
+  // started beside the steps (graph/side_job.hpp), and ended before anything else touches
+  // the file (sync_writes).
+  void start_writes();
+  void sync_writes();
   Checkpoint checkpoint() const;
   void progress(long n, WallClock::time_point now);
   bool steady_now();
@@ -115,6 +121,9 @@ class Run {
   std::vector<Sample> samples_;  // the running efficiency's window (reaching back into the file)
   SummaryChannels channels_;
   std::vector<double> pos_, ten_, ends_, normal_;  // a snapshot
+  Sample written_;  // the sample the writes hold
+  double snapshot_t_ = 0;
+  bool write_sample_ = false, write_snapshot_ = false;
   RunResult r_;
   EnergyGuard energy_;
   bool warned_stability_ = false;
@@ -131,6 +140,7 @@ class Run {
   double window_ = 0, first_check_ = 0;
   long check_every_ = 1;
   std::string stopped_ = "t_end";
+  SideJob writes_{sim_.schedule()};  // last: it ends its job before the file and buffers go
 };
 
 // The checks, the simulation at its start or at the checkpoint, and the checkpoint interval: a W-method's matrix is not in a checkpoint, so a
@@ -241,10 +251,8 @@ void Run::open_output() {
     rec_->truncate(hist_.samples, hist_.snapshots);
   } else {
     record();
-    if (every_snapshot_) {
-      sim_.snapshot(pos_, ten_, &ends_, &normal_);
-      rec_->snapshot(sim_.time(), pos_, ten_, ends_, normal_);
-    }
+    if (every_snapshot_) snapshot();
+    sync_writes();
   }
   file_->start_swmr();
 }
@@ -261,9 +269,11 @@ void Run::record() {
                                      [](const Sample& x, double t) { return x.t < t; });
     const double win = s.work_input - it->work_input;
     s.running_efficiency = win > 0 ? (s.work_output - it->work_output) / win : 0.0;
-    rec_->record(s);
     channels_.push(s);
     watch(s);
+    writes_.wait();
+    written_ = s;
+    write_sample_ = true;
     // Only the running efficiency's window is needed later.
     if (samples_.size() > 4096 && samples_.front().t < t_from - c_.run.efficiency_window)
       samples_.erase(samples_.begin(), samples_.begin() + 2048);
@@ -282,9 +292,27 @@ void Run::watch(const Sample& s) {
 
 void Run::snapshot() {
   output([&] {
+    writes_.wait();
     sim_.snapshot(pos_, ten_, &ends_, &normal_);
-    rec_->snapshot(sim_.time(), pos_, ten_, ends_, normal_);
+    snapshot_t_ = sim_.time();
+    write_snapshot_ = true;
   });
+}
+
+void Run::start_writes() {
+  if (!write_sample_ && !write_snapshot_) return;
+  output([&] {
+    writes_.start([this] {
+      if (write_sample_) rec_->record(written_);
+      if (write_snapshot_) rec_->snapshot(snapshot_t_, pos_, ten_, ends_, normal_);
+      write_sample_ = write_snapshot_ = false;
+    });
+  });
+}
+
+void Run::sync_writes() {
+  start_writes();
+  writes_.wait();
 }
 
 Checkpoint Run::checkpoint() const {
@@ -335,8 +363,10 @@ void Run::steps() {
       const bool on_grid = n % every_sample_ == 0 || n == total_;
       if (on_grid) sim_.check_finite(), record();
       if (every_snapshot_ && n % every_snapshot_ == 0) snapshot();
+      start_writes();
       if (checkpoint_every_ > 0 && n % checkpoint_every_ == 0)
         output([&] {
+          sync_writes();
           file_->flush();
           last_flush_ = WallClock::now();
           write_checkpoint(ckpt_path_, checkpoint());
@@ -353,7 +383,10 @@ void Run::steps() {
       if (on_grid) {
         const auto now = WallClock::now();
         if (std::chrono::duration<double>(now - last_flush_).count() > opt_.flush_seconds) {
-          output([&] { file_->flush(); });
+          output([&] {
+            sync_writes();
+            file_->flush();
+          });
           last_flush_ = now;
         }
         progress(n, now);
@@ -361,6 +394,7 @@ void Run::steps() {
     }
   } catch (const BlowUpError& e) {
     if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+    sync_writes();
     file_->close();
     std::filesystem::rename(tmp_, opt_.out_path);
     throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt_.out_path);
@@ -373,6 +407,7 @@ void Run::steps() {
 // profile and the summary go into the file after it is closed, and it gets its name last.
 RunResult Run::finish() {
   output([&] {
+    sync_writes();
     write_checkpoint(ckpt_path_, checkpoint());
     file_->close();
   });

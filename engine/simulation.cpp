@@ -346,11 +346,20 @@ Sample Simulation::sample(double next_step) {
   // (pure functions of the state) on the schedule's threads; the same bits either way.
   const bool ahead = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite();
   if (ahead) {
+    // On more than one thread the energies run beside it (they read the state and the
+    // statuses, which the evaluation leaves alone), and the profile counts both as the
+    // step's; serially the energies are the output's.
     const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
     long first = 0;
-    w_next(next_step, &first).evaluate_ahead(clock_.t, y_, first, dy_.data());
+    OdeDriver& drv = w_next(next_step, &first);
+    const auto evaluate = [&] { drv.evaluate_ahead(clock_.t, y_, first, dy_.data()); };
+    const bool beside = schedule_->threads() > 1;
+    if (beside)
+      schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
+    else
+      evaluate();
     if (prof_) prof_->add_step_ahead(Profiler::ticks() - t0);
-    energy();
+    if (!beside) energy();
   } else {
     diag_.status = ws_.status;
     const auto evaluate = [&] { rhs_serial(m_, diag_, clock_.t, y_.data(), dy_.data()); };

@@ -181,6 +181,11 @@ class FlowGraphSchedule final : public Schedule {
       inside_ = false;
     });
   }
+  bool enqueue(std::function<void()>&& f) override {
+    if (arenas_->nodes() > 1 || arenas_->total_threads() < 2) return false;
+    arenas_->arena(0).enqueue(std::move(f));
+    return true;
+  }
   void set_tracing(bool on) override { tracing_ = on; }
   std::vector<NodeSpan> last_spans() const override {
     std::vector<NodeSpan> out;

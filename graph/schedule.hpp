@@ -3,6 +3,7 @@
 // NUMA arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
+#include <functional>
 #include <type_traits>
 #include <memory>
 #include <string>
@@ -60,6 +61,10 @@ class Schedule {
     within_impl([](void* c) { (*static_cast<Body*>(c))(); }, const_cast<void*>(static_cast<const void*>(&f)));
   }
   virtual void within_impl(void (*body)(void*), void* ctx) { body(ctx); }
+  // Hands f to the schedule's threads to run when one is free, beside the caller (the flow
+  // graph on one NUMA arena with more than one thread; graph/side_job.hpp). False: nothing
+  // was taken, the caller runs f itself.
+  virtual bool enqueue(std::function<void()>&& f) { return false; }
   virtual std::string describe() const = 0;
   // GraphViz of one stage (flowgraph; a chain of passes for the others).
   virtual std::string graphviz() const = 0;

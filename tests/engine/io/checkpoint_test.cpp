@@ -180,6 +180,21 @@ TEST_F(CheckpointTest, Ros34pw2ResumeAtAMatrixRebuildAppendsBitForBit) {
   EXPECT_NE(warnings_[0].find("not bit-identical"), std::string::npos) << warnings_[0];
 }
 
+// On two threads a sample's file writes run beside the steps (graph/side_job.hpp): the file,
+// samples and snapshots, is the serial run's, also where a continuation appends to it.
+TEST_F(CheckpointTest, AFileWrittenOnTwoThreadsIsTheSerialOne) {
+  const std::vector<std::string> w = {"integrator.method=ros34pw2", "integrator.step=1e-6"};
+  ScheduleOptions fg;
+  fg.kind = SchedulerKind::flowgraph;
+  fg.threads = 2;
+  run("serial", "3.2e-4", nullptr, {}, w);
+  run("two", "3.2e-4", nullptr, fg, w);
+  expect_same_history(path("two"), path("serial"));
+  const Checkpoint half = run("cont", "1.6e-4", nullptr, fg, w);
+  run("cont", "3.2e-4", &half, fg, {}, true);
+  expect_same_history(path("cont"), path("serial"));
+}
+
 TEST_F(CheckpointTest, ResumeRefusesAFileOfAnotherRun) {
   const Checkpoint half = run("run", "4e-6", nullptr);
   run("other", "4e-6", nullptr);
