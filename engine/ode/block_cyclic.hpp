@@ -363,22 +363,54 @@ class CyclicBlockLU {
   // two halves as two tasks: the steps of solve() as block products.
   template <int C, class Both>
   void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both) const {
+    solve_columns(x, both, [](int) {}, [] {}, [](int) {});
+  }
+  // The same, with the caller's per-block finish(l) after the backward sweep, then once
+  // serial(), then last(l) for every block, all within one fork and join as in solve().
+  template <int C, class Both, class Finish, class Serial, class Last>
+  void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both, const Finish& finish, const Serial& serial,
+                     const Last& last) const {
     using Cols = Eigen::Matrix<double, B, C>;
-    const int n = n_, last = n - 1, m = (n - 1) / 2;
+    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
     Cols xm_top = Cols::Zero(), xm_bot = Cols::Zero(), xl_top = Cols::Zero(), xl_bot = Cols::Zero();
-    both([&] { forward_columns(x, 0, +1, lsub_, xm_top, xl_top); },
-         [&] { forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
-    x[m] -= xm_top;
-    x[m] -= xm_bot;
-    x[last] -= xl_top;
-    x[last] -= xl_bot;
-    block_subtract_columns<B, C>(lrow_[m], x[m], x[last]);
-    Cols t = x[last];
-    block_times_columns<B, C>(inv_[last], t, x[last]);
-    t = x[m];
-    block_subtract_columns<B, C>(ucol_[m], x[last], t);
-    block_times_columns<B, C>(inv_[m], t, x[m]);
-    both([&] { backward_columns(x, 0, +1); }, [&] { backward_columns(x, n - 2, -1); });
+    TwoTaskPhases ph;
+    const auto task = [&](int side) {
+      ph.two(
+          0, side, [&] { forward_columns(x, 0, +1, lsub_, xm_top, xl_top); },
+          [&] { forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
+      ph.one(2, [&] {
+        x[m] -= xm_top;
+        x[m] -= xm_bot;
+        x[lastb] -= xl_top;
+        x[lastb] -= xl_bot;
+        block_subtract_columns<B, C>(lrow_[m], x[m], x[lastb]);
+        Cols t = x[lastb];
+        block_times_columns<B, C>(inv_[lastb], t, x[lastb]);
+        t = x[m];
+        block_subtract_columns<B, C>(ucol_[m], x[lastb], t);
+        block_times_columns<B, C>(inv_[m], t, x[m]);
+      });
+      ph.two(
+          3, side,
+          [&] {
+            backward_columns(x, 0, +1);
+            for (int l = 0; l <= m; ++l) finish(l);
+          },
+          [&] {
+            backward_columns(x, n - 2, -1);
+            for (int l = m + 1; l < n; ++l) finish(l);
+          });
+      ph.one(5, serial);
+      ph.two(
+          6, side,
+          [&] {
+            for (int l = 0; l <= m; ++l) last(l);
+          },
+          [&] {
+            for (int l = m + 1; l < n; ++l) last(l);
+          });
+    };
+    both([&] { task(0); }, [&] { task(1); });
   }
 
  private:

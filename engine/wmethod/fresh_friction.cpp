@@ -60,24 +60,39 @@ void ModelOde::wf_join(const FreshContact& c) {
     for (int r = 0; r < kH; ++r) v[lp](r, a) += u[r];
     for (int r = 0; r < kH; ++r) v[lc](r, a) += u[kH + r];
   }
-  w_lu_.solve_columns(v, TwoTasks{schedule_.threads() > 1});
-  for (int a = 0; a < 2; ++a) {
-    double* z = wf_z_.col(col + a).data();
-    if (opt_.w_shafts) {
-      LinkVector* w = w_rhs_.data();
-      for (int l = 0; l < m_.links; ++l) w[l] = v[l].col(a), w_shaft_product(l);
-      ShaftVector rs = ShaftVector::Zero();
-      if (c.shaft >= 0)
-        for (int s = 0; s < kShaftSize; ++s) rs[c.shaft * kShaftSize + s] = c.sheave_columns(fjac_)[a * kShaftSize + s];
-      const ShaftVector xs = w_shaft_unknowns(rs);
-      wf_zs_.col(col + a) = xs;
-      for (int l = 0; l < m_.links; ++l) {
-        w_shaft_back(l, xs, w[l]);
-        Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = w[l];
-      }
-    } else {
-      for (int l = 0; l < m_.links; ++l) Eigen::Map<LinkVector>(z + static_cast<std::size_t>(l) * kLinkDim) = v[l].col(a);
-    }
+  double* z[2] = {wf_z_.col(col).data(), wf_z_.col(col + 1).data()};
+  const auto z_of = [&](int a, int l) { return Eigen::Map<LinkVector>(z[a] + static_cast<std::size_t>(l) * kLinkDim); };
+  if (opt_.w_shafts) {
+    // Within the solve's one fork: per link each column's chain part and its shafts' product
+    // (after the backward sweep), the two shaft steps, then each column's z - Y x_s.
+    LinkVectors* w[2] = {&w_rhs_, &wf_rhs2_};
+    ShaftVectors* bz[2] = {&w_bz_, &wf_bz2_};
+    ShaftVector xs[2];
+    w_lu_.solve_columns(
+        v, TwoTasks{schedule_.threads() > 1},
+        [&](int l) {
+          for (int a = 0; a < 2; ++a) (*w[a])[l] = v[l].col(a), w_shaft_product(l, *w[a], *bz[a]);
+        },
+        [&] {
+          for (int a = 0; a < 2; ++a) {
+            ShaftVector rs = ShaftVector::Zero();
+            if (c.shaft >= 0)
+              for (int s = 0; s < kShaftSize; ++s)
+                rs[c.shaft * kShaftSize + s] = c.sheave_columns(fjac_)[a * kShaftSize + s];
+            xs[a] = w_shaft_unknowns(rs, *bz[a]);
+            wf_zs_.col(col + a) = xs[a];
+          }
+        },
+        [&](int l) {
+          for (int a = 0; a < 2; ++a) {
+            w_shaft_back(l, xs[a], (*w[a])[l]);
+            z_of(a, l) = (*w[a])[l];
+          }
+        });
+  } else {
+    w_lu_.solve_columns(v, TwoTasks{schedule_.threads() > 1});
+    for (int a = 0; a < 2; ++a)
+      for (int l = 0; l < m_.links; ++l) z_of(a, l) = v[l].col(a);
   }
   wf_set_.push_back(c);
   c.kind->in_correction[c.idx] = 1;

@@ -161,7 +161,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   for (int c : w_coord_) in_chain[c] = 1;
   for (int c = 0; c < m.ndof; ++c)
     if (!in_chain[c]) w_other_coord_.push_back(c);
-  w_rhs_.resize(N), w_bz_.resize(N), wf_rhs_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
+  w_rhs_.resize(N), w_bz_.resize(N), wf_rhs_.resize(N), wf_rhs2_.resize(N), wf_bz2_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
   w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
   w_k_packed_.resize(N);
   w_delta_.assign(N, 0.0);

@@ -290,11 +290,16 @@ class ModelOde {
   Eigen::PartialPivLU<ShaftMatrix> w_schur_;
   void w_shaft_factor(double gh);
   ShaftVector w_shaft_solve(double* x) const;  // the bordered solve's shaft step (w_solve_untimed)
-  ShaftVector w_shaft_unknowns(const ShaftVector& rs) const;  // its x_s for the right side r_s
+  using ShaftVectors = std::vector<ShaftVector, Eigen::aligned_allocator<ShaftVector>>;
+  // Its x_s for the right side r_s, from the products K_ps,l^T z_l in bz (w_bz_ by default).
+  ShaftVector w_shaft_unknowns(const ShaftVector& rs) const { return w_shaft_unknowns(rs, w_bz_); }
+  ShaftVector w_shaft_unknowns(const ShaftVector& rs, const ShaftVectors& bz) const;
   // K_ps,l^T z_l of link l's solved chain part z_l (w_rhs_[l]) into w_bz_[l]: on the solve's
-  // tasks, so that w_shaft_unknowns only sums them.
-  void w_shaft_product(int l) const;
-  mutable std::vector<ShaftVector, Eigen::aligned_allocator<ShaftVector>> w_bz_;
+  // tasks, so that w_shaft_unknowns only sums them. The second form: z and the product of
+  // another solve (a fresh-friction contact's second column, wf_join).
+  void w_shaft_product(int l) const { w_shaft_product(l, w_rhs_, w_bz_); }
+  void w_shaft_product(int l, const LinkVectors& z, ShaftVectors& bz) const;
+  mutable ShaftVectors w_bz_, wf_bz2_;
   ShaftVector shaft_velocities(const double* x) const;  // x's 14 shaft velocities, physical units
   void w_shaft_back(int l, const ShaftVector& xs, LinkVector& z) const;  // z -= Y_l x_s (link l's chain part)
   CyclicBlockLU<kLinkDim> w_lu_;
@@ -302,7 +307,7 @@ class ModelOde {
   int coord(int l, int i) const { return w_coord_[l * kLinkDim + i]; }
   std::vector<double> w_unit_q_, w_unit_v_;   // the units of those positions and velocities (scaled)
   std::vector<double> w_unit_ratio_;          // [i < ndof]: unit of velocity i / unit of position i
-  mutable LinkVectors w_rhs_;
+  mutable LinkVectors w_rhs_, wf_rhs2_;  // wf_rhs2_: a fresh-friction contact's second column (wf_join)
   // A fresh-friction contact's two columns [U; V], solved together (wf_join).
   using LinkPair = Eigen::Matrix<double, kLinkDim, 2>;
   std::vector<LinkPair, Eigen::aligned_allocator<LinkPair>> wf_rhs_;

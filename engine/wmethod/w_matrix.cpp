@@ -275,17 +275,17 @@ void ModelOde::w_shaft_factor(double gh) {
   w_schur_.compute(S);
 }
 
-ModelOde::ShaftVector ModelOde::w_shaft_unknowns(const ShaftVector& rs) const {
-  // With z = Wc^-1 r_v in w_rhs_: x_s = S^-1 (r_s - B^T z); the chain's x_v is then z - Y x_s.
+ModelOde::ShaftVector ModelOde::w_shaft_unknowns(const ShaftVector& rs, const ShaftVectors& bz) const {
+  // With z = Wc^-1 r_v: x_s = S^-1 (r_s - B^T z); the chain's x_v is then z - Y x_s.
   const double gh = w_gh_;
   ShaftVector r = rs;
   for (int l = 0; l < m_.links; ++l)
-    if (w_cps_on_[l]) r.noalias() -= gh * w_bz_[l];
+    if (w_cps_on_[l]) r.noalias() -= gh * bz[l];
   return w_schur_.solve(r);
 }
 
-void ModelOde::w_shaft_product(int l) const {
-  if (w_cps_on_[l]) w_bz_[l].noalias() = w_cps_[l].transpose() * w_rhs_[l];
+void ModelOde::w_shaft_product(int l, const LinkVectors& z, ShaftVectors& bz) const {
+  if (w_cps_on_[l]) bz[l].noalias() = w_cps_[l].transpose() * z[l];
 }
 
 ModelOde::ShaftVector ModelOde::w_shaft_solve(double* x) const {

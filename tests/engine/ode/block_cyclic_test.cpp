@@ -74,6 +74,33 @@ void check_phases(const C& lu, const Eigen::VectorXd& b, const std::vector<typen
   }
 }
 
+// The same for a block of right sides (solve_columns with finish, serial and last): every
+// block's finish and last once, serial once between them, and the result that of the
+// solve_columns without phases (X0), to the bit.
+template <class C, class Cols, class Both>
+void check_column_phases(const C& lu, const std::vector<Cols, Eigen::aligned_allocator<Cols>>& b,
+                         const std::vector<Cols, Eigen::aligned_allocator<Cols>>& x0, const Both& both, const char* name) {
+  const int n = static_cast<int>(x0.size());
+  std::vector<Cols, Eigen::aligned_allocator<Cols>> y = b;
+  std::vector<int> finished(n, 0), lasted(n, 0);
+  int serial_runs = 0;
+  lu.solve_columns(
+      y.data(), both, [&](int l) { ++finished[l]; },
+      [&] {
+        ++serial_runs;
+        for (int l = 0; l < n; ++l) EXPECT_EQ(finished[l], 1) << name << ": block " << l << " not finished before the serial phase";
+      },
+      [&](int l) {
+        EXPECT_EQ(serial_runs, 1) << name;
+        ++lasted[l];
+      });
+  EXPECT_EQ(serial_runs, 1) << name;
+  for (int l = 0; l < n; ++l) {
+    EXPECT_EQ(lasted[l], 1) << name << " block " << l;
+    EXPECT_TRUE(y[l] == x0[l]) << name << ": block " << l << " differs from solve_columns without phases";
+  }
+}
+
 // Returns the factorization's fill_blocks().
 template <int B>
 int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double drop = CyclicBlockLU<B>::kNegligible) {
@@ -124,7 +151,11 @@ int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double d
   const Eigen::MatrixXd R = Eigen::MatrixXd::Random(N, kC);
   std::vector<Eigen::Matrix<double, B, kC>, Eigen::aligned_allocator<Eigen::Matrix<double, B, kC>>> X(n);
   for (int l = 0; l < n; ++l) X[l] = R.middleRows(l * B, B);
+  const auto X_in = X;
   lu.solve_columns(X.data(), typename C::Sequential());
+  check_column_phases(lu, X_in, X, typename C::Sequential(), "columns, sequential");
+  check_column_phases(lu, X_in, X, SecondFirst(), "columns, second task first");
+  for (int rep = 0; rep < 20; ++rep) check_column_phases(lu, X_in, X, OnTwoThreads(), "columns, two threads");
   for (int c = 0; c < kC; ++c) {
     for (int l = 0; l < n; ++l) x[l] = R.col(c).segment(l * B, B);
     lu.solve(x.data());
