@@ -30,7 +30,8 @@ std::string w_step_graphviz(const Config& c, int threads) {
      << "    assembly [label=\"link blocks A + gh C + gh^2 K\\nper joint, over the threads\"];\n"
      << "    factor [label=\"block LU\\n" << sweeps << "\\nthen the middle and last block\"];\n"
      << "    stiffness -> assembly -> factor;\n  }\n";
-  os << "  fresh [label=\"fresh friction: Woodbury terms\\nfor the contacts whose mu moved\"];\n"
+  os << "  fresh [label=\"fresh friction: Woodbury terms\\nfor the contacts whose mu moved\\n(per contact: two columns, "
+     << (in.w_shafts ? "sweeps, shafts' steps, z - Y x_s; " : "sweeps; ") << "one fork)\"];\n"
      << "  f1 -> stiffness;\n  factor -> fresh;\n";
   std::string prev = "fresh";
   for (int i = 1; i <= stages; ++i) {
