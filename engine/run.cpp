@@ -12,6 +12,7 @@
 #include <fstream>
 #include <numeric>
 #include <optional>
+#include <utility>
 
 #include "engine/base/timing.hpp"
 #include "engine/output.hpp"
@@ -301,11 +302,13 @@ void Run::snapshot() {
 
 void Run::start_writes() {
   if (!write_sample_ && !write_snapshot_) return;
+  // The flags are the master's: the job gets copies.
+  const bool sample = std::exchange(write_sample_, false), snap = std::exchange(write_snapshot_, false);
   output([&] {
-    writes_.start([this] {
-      if (write_sample_) rec_->record(written_);
-      if (write_snapshot_) rec_->snapshot(snapshot_t_, pos_, ten_, ends_, normal_);
-      write_sample_ = write_snapshot_ = false;
+    writes_.start([this, sample, snap] {
+      h5_silence_error_printing();  // per thread: the job may run on a worker
+      if (sample) rec_->record(written_);
+      if (snap) rec_->snapshot(snapshot_t_, pos_, ten_, ends_, normal_);
     });
   });
 }
@@ -394,7 +397,10 @@ void Run::steps() {
     }
   } catch (const BlowUpError& e) {
     if (opt_.progress && tty_) std::fprintf(stderr, "\n");
-    sync_writes();
+    try {
+      sync_writes();  // every good sample; a write error here must not hide the blow-up
+    } catch (const std::exception&) {
+    }
     file_->close();
     std::filesystem::rename(tmp_, opt_.out_path);
     throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt_.out_path);

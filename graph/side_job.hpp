@@ -40,7 +40,14 @@ class SideJob {
     State* st = st_;
     st->refs.fetch_add(1, std::memory_order_relaxed);
     // The lambda holds one pointer: it fits std::function's own buffer (nothing allocated).
-    if (!s_.enqueue([st] { st->claim_and_run(), st->release(); })) {
+    bool taken = false;
+    try {
+      taken = s_.enqueue([st] { st->claim_and_run(), st->release(); });
+    } catch (...) {
+      st->release();  // nothing was enqueued; the job stays ready for wait()
+      throw;
+    }
+    if (!taken) {
       st->release();
       st->claim_and_run();
     }
@@ -77,6 +84,7 @@ class SideJob {
       } catch (...) {
         error = std::current_exception();
       }
+      job = nullptr;  // what the job holds goes here, not on whichever thread frees the state
       phase.store(kDone, std::memory_order_release);
       return true;
     }
