@@ -311,52 +311,30 @@ class CyclicBlockLU {
     const int n = n_, lastb = n - 1, m = (n - 1) / 2;
     // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
     Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
-    TwoTaskPhases ph;
-    const auto task = [&](int side) {
-      ph.two(
-          0, side,
-          [&] {
-            for (int l = 0; l <= m; ++l) prepare(l);
-            forward(x, 0, +1, lsub_, xm_top, xl_top);
-          },
-          [&] {
-            for (int l = m + 1; l < n; ++l) prepare(l);
-            forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
-          });
-      ph.one(2, [&] {
-        x[m] -= xm_top;
-        x[m] -= xm_bot;
-        x[lastb] -= xl_top;
-        x[lastb] -= xl_bot;
-        block_subtract(lrow_[m], x[m], x[lastb]);
-        // U x = y: the last block, the middle, then both halves outwards.
-        Vec t = x[lastb];
-        block_times(inv_[lastb], t, x[lastb]);
-        t = x[m];
-        block_subtract(ucol_[m], x[lastb], t);
-        block_times(inv_[m], t, x[m]);
-      });
-      ph.two(
-          3, side,
-          [&] {
-            backward(x, 0, +1);
-            for (int l = 0; l <= m; ++l) finish(l);
-          },
-          [&] {
-            backward(x, n - 2, -1);
-            for (int l = m + 1; l < n; ++l) finish(l);
-          });
-      ph.one(5, serial);
-      ph.two(
-          6, side,
-          [&] {
-            for (int l = 0; l <= m; ++l) last(l);
-          },
-          [&] {
-            for (int l = m + 1; l < n; ++l) last(l);
-          });
-    };
-    both([&] { task(0); }, [&] { task(1); });
+    in_phases(
+        both, prepare,
+        [&](int half) {
+          if (half == 0) forward(x, 0, +1, lsub_, xm_top, xl_top);
+          else forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
+        },
+        [&] {
+          x[m] -= xm_top;
+          x[m] -= xm_bot;
+          x[lastb] -= xl_top;
+          x[lastb] -= xl_bot;
+          block_subtract(lrow_[m], x[m], x[lastb]);
+          // U x = y: the last block, the middle, then both halves outwards.
+          Vec t = x[lastb];
+          block_times(inv_[lastb], t, x[lastb]);
+          t = x[m];
+          block_subtract(ucol_[m], x[lastb], t);
+          block_times(inv_[m], t, x[m]);
+        },
+        [&](int half) {
+          if (half == 0) backward(x, 0, +1);
+          else backward(x, n - 2, -1);
+        },
+        finish, serial, last);
   }
 
   // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C), the
@@ -373,47 +351,58 @@ class CyclicBlockLU {
     using Cols = Eigen::Matrix<double, B, C>;
     const int n = n_, lastb = n - 1, m = (n - 1) / 2;
     Cols xm_top = Cols::Zero(), xm_bot = Cols::Zero(), xl_top = Cols::Zero(), xl_bot = Cols::Zero();
+    in_phases(
+        both, [](int) {},
+        [&](int half) {
+          if (half == 0) forward_columns(x, 0, +1, lsub_, xm_top, xl_top);
+          else forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot);
+        },
+        [&] {
+          x[m] -= xm_top;
+          x[m] -= xm_bot;
+          x[lastb] -= xl_top;
+          x[lastb] -= xl_bot;
+          block_subtract_columns<B, C>(lrow_[m], x[m], x[lastb]);
+          Cols t = x[lastb];
+          block_times_columns<B, C>(inv_[lastb], t, x[lastb]);
+          t = x[m];
+          block_subtract_columns<B, C>(ucol_[m], x[lastb], t);
+          block_times_columns<B, C>(inv_[m], t, x[m]);
+        },
+        [&](int half) {
+          if (half == 0) backward_columns(x, 0, +1);
+          else backward_columns(x, n - 2, -1);
+        },
+        finish, serial, last);
+  }
+
+ private:
+  // A solve's phases in one fork and join (TwoTaskPhases), the blocks split into the top half
+  // 0 .. m and the bottom half m+1 .. n-1 (m = (n-1)/2): each half's prepare(l) and forward
+  // sweep forward(half), the middle, each half's backward sweep backward(half) and finish(l),
+  // serial(), each half's last(l).
+  template <class Both, class Prepare, class Forward, class Middle, class Backward, class Finish, class Serial,
+            class Last>
+  void in_phases(const Both& both, const Prepare& prepare, const Forward& forward, const Middle& middle,
+                 const Backward& backward, const Finish& finish, const Serial& serial, const Last& last) const {
+    const int n = n_, m = (n - 1) / 2;
+    const auto each = [m, n](int half, const auto& f) {
+      for (int l = half == 0 ? 0 : m + 1; l < (half == 0 ? m + 1 : n); ++l) f(l);
+    };
     TwoTaskPhases ph;
     const auto task = [&](int side) {
       ph.two(
-          0, side, [&] { forward_columns(x, 0, +1, lsub_, xm_top, xl_top); },
-          [&] { forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot); });
-      ph.one(2, [&] {
-        x[m] -= xm_top;
-        x[m] -= xm_bot;
-        x[lastb] -= xl_top;
-        x[lastb] -= xl_bot;
-        block_subtract_columns<B, C>(lrow_[m], x[m], x[lastb]);
-        Cols t = x[lastb];
-        block_times_columns<B, C>(inv_[lastb], t, x[lastb]);
-        t = x[m];
-        block_subtract_columns<B, C>(ucol_[m], x[lastb], t);
-        block_times_columns<B, C>(inv_[m], t, x[m]);
-      });
+          0, side, [&] { each(0, prepare), forward(0); }, [&] { each(1, prepare), forward(1); });
+      ph.one(2, middle);
       ph.two(
-          3, side,
-          [&] {
-            backward_columns(x, 0, +1);
-            for (int l = 0; l <= m; ++l) finish(l);
-          },
-          [&] {
-            backward_columns(x, n - 2, -1);
-            for (int l = m + 1; l < n; ++l) finish(l);
-          });
+          3, side, [&] { backward(0), each(0, finish); }, [&] { backward(1), each(1, finish); });
       ph.one(5, serial);
       ph.two(
-          6, side,
-          [&] {
-            for (int l = 0; l <= m; ++l) last(l);
-          },
-          [&] {
-            for (int l = m + 1; l < n; ++l) last(l);
-          });
+          6, side, [&] { each(0, last); }, [&] { each(1, last); });
     };
     both([&] { task(0); }, [&] { task(1); });
   }
 
- private:
   template <class Cols>
   void forward_columns(Cols* x, int first, int dir, const std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult,
                        Cols& xm, Cols& xl) const {
