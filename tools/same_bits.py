@@ -6,7 +6,9 @@
 
 The cases: 500 RK4 steps and 2000 ROS34PW2 steps of configs/reference.toml, each serial and
 on two flow-graph threads, and each run in two halves (the second half resumed from the
-first half's checkpoint, appending to the same file). A fingerprint is the SHA-256 of every
+first half's checkpoint, appending to the same file); then every shipped configuration with
+its own method and step, serial and on two threads, through the start-up into the running
+step (integrator.settle_time = 2e-4 s, t_end = 4e-4 s), and RK4 on the mini model. A fingerprint is the SHA-256 of every
 dataset's bytes (shape and type included) and attribute in the output file, apart from what
 depends on the wall clock (/profile, wall-time attributes), and of the final checkpoint's
 datasets. Build the binary before and after the change with the same flags.
@@ -38,6 +40,16 @@ CASES = {
     "ros34pw2-2000-serial": (ROS + SERIAL, "2e-3"),
     "ros34pw2-2000-threads2": (ROS + THREADS2, "2e-3"),
 }
+# every shipped configuration with its own integrator: the start-up's ROS2 sub-steps, then the
+# method's running step (no settling phase after 2e-4 s)
+SHIPPED = ["mini", "ratio-0.5", "ratio-2.0", "reference-shift", "reference-steady", "reference"]
+OWN = ["--set", "integrator.settle_time=2e-4", "--set", "run.sample_interval=1e-5",
+       "--set", "run.snapshot_interval=1e-4"]
+for cfg in SHIPPED:
+    CASES[f"{cfg}-own-serial"] = (OWN + SERIAL, "4e-4", cfg)
+    CASES[f"{cfg}-own-threads2"] = (OWN + THREADS2, "4e-4", cfg)
+CASES["mini-rk4-serial"] = (RK4 + SERIAL, "5e-6", "mini")
+
 # resumed: the first half to t_half, then --resume to the end (t_half at a multiple of w_k_every)
 RESUMED = {
     "rk4-500-resumed": (RK4 + SERIAL, "2.5e-6", "5e-6"),
@@ -89,9 +101,10 @@ def run(exe, args):
 def fingerprints(exe):
     result = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, (opts, t_end) in CASES.items():
+        for name, (opts, t_end, *cfg) in CASES.items():
             out = os.path.join(tmp, name + ".h5")
-            run(exe, [CONFIG] + opts + ["--t-end", t_end, "-o", out, "--checkpoint-every", "0"])
+            config = os.path.join(HERE, "..", "configs", cfg[0] + ".toml") if cfg else CONFIG
+            run(exe, [config] + opts + ["--t-end", t_end, "-o", out, "--checkpoint-every", "0"])
             result[name] = fingerprint_h5(out) | {"checkpoint:" + k: v for k, v in fingerprint_h5(out + ".ckpt").items()}
         for name, (opts, t_half, t_end) in RESUMED.items():
             out = os.path.join(tmp, name + ".h5")
