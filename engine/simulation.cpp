@@ -9,6 +9,7 @@
 
 #include "engine/rhs/rhs.hpp"
 #include "engine/wmethod/driver.hpp"
+#include "engine/wmethod/w_step.hpp"
 #include "modules/beam.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/pulley_contact.hpp"
@@ -58,71 +59,120 @@ void Simulation::rk4_step(double h, bool update_status) {
   });
 }
 
-// A W-method step (docs/integrators.md 12): the driver takes the step (or, before
-// integrator.startup_time, its ROS2 sub-steps) to exactly the clock's next time and updates
-// the statuses after it. A state gone non-finite is reported as RK4's is, by check_finite()
-// at the next sample (with the replay and the diagnosis): the driver's own error ("solution
-// is not finite", or a singular matrix built from such a state) only ends this step.
+// A W-method step of size h (docs/integrators.md 12), top-down: the step's sub-steps (the
+// start-up's ROS2 sub-steps, the settling phase's, or the step itself), each its first
+// evaluation (unless a sample of the state took it: begin_w_step), the matrix set up if due
+// and the stages with their solves (WStep::finish), then the contact statuses; then the
+// clock. Adaptive steps (integrator.tolerance) after the start-up run through the generic
+// OdeSolver (w_adaptive_step). A state gone non-finite is reported as RK4's is, by
+// check_finite() at the next sample (with the replay and the diagnosis): the step's own
+// error ("solution is not finite", or a singular matrix built from such a state) only ends
+// this step.
 void Simulation::w_step(double h) {
-  long first = 0;
-  OdeDriver& drv = w_next(h, &first);
-  const bool adaptive = adaptive_steps(m_.cfg);
+  const WPhase p = w_phase(h);
+  if (!p.step) return w_adaptive_step(h);
+  const bool begun = begun_ && begun_h_ == h && begun_steps_ == clock_.steps;
+  begun_ = false;
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
   if (y_.allFinite()) {
+    const double t0 = clock_.t, t1 = clock_.time_after(clock_.steps + 1, h), hs = h / p.sub;
     try {
-      const std::int64_t rejected0 = drv.stats().rejected;
-      const long n = drv.advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), first);
-      // Adaptive: the driver's steps between two ticks of the clock (start-up sub-steps too).
-      steps_taken_ += adaptive ? n : 1;
-      steps_rejected_ += drv.stats().rejected - rejected0;
+      schedule_->within([&] {
+        double t = t0;
+        for (int i = 0; i < p.sub; ++i) {
+          const double t_end = i + 1 == p.sub ? t1 : t0 + static_cast<double>(i + 1) * hs;
+          if (i > 0 || !begun) p.step->evaluate(t, y_, p.first + i);
+          p.step->finish(t, t_end - t, y_);
+          if (!y_.allFinite()) throw OdeError(t, t_end - t, "solution is not finite");
+          update_statuses_after_step(m_, *schedule_, ws_, t_end, y_);
+          t = t_end;
+        }
+      });
     } catch (const std::exception&) {
       if (y_.allFinite()) throw;
-      w_driver_.reset(), w_startup_.reset();
+      w_main_.reset(), w_startup_.reset();
+    }
+    // Adaptive runs count their start-up's sub-steps one by one, as their own steps.
+    steps_taken_ += adaptive_steps(m_.cfg) ? p.sub : 1;
+  }
+  clock_.tick(h);
+  profile_update(tick0, rhs0, master0);
+}
+
+// Adaptive W-steps (integrator.tolerance) after the start-up: the generic OdeSolver through
+// an OdeDriver, with its error test and step control, to exactly the clock's next time.
+void Simulation::w_adaptive_step(double h) {
+  const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
+  const std::uint64_t rhs0 = prof_ ? prof_->rhs_wall() : 0, master0 = prof_ ? prof_->master_total() : 0;
+  if (!w_adaptive_ || w_adaptive_h_ != m_.cfg.integrator.step) {
+    w_adaptive_ = std::make_unique<OdeDriver>(m_, ws_, *schedule_, w_run_options(m_.cfg, m_.cfg.integrator.step, false));
+    w_adaptive_h_ = m_.cfg.integrator.step;
+  }
+  w_startup_.reset();
+  if (y_.allFinite()) {
+    try {
+      const std::int64_t rejected0 = w_adaptive_->stats().rejected;
+      steps_taken_ += w_adaptive_->advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), steps_taken_);
+      steps_rejected_ += w_adaptive_->stats().rejected - rejected0;
+    } catch (const std::exception&) {
+      if (y_.allFinite()) throw;
+      w_adaptive_.reset(), w_startup_.reset();
     }
   }
   clock_.tick(h);
-  if (prof_) {
-    // The step's rest on the master, outside the evaluations and the W rows: the method's
-    // vector sums and error norms, its "integrator update".
-    const std::uint64_t dt = Profiler::ticks() - tick0;
-    const std::uint64_t inside = (prof_->rhs_wall() - rhs0) + (prof_->master_total() - master0);
-    prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
-    prof_->call(Section::update);
-  }
+  profile_update(tick0, rhs0, master0);
 }
 
-// The driver of the W-method's step of size h from the clock's time, and the index of its
-// first step. Before integrator.startup_time, ROS2 sub-steps; in the settling phase, the
-// method's own sub-steps (its driver, remade for the sub-step and again for h after the
-// phase). The matrix's rebuild schedule counts the driver's steps: the run's (fixed steps),
-// or with adaptive steps the sub-steps taken so far (the clock then ticks per sample).
-// Sub-steps (start-up, settling) are counted one by one: step n's are n sub .. n sub + sub - 1.
-OdeDriver& Simulation::w_next(double h, long* first) {
-  const int sub = startup_substeps(m_.cfg.integrator, h);
-  const bool startup = clock_.t < m_.cfg.integrator.startup_time && sub > 1;
+// The step's rest on the master, outside the evaluations and the W rows: the method's
+// vector sums and error norms, its "integrator update".
+void Simulation::profile_update(std::uint64_t tick0, std::uint64_t rhs0, std::uint64_t master0) {
+  if (!prof_) return;
+  const std::uint64_t dt = Profiler::ticks() - tick0;
+  const std::uint64_t inside = (prof_->rhs_wall() - rhs0) + (prof_->master_total() - master0);
+  prof_->add_master(Section::update, dt > inside ? dt - inside : 0);
+  prof_->call(Section::update);
+}
+
+// The W-step of size h from the clock's time: before integrator.startup_time, ROS2
+// sub-steps; in the settling phase, the method's own sub-steps (its WStep, remade for the
+// sub-step and again for h after the phase); adaptive steps after the start-up: none (the
+// OdeDriver of w_adaptive_step). The matrix's rebuild schedule counts the sub-steps one by
+// one: step n's are n sub .. n sub + sub - 1 (adaptive runs: from the steps taken so far).
+Simulation::WPhase Simulation::w_phase(double h) {
+  const Config::Integrator& in = m_.cfg.integrator;
+  const int sub = startup_substeps(in, h);
+  const bool startup = clock_.t < in.startup_time && sub > 1;
   const bool adaptive = adaptive_steps(m_.cfg);
-  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg))
-                         ? 1
-                         : settle_substeps(m_.cfg.integrator, h);
-  *first = adaptive ? steps_taken_ : clock_.steps * (startup ? sub : settle);
-  return w_driver(startup ? h / sub : adaptive ? m_.cfg.integrator.step : h / settle, startup);
+  if (adaptive && !startup) return {nullptr, 1, 0};
+  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg)) ? 1 : settle_substeps(in, h);
+  const int n = startup ? sub : settle;
+  const long first = adaptive ? steps_taken_ : clock_.steps * n;
+  // The start-up's contacts load up from zero within microseconds: ROS2 (gamma = 1.71)
+  // damps the mismatch of a matrix taken at the start, ROS34PW2 (gamma = 0.44) blows up on
+  // it within microseconds (docs/integrators.md 12.3).
+  std::unique_ptr<WStep>& step = startup ? w_startup_ : w_main_;
+  double& made_for = startup ? w_startup_h_ : w_main_h_;
+  const double hs = h / n;
+  if (!step || made_for != hs) {
+    const OdeRunOptions ro = w_run_options(m_.cfg, hs, startup);
+    step = std::make_unique<WStep>(m_, ws_, *schedule_, ro.method, ro.jac), made_for = hs;
+  }
+  if (!startup) w_startup_.reset();
+  return {step.get(), n, first};
 }
 
-// The start-up sub-steps always take ROS2: from rest the pins settle onto the sheaves and the
-// rocker faces load up, with contact stiffnesses that the matrix (taken at the start) does
-// not yet hold; ROS2 (gamma = 1.71) damps that mismatch, ROS34PW2 (gamma = 0.44) blows up
-// on it within microseconds (docs/integrators.md 12.3).
-OdeDriver& Simulation::w_driver(double h, bool startup) {
-  std::unique_ptr<OdeDriver>& drv = startup ? w_startup_ : w_driver_;
-  double& made_for = startup ? w_startup_h_ : w_h_;
-  if (!drv || made_for != h)
-    drv = std::make_unique<OdeDriver>(m_, ws_, *schedule_, w_run_options(m_.cfg, h, startup)), made_for = h;
-  if (!startup) w_startup_.reset();
-  return *drv;
+// The first evaluation of the next fixed W-step of size h, taken now so that a sample of
+// this state reads it (the step then starts from it): its f(t, y).
+const Eigen::VectorXd* Simulation::begin_w_step(double h) {
+  const WPhase p = w_phase(h);
+  schedule_->within([&] { p.step->evaluate(clock_.t, y_, p.first); });
+  begun_ = true, begun_h_ = h, begun_steps_ = clock_.steps;
+  return &p.step->f0();
 }
 
 void Simulation::advance(OdeDriver& driver, double t1) {
+  begun_ = false;
   const long n = driver.advance(clock_.t, y_, t1, clock_.steps);
   clock_ = StepClock::at(t1, clock_.steps + n);
 }
@@ -139,7 +189,8 @@ Checkpoint Simulation::checkpoint() const {
 }
 
 void Simulation::restore(const Checkpoint& c) {
-  w_driver_.reset(), w_startup_.reset();  // their matrices belong to the old state
+  w_main_.reset(), w_startup_.reset(), w_adaptive_.reset();  // their matrices belong to the old state
+  begun_ = false;
   if (c.state.size() != m_.nstate || c.rocker.size() != ws_.status.rocker.size() ||
       c.pulley.size() != ws_.status.pulley.size())
     throw std::runtime_error("checkpoint does not fit the model (state of " + std::to_string(c.state.size()) +
@@ -340,19 +391,19 @@ Sample Simulation::sample(double next_step) {
   s.t = clock_.t;
   Energies e;
   const auto energy = [&] { e = energies(m_, clock_.t, y_.data(), &ws_.status); };
-  // The evaluation the channels read. Ahead of a W-method's step: that step's first
-  // evaluation, taken now on the schedule (the step then starts from it), read from the
+  // The evaluation the channels read. Before a fixed W-step: that step's first evaluation,
+  // taken now on the schedule (begin_w_step: the step then starts from it), read from the
   // integrator's workspace. Otherwise a diagnostic evaluation into diag_, beside the energies
   // (pure functions of the state) on the schedule's threads; the same bits either way.
-  const bool ahead = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite();
-  if (ahead) {
+  const bool w_next = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite() &&
+                      w_phase(next_step).step;
+  const Eigen::VectorXd* f = &dy_;
+  if (w_next) {
     // On more than one thread the energies run beside it (they read the state and the
     // statuses, which the evaluation leaves alone), and the profile counts both as the
     // step's; serially the energies are the output's.
     const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
-    long first = 0;
-    OdeDriver& drv = w_next(next_step, &first);
-    const auto evaluate = [&] { drv.evaluate_ahead(clock_.t, y_, first, dy_.data()); };
+    const auto evaluate = [&] { f = begin_w_step(next_step); };
     const bool beside = schedule_->threads() > 1;
     if (beside)
       schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
@@ -368,6 +419,7 @@ Sample Simulation::sample(double next_step) {
     else
       evaluate(), energy();
   }
+  const bool ahead = w_next;
   Workspace& w = ahead ? ws_ : diag_;
   const double* q = y_.data();
   const double* v = q + m_.ndof;
@@ -410,7 +462,7 @@ Sample Simulation::sample(double next_step) {
   s.load_angle = q[m_.load_index()];
   s.power_input = s.input_torque * s.input_speed;
   s.power_output = s.output_torque * s.output_speed;
-  s.power_dissipated = dy_[2 * m_.ndof + kWorkDiss];
+  s.power_dissipated = (*f)[2 * m_.ndof + kWorkDiss];
   s.energy_kinetic = e.kinetic;
   s.energy_elastic = e.elastic;
   s.work_input = aux[kWorkIn];

@@ -1,9 +1,10 @@
 // The simulation (MuJoCo's mj_step): the model's state, its clock and the step of the
-// configured method (RK4, or a W-method through an OdeDriver), the contact statuses after
+// configured method (RK4, or a W-method: WStep, or with adaptive steps an OdeDriver), the contact statuses after
 // each step, the channels of a state (Sample), snapshots, the blow-up guard and
 // checkpoints. engine/run.hpp runs it to t_end with the output.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -48,6 +49,7 @@ struct Sample {
 };
 
 class OdeDriver;
+class WStep;
 
 class Simulation {
  public:
@@ -64,9 +66,12 @@ class Simulation {
   long steps_rejected() const { return steps_rejected_; }
   const StepClock& clock() const { return clock_; }
   const Eigen::VectorXd& state() const { return y_; }
-  Eigen::VectorXd& mutable_state() { return y_; }
+  Eigen::VectorXd& mutable_state() {
+    begun_ = false;  // a step begun for a sample starts from the state it evaluated
+    return y_;
+  }
   // Continues from (t, steps): for restarts from a saved state.
-  void set_clock(double t, long steps) { clock_ = StepClock::at(t, steps); }
+  void set_clock(double t, long steps) { clock_ = StepClock::at(t, steps), begun_ = false; }
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
   Schedule& schedule() { return *schedule_; }
@@ -82,8 +87,9 @@ class Simulation {
   // Advances to exactly t1 with a driver of another method or setting (studies, tests): its
   // steps count as the run's, and the clock's origin moves to t1.
   void advance(OdeDriver& driver, double t1);
-  // Channels of the current state. With next_step > 0 and a W-method, the state's evaluation
-  // is the first of the next step (of that size), taken now: that step does not repeat it.
+  // Channels of the current state. With next_step > 0 and a fixed W-step, the state's
+  // evaluation is the first of the next step (of that size), taken now: that step does not
+  // repeat it, unless the state or the clock changes before it (mutable_state, restore).
   Sample sample(double next_step = 0);
   // Joint centres [N][3] and link tensions [N] of the current state; with pin_ends, the
   // ends of every pin half [N][2 halves a, b][2 ends z < 0, z > 0][3]; with contact_normal,
@@ -108,13 +114,20 @@ class Simulation {
   // "" if y is fine; else what is wrong (non-finite coordinate, absurd penetration).
   std::string state_problem(const Eigen::VectorXd& y) const;
   std::string replay_diagnosis(double h);
-  // The two kinds of step (step() above).
+  // The two kinds of step (step() above), and adaptive W-steps.
   void rk4_step(double h, bool update_status);
   void w_step(double h);
-  // The W-method's driver for steps of size h (startup: ROS2 sub-steps), made when h changes.
-  OdeDriver& w_driver(double h, bool startup);
-  // The driver of w_step(h) from the clock's time, and the index of its first step.
-  OdeDriver& w_next(double h, long* first);
+  void w_adaptive_step(double h);
+  void profile_update(std::uint64_t tick0, std::uint64_t rhs0, std::uint64_t master0);
+  // The W-step of size h from the clock's time: its stepper (nullptr: an adaptive step), its
+  // sub-steps and the index of the first (w_phase, which makes the stepper when h changes).
+  struct WPhase {
+    WStep* step;
+    int sub;
+    long first;
+  };
+  WPhase w_phase(double h);
+  const Eigen::VectorXd* begin_w_step(double h);
 
   const Model& m_;
   Workspace ws_;     // the integrator's
@@ -122,10 +135,17 @@ class Simulation {
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   std::unique_ptr<Profiler> prof_;
   Rk4 rk_;
-  std::unique_ptr<OdeDriver> w_driver_;  // a W-method (integrator.method ros2, ros34pw2), made at the first step
-  double w_h_ = 0;
-  std::unique_ptr<OdeDriver> w_startup_;  // its ROS2 sub-steps before integrator.startup_time
+  std::unique_ptr<WStep> w_main_;  // a W-method (integrator.method ros2, ros34pw2), made at the first step
+  double w_main_h_ = 0;
+  std::unique_ptr<WStep> w_startup_;  // its ROS2 sub-steps before integrator.startup_time
   double w_startup_h_ = 0;
+  std::unique_ptr<OdeDriver> w_adaptive_;  // adaptive W-steps (integrator.tolerance) after the start-up
+  double w_adaptive_h_ = 0;
+  // The first evaluation of the step of size begun_h_ from clock step begun_steps_ is done
+  // (a sample took it: begin_w_step).
+  bool begun_ = false;
+  double begun_h_ = 0;
+  long begun_steps_ = 0;
   Eigen::VectorXd y_, dy_;
   StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;

@@ -28,6 +28,7 @@
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "engine/wmethod/driver.hpp"
+#include "engine/wmethod/w_step.hpp"
 #include "graph/schedule.hpp"
 #include "numa/arenas.hpp"
 #include "numa/describe.hpp"

@@ -38,6 +38,14 @@ const char* to_string(OdeMethod method) {
   return "?";
 }
 
+OdeMethod parse_ode_method(const std::string& name) {
+  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Dumka3, OdeMethod::Trapezoid,
+                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
+    if (name == to_string(m)) return m;
+  throw std::invalid_argument("unknown method '" + name +
+                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
+}
+
 static std::string ode_error_text(double t, double h, const std::string& reason) {
   std::ostringstream s;
   s.precision(17);
@@ -230,8 +238,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       k2_.setZero(n_);
       z_.setZero(n_);
       if (sys.time_derivative) dfdt_.setZero(n_);
-      if (method_ == OdeMethod::Ros34pw2)
-        for (auto& u : stages_) u.setZero(n_);
+      wv_.resize(n_);
       break;
   }
 }

@@ -114,6 +114,9 @@ inline bool is_implicit_method(OdeMethod m) {
 }
 
 const char* to_string(OdeMethod method);
+// The inverse of to_string: "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" |
+// "esdirk3" | "ros2" | "ros34pw2"; throws std::invalid_argument otherwise.
+OdeMethod parse_ode_method(const std::string& name);
 
 struct OdeOptions {
   double rtol = 1e-6;

@@ -10,6 +10,7 @@
 
 #include "engine/ode/rk4.hpp"
 #include "engine/ode/ode.hpp"
+#include "engine/ode/w_stages.hpp"
 
 namespace cvt {
 inline namespace CVT_ODE_ABI {
@@ -96,7 +97,7 @@ class OdeSolverImpl {
   Attempt filtered_error(const Eigen::VectorXd& y, double* err);
   Attempt step_trbdf2(double t, double h, const Eigen::VectorXd& y, double* err);
   Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
-  // ode_rosenbrock.cpp
+  // rosenbrock.cpp
   void step_ros2(double t, double h, const Eigen::VectorXd& y, double* err);
   void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
   void prepare_w(double t, double h, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
@@ -106,7 +107,8 @@ class OdeSolverImpl {
   double linearization_error(double t, double h, const Eigen::VectorXd& y);
   double w_nonlinearity(double t, double h, const Eigen::VectorXd& y);
   int w_age_ = 0;  // W-methods: steps since their Jacobian was taken (OdeOptions::w_reuse_steps)
-  Eigen::VectorXd stages_[4];  // Ros34pw2's u_i
+  WStageVectors wv_;  // the W-methods' stages (engine/ode/w_stages.hpp)
+  void w_stages(OdeMethod m, double t, double h, const Eigen::VectorXd& y, double* err);
   Eigen::VectorXd dfdt_;       // df/dt at the step's start (systems with time_derivative)
   // Solves z = psi + dh f(tz, z) by simplified Newton from the initial z; on success fz
   // holds f(tz, z) as the stage formula implies, (z - psi) / dh.

@@ -24,13 +24,10 @@
 
 #include "engine/base/timing.hpp"
 #include "engine/ode/ode_impl.hpp"
+#include "engine/ode/w_stages.hpp"
 
 namespace cvt {
 inline namespace CVT_ODE_ABI {
-
-namespace {
-const double kRos2Gamma = 1.0 + 1.0 / std::sqrt(2.0);
-}  // namespace
 
 // W = I - gh J~ at (t, y), right after f0_ = f(t, y): the system's own (w_factor), or the
 // Jacobian above and its LU, kept for w_reuse_steps steps while gh stays the same.
@@ -86,133 +83,76 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
   // calls (contact statuses), and a system's J~ comes from its evaluation at (t, y).
   eval(t, y, f0_);
   prepare_w(t, h, y, kRos2Gamma * h);
-  // With df/dt: t as a state whose stages are k1_t = 1, k2_t = 1 - 2 = -1, and the t-column
-  // of J~ is df/dt, so stage i gains gamma h df/dt k_i,t (Verwer et al. 1999, eq. 2.2).
+  w_stages(OdeMethod::Ros2, t, h, y, err);
+}
+
+void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
+  eval(t, y, f0_);
+  prepare_w(t, h, y, kRos34pw2.gamma * h);
+  w_stages(OdeMethod::Ros34pw2, t, h, y, err);
+}
+
+// The stages (engine/ode/w_stages.hpp) into y_new_, and outside fixed steps the error.
+void OdeSolverImpl::w_stages(OdeMethod m, double t, double h, const Eigen::VectorXd& y, double* err) {
   const bool dfdt = static_cast<bool>(sys_.time_derivative);
   if (dfdt) sys_.time_derivative(t, y.data(), dfdt_.data());
-  // k1 in z_, k2 in k2_.
-  z_ = f0_;
-  if (dfdt) z_ += (kRos2Gamma * h) * dfdt_;
-  solve_w(z_);
-  y_new_ = y + h * z_;
-  eval(t + h, y_new_, k2_);
-  k2_ -= 2.0 * z_;
-  if (dfdt) k2_ -= (kRos2Gamma * h) * dfdt_;
-  solve_w(k2_);
-  y_new_ = y + (1.5 * h) * z_ + (0.5 * h) * k2_;
-  err_vec_ = (0.5 * h) * (z_ + k2_);
-  if (fixed_) {
+  const auto f = [this](double tt, const Eigen::VectorXd& yy, Eigen::VectorXd& dy) { eval(tt, yy, dy); };
+  const auto solve = [this](Eigen::VectorXd& x) { solve_w(x); };
+  if (m == OdeMethod::Ros2)
+    ros2_stages(t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
+  else
+    ros34pw2_stages(t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
+  y_new_.swap(wv_.y_new);
+  if (fixed_) {  // no error estimate needed
     *err = 0.0;
     return;
   }
+  err_vec_.swap(wv_.err);
   *err = error_norm(err_vec_, y, y_new_);
   *err = std::max(*err, linearization_error(t, h, y));  // after: it overwrites err_vec_
 }
 
-// ROS34PW2 in the form that needs no products with J~ (Hairer & Wanner II, IV.7, (7.25)):
-// with u_i = sum_j gamma_ij k_j,
-//   W u_i = gamma h f(t + alpha_i h, y + sum_{j<i} a_ij u_j) + gamma sum_{j<i} c_ij u_j,
-//   y_1 = y + sum_i m_i u_i,
-// where a = alpha Gamma^-1, C = diag(1/gamma) - Gamma^-1 and m = b Gamma^-1 are computed once
-// from the published tableau (alpha, Gamma, b, b^) below. The t-column of J~ is zero, as a
-// W-method allows, unless the system supplies df/dt: then t is a state with the exact
-// column, u_i's t-component is h gamma_i (gamma_i = sum_j gamma_ij) and stage i gains
-// gamma gamma_i h^2 df/dt (Hairer & Wanner II, IV.7 (7.4)).
-namespace {
-struct Ros34pw2Tableau {
-  static constexpr int s = 4;
-  double gamma = 4.3586652150845900e-01;
-  double alpha_c[s] = {};  // stage times
-  double a[s][s] = {}, c[s][s] = {};
-  double m[s] = {}, e[s] = {};  // solution weights and those of the error (m - m^)
-  double gsum[s] = {};          // gamma_i = sum_j gamma_ij, the df/dt weights
-  Ros34pw2Tableau() {
-    double alpha[s][s] = {};
-    alpha[1][0] = 8.7173304301691801e-01;
-    alpha[2][0] = 8.4457060015369423e-01, alpha[2][1] = -1.1299064236397981e-01;
-    alpha[3][2] = 1.0;
-    double g[s][s] = {};
-    g[1][0] = -8.7173304301691801e-01;
-    g[2][0] = -9.0338057013044082e-01, g[2][1] = 5.4180672388095326e-02;
-    g[3][0] = 2.4212380706095346e-01, g[3][1] = -1.2232505839045147e+00, g[3][2] = 5.4526025533510214e-01;
-    for (int i = 0; i < s; ++i) g[i][i] = gamma;
-    for (int i = 0; i < s; ++i)
-      for (int j = 0; j <= i; ++j) gsum[i] += g[i][j];
-    const double b[s] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
-                         4.3586652150845900e-01};
-    const double bh[s] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
-                          2.1793326075422950e-01};
-    // Gamma^-1 by forward substitution (lower triangular).
-    double gi[s][s] = {};
-    for (int j = 0; j < s; ++j) {
-      gi[j][j] = 1.0 / g[j][j];
-      for (int i = j + 1; i < s; ++i) {
-        double sum = 0;
-        for (int k = j; k < i; ++k) sum += g[i][k] * gi[k][j];
-        gi[i][j] = -sum / g[i][i];
-      }
-    }
-    for (int i = 0; i < s; ++i) {
-      for (int j = 0; j < i; ++j) {
-        alpha_c[i] += alpha[i][j];
-        for (int k = j; k < i; ++k) a[i][j] += alpha[i][k] * gi[k][j];
-        c[i][j] = -gi[i][j];
-      }
-      for (int k = i; k < s; ++k) m[i] += b[k] * gi[k][i], e[i] += (b[k] - bh[k]) * gi[k][i];
+Ros34pw2Tableau::Ros34pw2Tableau() {
+  double alpha[s][s] = {};
+  alpha[1][0] = 8.7173304301691801e-01;
+  alpha[2][0] = 8.4457060015369423e-01, alpha[2][1] = -1.1299064236397981e-01;
+  alpha[3][2] = 1.0;
+  double g[s][s] = {};
+  g[1][0] = -8.7173304301691801e-01;
+  g[2][0] = -9.0338057013044082e-01, g[2][1] = 5.4180672388095326e-02;
+  g[3][0] = 2.4212380706095346e-01, g[3][1] = -1.2232505839045147e+00, g[3][2] = 5.4526025533510214e-01;
+  for (int i = 0; i < s; ++i) g[i][i] = gamma;
+  for (int i = 0; i < s; ++i)
+    for (int j = 0; j <= i; ++j) gsum[i] += g[i][j];
+  const double b[s] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
+                       4.3586652150845900e-01};
+  const double bh[s] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
+                        2.1793326075422950e-01};
+  // Gamma^-1 by forward substitution (lower triangular).
+  double gi[s][s] = {};
+  for (int j = 0; j < s; ++j) {
+    gi[j][j] = 1.0 / g[j][j];
+    for (int i = j + 1; i < s; ++i) {
+      double sum = 0;
+      for (int k = j; k < i; ++k) sum += g[i][k] * gi[k][j];
+      gi[i][j] = -sum / g[i][i];
     }
   }
-};
+  for (int i = 0; i < s; ++i) {
+    for (int j = 0; j < i; ++j) {
+      alpha_c[i] += alpha[i][j];
+      for (int k = j; k < i; ++k) a[i][j] += alpha[i][k] * gi[k][j];
+      c[i][j] = -gi[i][j];
+    }
+    for (int k = i; k < s; ++k) m[i] += b[k] * gi[k][i], e[i] += (b[k] - bh[k]) * gi[k][i];
+  }
+}
 const Ros34pw2Tableau kRos34pw2;
-}  // namespace
 
 double w_method_gamma(OdeMethod m) {
   if (m == OdeMethod::Ros2) return kRos2Gamma;
   if (m == OdeMethod::Ros34pw2) return kRos34pw2.gamma;
   throw std::invalid_argument(std::string("w_method_gamma: ") + to_string(m) + " is not a W-method");
-}
-
-void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
-  const Ros34pw2Tableau& tb = kRos34pw2;
-  const double gh = tb.gamma * h;
-  eval(t, y, f0_);
-  prepare_w(t, h, y, gh);
-  // Each stage's sums in one pass over the vectors (the same operations in the same order as
-  // one pass per term, so the same bits).
-  static_assert(Ros34pw2Tableau::s == 4);
-  const Eigen::VectorXd &u0 = stages_[0], &u1 = stages_[1], &u2 = stages_[2], &u3 = stages_[3];
-  const double g = tb.gamma;
-  const bool dfdt = static_cast<bool>(sys_.time_derivative);
-  if (dfdt) sys_.time_derivative(t, y.data(), dfdt_.data());
-  // Stage i's df/dt term, added apart so that without df/dt the arithmetic is the same.
-  auto add_dfdt = [&](int i) {
-    if (dfdt) stages_[i] += (g * tb.gsum[i] * h * h) * dfdt_;
-  };
-  stages_[0] = gh * f0_;
-  add_dfdt(0);
-  solve_w(stages_[0]);
-  y_new_ = y + tb.a[1][0] * u0;
-  eval(t + tb.alpha_c[1] * h, y_new_, stages_[1]);
-  stages_[1] = gh * stages_[1] + (g * tb.c[1][0]) * u0;
-  add_dfdt(1);
-  solve_w(stages_[1]);
-  y_new_ = y + tb.a[2][0] * u0 + tb.a[2][1] * u1;
-  eval(t + tb.alpha_c[2] * h, y_new_, stages_[2]);
-  stages_[2] = gh * stages_[2] + (g * tb.c[2][0]) * u0 + (g * tb.c[2][1]) * u1;
-  add_dfdt(2);
-  solve_w(stages_[2]);
-  y_new_ = y + tb.a[3][0] * u0 + tb.a[3][1] * u1 + tb.a[3][2] * u2;
-  eval(t + tb.alpha_c[3] * h, y_new_, stages_[3]);
-  stages_[3] = gh * stages_[3] + (g * tb.c[3][0]) * u0 + (g * tb.c[3][1]) * u1 + (g * tb.c[3][2]) * u2;
-  add_dfdt(3);
-  solve_w(stages_[3]);
-  y_new_ = y + tb.m[0] * u0 + tb.m[1] * u1 + tb.m[2] * u2 + tb.m[3] * u3;
-  if (fixed_) {  // no error estimate needed
-    *err = 0.0;
-    return;
-  }
-  err_vec_ = tb.e[0] * u0 + tb.e[1] * u1 + tb.e[2] * u2 + tb.e[3] * u3;
-  *err = error_norm(err_vec_, y, y_new_);
-  *err = std::max(*err, linearization_error(t, h, y));  // after: it overwrites err_vec_
 }
 
 }  // namespace CVT_ODE_ABI

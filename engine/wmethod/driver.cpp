@@ -1,61 +1,9 @@
 #include "engine/wmethod/driver.hpp"
 
 #include <algorithm>
-#include <sstream>
 #include <stdexcept>
 
 namespace cvt {
-
-OdeMethod parse_ode_method(const std::string& name) {
-  for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Dumka3, OdeMethod::Trapezoid,
-                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
-    if (name == to_string(m)) return m;
-  throw std::invalid_argument("unknown method '" + name +
-                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
-}
-
-std::string w_step_graphviz(const Config& c, int threads) {
-  const Config::Integrator& in = c.integrator;
-  const int stages = in.method == IntegratorMethod::ros2 ? 2 : 4;
-  const std::string sweeps = threads > 1 ? "top sweep (thread 0) | bottom sweep (thread 1)" : "top sweep, then bottom sweep";
-  std::ostringstream tol;
-  tol << in.tolerance;
-  std::ostringstream os;
-  os << "digraph w_step {\n  rankdir=TB;\n  node [shape=box];\n  label=\"one " << to_string(in.method) << " step "
-     << (in.tolerance > 0 ? "(adaptive, tolerance " + tol.str() + ")" : "(fixed)") << "\";\n";
-  os << "  f1 [label=\"evaluation 1: the stage graph\\n(cvt-engine graph, digraph stage)\\n+ friction blocks and mu\"];\n";
-  os << "  subgraph cluster_rebuild {\n    label=\"every " << in.w_every << " steps (stiffness every " << in.w_k_every
-     << ")\";\n    stiffness [label=\"stiffness K: 63 force evaluations\\n(per colour and coordinate; "
-     << (threads > 1 ? "two halves on two workspaces" : "one after the other") << ")\"];\n"
-     << "    assembly [label=\"link blocks A + gh C + gh^2 K\\nper joint, over the threads\"];\n"
-     << "    factor [label=\"block LU\\n" << sweeps << "\\nthen the middle and last block\"];\n"
-     << "    stiffness -> assembly -> factor;\n  }\n";
-  os << "  fresh [label=\"fresh friction: Woodbury terms\\nfor the contacts whose mu moved\\n(per contact: two columns, "
-     << (in.w_shafts ? "sweeps, shafts' steps, z - Y x_s; " : "sweeps; ") << "one fork)\"];\n"
-     << "  f1 -> stiffness;\n  factor -> fresh;\n";
-  std::string prev = "fresh";
-  for (int i = 1; i <= stages; ++i) {
-    const std::string f = "f" + std::to_string(i), w = "solve" + std::to_string(i);
-    if (i > 1)
-      os << "  " << f << " [label=\"evaluation " << i << ": the stage graph\\n(cvt-engine graph, digraph stage)\"];\n"
-         << "  " << prev << " -> " << f << ";\n";
-    os << "  " << w << " [label=\"right side per link, then\\n" << sweeps
-       << (in.w_shafts ? "\\nmiddle block, shafts' Schur step, z - Y x_s per link" : "\\nmiddle block")
-       << "\\n(one fork: claimed phases)"
-       << "\\n+ Woodbury correction\"];\n";
-    os << "  " << (i > 1 ? f : prev) << " -> " << w << ";\n";
-    prev = w;
-  }
-  os << "  sums [label=\"stage sums and the new state\\n(master)\"];\n  " << prev << " -> sums;\n";
-  os << "  status [label=\"contact statuses\\nper pin, over the threads\"];\n";
-  if (in.tolerance > 0)
-    os << "  test [label=\"error norm per pin, shaft, load\\naccept, or retake with a shorter step\"];\n"
-       << "  sums -> test -> status;\n";
-  else
-    os << "  sums -> status;\n";
-  os << "}\n";
-  return os.str();
-}
 
 OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   const Config::Integrator& in = c.integrator;
@@ -119,15 +67,6 @@ bool OdeDriver::asks_w_blocks() const {
 long OdeDriver::step_index(long first_step, std::int64_t steps0) const {
   const std::int64_t taken = solver_.stats().steps;
   return fixed_steps() ? first_step + static_cast<long>(taken - steps0) : static_cast<long>(taken);
-}
-
-void OdeDriver::evaluate_ahead(double t, const Eigen::VectorXd& y, long first_step, double* dy) {
-  // The request of advance's first step (below).
-  const long index = step_index(first_step, solver_.stats().steps);
-  schedule_.within([&] {
-    if (asks_w_blocks()) ode_.ask_friction_jacobian(index);
-    ode_.eval_ahead(t, y.data(), dy);
-  });
 }
 
 long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step) {

@@ -48,10 +48,6 @@ class OdeDriver {
   // first step taken (the W-method's matrix is rebuilt at fixed step indices; adaptive steps
   // count their own, from the driver's first). Returns the number of steps taken.
   long advance(double t, Eigen::VectorXd& y, double t1, long first_step);
-  // The first evaluation of advance(t, y, ..., first_step), taken now: f(t, y) into dy, the
-  // workspace left as that evaluation leaves it (ModelOde::eval_ahead). A W-method's step
-  // then starts from it without evaluating again; the implicit methods evaluate anew.
-  void evaluate_ahead(double t, const Eigen::VectorXd& y, long first_step, double* dy);
   const OdeStats& stats() const { return solver_.stats(); }
   const ModelOde& model_ode() const { return ode_; }
   std::int64_t rhs_evals() const { return ode_.rhs_evals(); }
@@ -71,14 +67,5 @@ class OdeDriver {
   Eigen::VectorXd z_;
   std::vector<std::uint8_t> rocker0_, pulley0_;  // the statuses before an update
 };
-
-// The W-method's step of `cvt-engine run` as GraphViz (`cvt-engine graph`): its stages, each an
-// evaluation (the schedule's graph) and a solve with the block LU on two sweeps, the matrix's
-// rebuilds, and for adaptive steps the error test; `threads` the schedule's.
-std::string w_step_graphviz(const Config& c, int threads);
-
-// Parses "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" | "esdirk3"; throws
-// std::invalid_argument otherwise.
-OdeMethod parse_ode_method(const std::string& name);
 
 }  // namespace cvt

@@ -2,13 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <set>
 #include <stdexcept>
 
 #include "engine/rhs/rhs.hpp"
-#include "engine/wmethod/parallel.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
 #include "modules/pulley_contact.hpp"
@@ -73,32 +71,6 @@ Eigen::VectorXd model_state_units(const Model& m, const ModelOdeOptions& opt) {
   return s;
 }
 
-void ModelOde::eval_ahead(double t, const double* y, double* dy) {
-  ahead_ = false;
-  eval(t, y, dy);
-  // A scaled system's steps evaluate at offset + z * unit, which need not repeat y's bits.
-  if (opt_.scaled || freeze_) return;
-  const int ns = m_.nstate;
-  ahead_ = true;
-  ahead_t_ = t;
-  ahead_index_ = w_index_;
-  ahead_y_.assign(y, y + ns);
-  ahead_dy_.assign(dy, dy + ns);
-  ahead_status_ = ws_.status;
-}
-
-bool ModelOde::take_ahead(double t, const double* y, double* dy) {
-  ahead_ = false;
-  const int ns = m_.nstate;
-  if (t != ahead_t_ || fjac_.requested() || freeze_ || ws_.status.rocker != ahead_status_.rocker ||
-      ws_.status.pulley != ahead_status_.pulley ||
-      std::memcmp(y, ahead_y_.data(), sizeof(double) * static_cast<std::size_t>(ns)) != 0)
-    return false;
-  std::copy(ahead_dy_.begin(), ahead_dy_.end(), dy);
-  set_stage_input(m_, ws_, t, y);  // the workspace as this evaluation would leave it: same values, this y
-  return true;
-}
-
 void ModelOde::eval_scaled(double t, const double* z, double* dz) {
   const int ns = m_.nstate;
   for (int i = 0; i < ns; ++i) ys_[i] = offset_[i] + z[i] * unit_[i];
@@ -107,13 +79,13 @@ void ModelOde::eval_scaled(double t, const double* z, double* dz) {
 }
 
 ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt)
-    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), fjac_(m), frozen_(m) {
-  fjac_.secant = opt.w_secant;
-  const int ns = m.nstate, N = m.links, tail0 = m.shaft(0);
+    : m_(m), ws_(ws), schedule_(schedule), opt_(opt), frozen_(m), unit_(model_state_units(m, opt)),
+      offset_(Eigen::VectorXd::Zero(m.nstate)), w_(m, ws, schedule, opt, unit_, offset_) {
+  const int ns = m.nstate, N = m.links;
   if (opt.band < 1 || 2 * opt.band + 1 > N) throw std::invalid_argument("ModelOdeOptions::band must be in [1, (links - 1) / 2]");
+  if (!(opt.w_h_grow >= 1 && opt.w_h_shrink >= 1))
+    throw std::invalid_argument("ModelOdeOptions: w_h_grow and w_h_shrink must be >= 1");
   sys_.size = ns;
-  unit_ = model_state_units(m, opt);
-  offset_ = Eigen::VectorXd::Zero(ns);
   ys_.resize(ns);
   if (opt.scaled)
     sys_.rhs = [this](double t, const double* z, double* dz) { eval_scaled(t, z, dz); };
@@ -128,106 +100,29 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     for (int c = 0; c < jac.outerSize(); ++c)
       for (Eigen::SparseMatrix<double>::InnerIterator it(jac, c); it; ++it) it.valueRef() *= unit_[c] / unit_[it.row()];
   };
-
-  // A0^-1 restricted to the shafts and the load (a constant 15 x 14 block).
-  a0_shaft_inv_.resize(2 * kShaftSize + 1, 2 * kShaftSize);
-  Eigen::VectorXd F = Eigen::VectorXd::Zero(m.ndof), Y = Eigen::VectorXd::Zero(m.ndof);
-  for (int k = 0; k < 2 * kShaftSize; ++k) {
-    F.setZero();
-    F[tail0 + k] = 1.0;
-    a0_inverse_shafts(m, F.data(), Y.data());
-    for (int r = 0; r < 2 * kShaftSize + 1; ++r) a0_shaft_inv_(r, k) = Y[tail0 + r];
+  a0_shaft_inv_ = a0_shaft_inverse(m);
+  if (opt.w_blocks) {  // the linear solver module's setup and solve
+    sys_.w_factor = [this](double t, const double* y, double gh) { w_.factor(t, y, gh); };
+    sys_.w_solve = [this](double* x) { w_.solve(x); };
   }
-  // W-method: A0 of a link's coordinates (two halves: bending per plane, axial bar; the
-  // plate pack's axial mass), and the hooks.
-  a0_link_.setZero();
-  for (int h = 0; h < 2; ++h) set_half_mass(m, a0_link_, h * half::kSize);
-  a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
-  w_lu_.resize(N);
-  w_lu_.set_drop_tolerance(opt_.w_fill_drop);
-  // The chain's coordinates in link order, and their units (1 unless scaled).
-  w_coord_.resize(static_cast<size_t>(N) * kLinkDim);
-  w_unit_q_.assign(w_coord_.size(), 1.0), w_unit_v_.assign(w_coord_.size(), 1.0);
-  for (int l = 0; l < N; ++l)
-    for (int i = 0; i < kLinkDim; ++i) {
-      const int o = l * kLinkDim + i, c = link_coord(l, i);
-      w_coord_[o] = c;
-      if (opt.scaled) w_unit_q_[o] = unit_[c], w_unit_v_[o] = unit_[m.ndof + c];
-    }
-  w_unit_ratio_.assign(m.ndof, 1.0);
-  if (opt.scaled)
-    for (int i = 0; i < m.ndof; ++i) w_unit_ratio_[i] = unit_[m.ndof + i] / unit_[i];
-  std::vector<char> in_chain(m.ndof, 0);
-  for (int c : w_coord_) in_chain[c] = 1;
-  for (int c = 0; c < m.ndof; ++c)
-    if (!in_chain[c]) w_other_coord_.push_back(c);
-  w_rhs_.resize(N), w_bz_.resize(N), wf_rhs_.resize(N), wf_rhs2_.resize(N), wf_bz2_.resize(N), w_g_.resize(N), w_cps_.resize(N), w_cps_on_.assign(N, 0);
-  w_k_diag_.assign(N, LinkBlock::Zero()), w_k_sub_ = w_k_diag_, w_k_super_ = w_k_diag_;
-  w_k_packed_.resize(N);
-  w_delta_.assign(N, 0.0);
-  if (schedule_.threads() > 1) {  // the stiffness's second workspace, sized before any step
-    w_ws2_ = std::make_unique<Workspace>(ws_);
-    w_yp2_.resize(m.nstate);
-    w_delta2_.assign(N, 0.0);
-  }
-  // Link colours for the stiffness differences: greedy around the cycle, links within two
-  // of each other differ (3 colours when 3 divides N, at most 5).
-  w_color_.assign(N, -1);
-  w_colors_ = 0;
-  for (int l = 0; l < N; ++l) {
-    int c = 0;
-    for (bool clash = true; clash; ++c) {
-      clash = false;
-      for (int d = -2; d <= 2; ++d)
-        if (d != 0 && w_color_[m.wrap(l + d)] == c) clash = true;
-      if (!clash) break;
-    }
-    w_color_[l] = c;
-    w_colors_ = std::max(w_colors_, c + 1);
-  }
-  if (w_fresh_on()) {
-    if (opt.w_fresh_max < 1) throw std::invalid_argument("ModelOdeOptions: w_fresh_max must be >= 1");
-    const int k = 2 * opt.w_fresh_max;
-    wf_z_.setZero(static_cast<Eigen::Index>(N) * kLinkDim, k);
-    if (opt.w_shafts) wf_zs_.setZero(2 * kShaftSize, k);
-    wf_g_.setZero(k, k);
-    // Everything a step's correction uses, sized here: nothing is allocated inside a step.
-    // The capacitance matrix and its LU for each number of contacts in the correction.
-    for (Eigen::VectorXd* v : {&wf_d_, &wf_p_, &wf_t_, &wf_s_, &wf_b_}) v->setZero(k);
-    for (int i = 1; i <= opt.w_fresh_max; ++i) {
-      wf_cap_m_.emplace_back(Eigen::MatrixXd::Zero(2 * i, 2 * i));
-      wf_cap_.emplace_back(2 * i);
-    }
-    wf_set_.reserve(opt.w_fresh_max);
-    wf_cand_.reserve(fjac_.rocker_fresh.mu.size() + fjac_.pulley_fresh.mu.size());
-    wf_corr_.setZero(static_cast<Eigen::Index>(N) * kLinkDim);
-  }
-  if (opt.w_shafts) {
-    // M_s: the inverse of A0^-1 on the shafts (their 14 x 14 block; the load is outside W).
-    w_ms_ = a0_shaft_inv_.topRows(2 * kShaftSize).inverse();
-    w_y_.resize(N);
-  }
-  if (opt.w_blocks) {
-    sys_.w_factor = [this](double t, const double* y, double gh) { w_factor(t, y, gh); };
-    sys_.w_solve = [this](double* x) { w_solve(x); };
-  }
-  if (opt.error_tol > 0) {
-    ModelOdeOptions units = opt;
-    units.scaled = true;
-    const Eigen::VectorXd u = model_state_units(m, units);
-    norm_weight_.assign(ns, 0.0);
-    for (int i = 0; i < 2 * m.ndof; ++i) norm_weight_[i] = unit_[i] / (opt.error_tol * u[i]);
-    for (int j = 0; j < N; ++j) norm_group_.push_back(m.joint(j));
-    norm_group_.insert(norm_group_.end(), {m.shaft(0), m.shaft(1), m.load_index(), m.ndof});
-    sys_.error_norm = [this](const double* err, const double*, const double*) { return chain_error_norm(err); };
-  } else if (opt.error_tol < 0) {
-    throw std::invalid_argument("ModelOdeOptions: error_tol must be >= 0");
-  }
-  if (!(opt.w_h_grow >= 1 && opt.w_h_shrink >= 1))
-    throw std::invalid_argument("ModelOdeOptions: w_h_grow and w_h_shrink must be >= 1");
+  set_error_norm();
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;
   pdiss0_.resize(N), pdiss1_ = pdiss0_;
+}
+
+// ModelOdeOptions::error_tol > 0: the system's error norm per joint, shaft and the load.
+void ModelOde::set_error_norm() {
+  if (opt_.error_tol < 0) throw std::invalid_argument("ModelOdeOptions: error_tol must be >= 0");
+  if (opt_.error_tol == 0) return;
+  ModelOdeOptions units = opt_;
+  units.scaled = true;
+  const Eigen::VectorXd u = model_state_units(m_, units);
+  norm_weight_.assign(m_.nstate, 0.0);
+  for (int i = 0; i < 2 * m_.ndof; ++i) norm_weight_[i] = unit_[i] / (opt_.error_tol * u[i]);
+  for (int j = 0; j < m_.links; ++j) norm_group_.push_back(m_.joint(j));
+  norm_group_.insert(norm_group_.end(), {m_.shaft(0), m_.shaft(1), m_.load_index(), m_.ndof});
+  sys_.error_norm = [this](const double* err, const double*, const double*) { return chain_error_norm(err); };
 }
 
 // The largest, over the joints, shafts and load, of the RMS of a group's error (its

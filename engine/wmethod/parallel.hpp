@@ -8,7 +8,7 @@
 #include <tbb/partitioner.h>
 #include <tbb/task_arena.h>
 
-#include "engine/wmethod/model_ode.hpp"
+#include "graph/schedule.hpp"
 
 namespace cvt {
 
@@ -27,19 +27,21 @@ struct TwoTasks {
   }
 };
 
+// f(begin, end) over the joints [0, links), on the schedule's threads (inside its arena: the
+// drivers run in Schedule::within) or serially with one.
 template <class F>
-void ModelOde::for_ranges(const F& f) const {
-  if (schedule_.threads() <= 1) return f(0, m_.links);
-  // Inside the schedule's arena (OdeDriver runs in Schedule::within): its threads share them.
+void for_joint_ranges(const Schedule& schedule, int links, const F& f) {
+  if (schedule.threads() <= 1) return f(0, links);
   tbb::parallel_for(
-      tbb::blocked_range<int>(0, m_.links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
+      tbb::blocked_range<int>(0, links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
       tbb::static_partitioner());
 }
 
-// Each joint's block is independent of the others: any split over threads gives the same bits.
+// f(j) for every joint. Each joint's block is independent of the others: any split over
+// threads gives the same bits.
 template <class F>
-void ModelOde::for_joints(const F& f) const {
-  for_ranges([&](int b, int e) {
+void for_joints(const Schedule& schedule, int links, const F& f) {
+  for_joint_ranges(schedule, links, [&](int b, int e) {
     for (int j = b; j < e; ++j) f(j);
   });
 }
