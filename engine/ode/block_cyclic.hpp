@@ -29,7 +29,7 @@ namespace cvt {
 
 // t = sum over a few column blocks of (B x n, column-major) times n scalars, in one set of
 // registers: the W solve's right side K b_q over a link's dense diagonal block and its
-// neighbours' packed nonzero columns (ModelOde::w_solve_untimed). add() sums column by
+// neighbours' packed nonzero columns (WSolver::solve_untimed). add() sums column by
 // column; n may be 0.
 template <int B>
 class ColumnSum {

@@ -27,7 +27,7 @@ enum class Section : int {
   accel,     // gather + structured solve (A0^-1, Woodbury) + dy
   update,    // the stage update (RK4: in the graph; the W-methods: their vector sums)
   status,    // contact status update
-  // The W-methods' linear algebra, timed on the master (engine/wmethod/w_matrix.cpp):
+  // The W-methods' linear algebra, timed on the master (engine/wmethod/w_solver.cpp):
   w_stiffness,  // the chain's stiffness blocks by finite differences
   w_assembly,   // the matrix's blocks, and the fresh-friction correction
   w_factor,     // the block-cyclic LU

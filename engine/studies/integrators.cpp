@@ -52,7 +52,7 @@ struct CurveRun {
   long long rhs = 0, jac = 0, lu = 0, steps = 0, rejected = 0, newton_failures = 0, newton_iterations = 0;
   double jac_s = 0, lu_s = 0, solve_s = 0;
   long long status_rebuilds = 0;  // ROS2: matrix rebuilds forced by contact status changes
-  long long fresh_contacts = 0, fresh_rebuilds = 0;  // W-methods: ModelOde::w_fresh_contacts / _rebuilds
+  long long fresh_contacts = 0, fresh_rebuilds = 0;  // W-methods: ModelOde::w_fresh_contacts / w_fresh_rebuilds
   int w_every = 0, w_k_every = 0;  // ROS2: its matrix intervals
   std::vector<double> walls;       // each repeat's wall time
   double reached = kNaN;  // model time covered when stopped by the timeout [s]
