@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <cstdio>
 #include <random>
+#include <type_traits>
+#include <variant>
 
 #include "engine/io/json.hpp"
 
@@ -19,21 +21,21 @@ void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
                              std::to_string(m.pulley[1].running_radius) +
                              " m, closure residual = " + std::to_string(m.closure_residual) + " m");
   // The layout the 3D viewer draws (docs/output.md): shaft axes, sheave faces, links.
-  std::string layout = "{\"links\": " + std::to_string(m.links) + ", \"tracked_pin\": " +
-                       std::to_string(m.cfg.run.tracked_pin) + ", \"cone_angle\": " +
-                       json_number(m.cfg.sheave.cone_angle * M_PI / 180) + ", \"hub_radius\": " +
-                       json_number(m.cfg.sheave.hub_radius) + ", \"outer_radius\": " +
-                       json_number(m.cfg.sheave.outer_radius) + ", \"pin_length\": " + json_number(m.cfg.pin.length) +
-                       ", \"plate_spread\": " + json_number(m.cfg.chain.plate_spread) +
-                       ", \"pitch\": " + json_number(m.cfg.chain.pitch) + ", \"pulleys\": [";
-  for (int k = 0; k < 2; ++k) {
-    const Pulley& p = m.pulley[k];
-    layout += std::string(k ? ", " : "") + "{\"centre\": [" + json_number(p.centre.x()) + ", " +
-              json_number(p.centre.y()) + "], \"face_z\": [" + json_number(p.face_z[0]) + ", " +
-              json_number(p.face_z[1]) + "], \"moving_side\": " + std::to_string(p.moving_side) +
-              ", \"running_radius\": " + json_number(p.running_radius) + "}";
-  }
-  f.set_string_attribute("/parameters", "layout", layout + "]}");
+  Json layout = {{"links", m.links},
+                 {"tracked_pin", m.cfg.run.tracked_pin},
+                 {"cone_angle", json_number(m.cfg.sheave.cone_angle * M_PI / 180)},
+                 {"hub_radius", json_number(m.cfg.sheave.hub_radius)},
+                 {"outer_radius", json_number(m.cfg.sheave.outer_radius)},
+                 {"pin_length", json_number(m.cfg.pin.length)},
+                 {"plate_spread", json_number(m.cfg.chain.plate_spread)},
+                 {"pitch", json_number(m.cfg.chain.pitch)},
+                 {"pulleys", Json::array()}};
+  for (const Pulley& p : m.pulley)
+    layout["pulleys"].push_back({{"centre", {json_number(p.centre.x()), json_number(p.centre.y())}},
+                                 {"face_z", {json_number(p.face_z[0]), json_number(p.face_z[1])}},
+                                 {"moving_side", p.moving_side},
+                                 {"running_radius", json_number(p.running_radius)}});
+  f.set_string_attribute("/parameters", "layout", json_inline(layout));
 }
 
 void write_profile(H5File& f, const Profiler::Report& r) {
@@ -76,48 +78,20 @@ std::string new_run_id() {
 // Strings that h5py reads as str, flags and counts as integers, the rest as doubles.
 void write_summary(H5File& f, const RunSummary& s) {
   f.remove("/summary");
-  f.set_strings_attribute("/summary", "reasons", s.reasons);
-  f.set_strings_attribute("/summary", "warnings", s.warnings);
-  f.set_strings_attribute("/summary", "criteria", s.criteria);
-  f.set_string_attribute("/summary", "status", s.status);
-  f.set_string_attribute("/summary", "stopped", s.stopped);
-  f.set_double_attribute("/summary", "steady_window", s.steady_window);
-  f.set_string_attribute("/summary", "method", s.method);
-  f.set_string_attribute("/summary", "controller", s.controller);
-  f.set_int_attribute("/summary", "efficiency_meaningful", s.efficiency_meaningful ? 1 : 0);
-  f.set_int_attribute("/summary", "interrupted", s.interrupted ? 1 : 0);
-  f.set_int_attribute("/summary", "steps", s.steps);
-  f.set_int_attribute("/summary", "rejected_steps", s.rejected_steps);
-  f.set_double_attribute("/summary", "mean_step", s.mean_step);
-  for (auto [name, v] : std::initializer_list<std::pair<const char*, double>>{
-           {"step", s.step},
-           {"drive_speed", s.drive_speed},
-           {"load_torque_nominal", s.load_torque_nominal},
-           {"clamping_force_driving_nominal", s.clamp_driving_nominal},
-           {"clamping_force_driven_nominal", s.clamp_driven_nominal},
-           {"ratio_target", s.ratio_target},
-           {"window_start", s.window_start},
-           {"window_end", s.window_end},
-           {"speed_ratio", s.speed_ratio},
-           {"geometric_ratio", s.geometric_ratio},
-           {"slip", s.slip},
-           {"input_speed", s.input_speed},
-           {"output_speed", s.output_speed},
-           {"input_torque", s.input_torque},
-           {"output_torque", s.output_torque},
-           {"load_torque", s.load_torque},
-           {"clamping_force_driving", s.clamp_driving},
-           {"clamping_force_driven", s.clamp_driven},
-           {"sheave_position_driving", s.sheave_driving},
-           {"sheave_position_driven", s.sheave_driven},
-           {"efficiency", s.efficiency},
-           {"loss_efficiency", s.loss_efficiency},
-           {"energy_residual", s.energy_residual},
-           {"energy_turnover", s.energy_turnover},
-           {"residual_fraction", s.residual_fraction},
-           {"model_time", s.model_time},
-           {"wall_s", s.wall_s}})
-    f.set_double_attribute("/summary", name, v);
+  for (const SummaryField& e : summary_fields()) {
+    const std::string name(e.name);
+    std::visit(
+        [&](auto m) {
+          const auto& x = s.*m;
+          using T = std::decay_t<decltype(x)>;
+          if constexpr (std::is_same_v<T, double>) f.set_double_attribute("/summary", name, x);
+          else if constexpr (std::is_same_v<T, long>) f.set_int_attribute("/summary", name, x);
+          else if constexpr (std::is_same_v<T, bool>) f.set_int_attribute("/summary", name, x ? 1 : 0);
+          else if constexpr (std::is_same_v<T, std::string>) f.set_string_attribute("/summary", name, x);
+          else f.set_strings_attribute("/summary", name, x);
+        },
+        e.member);
+  }
 }
 
 FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long every_sample, long every_snapshot) {

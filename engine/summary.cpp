@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 #include <sstream>
+#include <stdexcept>
+#include <type_traits>
 
 #include "engine/io/json.hpp"
 #include "engine/run.hpp"
@@ -271,6 +273,116 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
+const std::vector<SummaryField>& summary_fields() {
+  using S = RunSummary;
+  static const std::vector<SummaryField> fields = {
+      {"status", "", "steady, not_steady or slip (printed as steady, not yet steady, slip)", &S::status},
+      {"reasons", "", "why the run is not steady, or its slip (empty when steady); the slip reasons first", &S::reasons},
+      {"criteria", "", "the checks that held, each with its figures", &S::criteria},
+      {"stopped", "", "what ended the run: t_end, steady or slip (run.until_steady), signal, callback", &S::stopped},
+      {"steady_window", "s", "with run.until_steady: the length of each of the two windows compared; else 0",
+       &S::steady_window},
+      {"warnings", "", "what the run warned about (energy residual, RK4 step past its limit)", &S::warnings},
+      {"efficiency_meaningful", "", "the status is steady and the efficiency within [0, 1]",
+       &S::efficiency_meaningful},
+      {"interrupted", "", "stopped by SIGINT, SIGTERM or a progress callback", &S::interrupted},
+      {"method", "", "integrator.method", &S::method},
+      {"controller", "", "off, or the ratio controller and its target", &S::controller},
+      {"step", "s", "integrator.step", &S::step},
+      {"drive_speed", "rad/s", "drive.speed: the input speed as configured", &S::drive_speed},
+      {"load_torque_nominal", "N m", "load.torque as configured", &S::load_torque_nominal},
+      {"clamping_force_driving_nominal", "N", "clamping.driving as configured", &S::clamp_driving_nominal},
+      {"clamping_force_driven_nominal", "N", "clamping.driven as configured", &S::clamp_driven_nominal},
+      {"ratio_target", "1", "geometry.ratio as configured", &S::ratio_target},
+      {"window_start", "s", "the start of the window of the means", &S::window_start},
+      {"window_end", "s", "the end of the window of the means", &S::window_end},
+      {"speed_ratio", "1", "the mean speed ratio over the window", &S::speed_ratio},
+      {"geometric_ratio", "1", "the mean geometric ratio over the window's samples above 0", &S::geometric_ratio},
+      {"slip", "1", "1 - geometric_ratio / speed_ratio of the two means (0 where undefined)", &S::slip},
+      {"input_speed", "rad/s", "the mean input speed over the window", &S::input_speed},
+      {"output_speed", "rad/s", "the mean output speed over the window", &S::output_speed},
+      {"input_torque", "N m", "the mean input torque over the window", &S::input_torque},
+      {"output_torque", "N m", "the mean output torque over the window", &S::output_torque},
+      {"load_torque", "N m", "the mean load torque over the window", &S::load_torque},
+      {"clamping_force_driving", "N", "the mean driving clamping force over the window", &S::clamp_driving},
+      {"clamping_force_driven", "N", "the mean driven clamping force over the window", &S::clamp_driven},
+      {"sheave_position_driving", "m", "the mean driving sheave position over the window", &S::sheave_driving},
+      {"sheave_position_driven", "m", "the mean driven sheave position over the window", &S::sheave_driven},
+      {"efficiency", "1", "mean output power / mean input power over the window", &S::efficiency},
+      {"loss_efficiency", "1", "1 - dissipated work / input work over the window", &S::loss_efficiency},
+      {"energy_residual", "J", "the energy balance's residual at the end", &S::energy_residual},
+      {"energy_turnover", "J", "|W_in| + |W_out| + |W_diss| + |W_clamp| + |W_switch| at the end", &S::energy_turnover},
+      {"residual_fraction", "1", "|energy_residual| / energy_turnover (printed in %)", &S::residual_fraction},
+      {"t_start", "s", "the model time this invocation started from: 0, or the checkpoint's", &S::t_start},
+      {"model_time", "s", "the model time reached", &S::model_time},
+      {"steps", "", "steps taken by this invocation (adaptive: the integrator's accepted steps, start-up sub-steps too)",
+       &S::steps},
+      {"rejected_steps", "", "adaptive steps the error test rejected (0 with fixed steps)", &S::rejected_steps},
+      {"mean_step", "s", "model time of this invocation / steps", &S::mean_step},
+      {"wall_s", "s", "wall time of the steps", &S::wall_s},
+      {"us_per_step", "us", "wall time per step", &S::us_per_step},
+      {"model_s_per_hour", "s/h", "model time per hour of wall time", &S::model_s_per_hour},
+  };
+  return fields;
+}
+
+namespace {
+
+// The summary's entries read by name through the table; the ones never read are the
+// text's last line.
+class Entries {
+ public:
+  explicit Entries(const RunSummary& s) : s_(s), read_(summary_fields().size(), false) {}
+  template <class T>
+  const T& get(std::string_view name) {
+    const auto& fields = summary_fields();
+    for (std::size_t i = 0; i < fields.size(); ++i)
+      if (fields[i].name == name) {
+        read_[i] = true;
+        return s_.*std::get<T RunSummary::*>(fields[i].member);
+      }
+    throw std::logic_error("the summary has no entry " + std::string(name));
+  }
+  double num(std::string_view name) { return get<double>(name); }
+  long count(std::string_view name) { return get<long>(name); }
+  bool flag(std::string_view name) { return get<bool>(name); }
+  const char* str(std::string_view name) { return get<std::string>(name).c_str(); }
+  const std::string& text(std::string_view name) { return get<std::string>(name); }
+  const std::vector<std::string>& list(std::string_view name) { return get<std::vector<std::string>>(name); }
+  // "name value unit" of every entry not read, separated by ", " (empty when all were read).
+  std::string rest() const {
+    std::string o;
+    const auto& fields = summary_fields();
+    for (std::size_t i = 0; i < fields.size(); ++i) {
+      if (read_[i]) continue;
+      const SummaryField& f = fields[i];
+      std::string v = std::visit(
+          [&](auto m) -> std::string {
+            const auto& x = s_.*m;
+            using T = std::decay_t<decltype(x)>;
+            if constexpr (std::is_same_v<T, double>) return fmt("%.6g", x);
+            else if constexpr (std::is_same_v<T, long>) return std::to_string(x);
+            else if constexpr (std::is_same_v<T, bool>) return x ? "yes" : "no";
+            else if constexpr (std::is_same_v<T, std::string>) return x;
+            else {
+              std::string j;
+              for (const auto& e : x) j += (j.empty() ? "" : "; ") + e;
+              return "[" + j + "]";
+            }
+          },
+          f.member);
+      o += (o.empty() ? "" : ", ") + std::string(f.name) + " " + v + (f.unit.empty() ? "" : " ") + std::string(f.unit);
+    }
+    return o;
+  }
+
+ private:
+  const RunSummary& s_;
+  std::vector<bool> read_;
+};
+
+}  // namespace
+
 std::string format_summary(const RunSummary& s) {
   std::ostringstream os;
   char b[512];
@@ -278,101 +390,65 @@ std::string format_summary(const RunSummary& s) {
     std::snprintf(b, sizeof b, f, x...);
     os << b;
   };
+  Entries e(s);
   line("  operating point: input speed %.4g rad/s, load %.4g N m, clamping %.4g / %.4g kN, ratio %.4g;\n",
-       s.drive_speed, s.load_torque_nominal, 1e-3 * s.clamp_driving_nominal, 1e-3 * s.clamp_driven_nominal,
-       s.ratio_target);
-  line("                   %s, step %.4g s, controller %s\n", s.method.c_str(), s.step, s.controller.c_str());
-  line("  status: %s\n", s.status == "not_steady" ? "not yet steady" : s.status.c_str());
-  if (s.stopped == "steady" || s.stopped == "slip")
-    line("    (run.until_steady: stopped at t = %.5g s, %s; windows of %.4g s)\n", s.model_time,
-         s.stopped == "steady" ? "every criterion held" : "gross slip", s.steady_window);
-  else if (s.steady_window > 0 && s.stopped == "t_end")
-    line("    (run.until_steady: not steady by t_end = %.5g s; windows of %.4g s)\n", s.model_time, s.steady_window);
-  for (const auto& r : s.reasons) line("    - %s\n", r.c_str());
-  for (const auto& r : s.criteria) line("    held: %s\n", r.c_str());
-  line("  means over t = %.5g .. %.5g s:\n", s.window_start, s.window_end);
-  line("    speed ratio              %.5f   (geometric ratio %.5f, slip %+.2f %%)\n", s.speed_ratio, s.geometric_ratio,
-       100 * s.slip);
-  line("    input / output speed     %.3f / %.3f rad/s\n", s.input_speed, s.output_speed);
-  line("    input / output torque    %.3f / %.3f N m   (load %.3f N m)\n", s.input_torque, s.output_torque,
-       s.load_torque);
-  line("    clamping forces          %.4g / %.4g kN   (sheaves at %.4f / %.4f mm)\n", 1e-3 * s.clamp_driving,
-       1e-3 * s.clamp_driven, 1e3 * s.sheave_driving, 1e3 * s.sheave_driven);
-  const bool outside = !(s.efficiency >= 0 && s.efficiency <= 1);
-  if (s.efficiency_meaningful && !outside)
+       e.num("drive_speed"), e.num("load_torque_nominal"), 1e-3 * e.num("clamping_force_driving_nominal"),
+       1e-3 * e.num("clamping_force_driven_nominal"), e.num("ratio_target"));
+  line("                   %s, step %.4g s, controller %s\n", e.str("method"), e.num("step"), e.str("controller"));
+  const std::string& status = e.text("status");
+  line("  status: %s\n", status == "not_steady" ? "not yet steady" : status.c_str());
+  const std::string& stopped = e.text("stopped");
+  if (stopped == "steady" || stopped == "slip")
+    line("    (run.until_steady: stopped at t = %.5g s, %s; windows of %.4g s)\n", e.num("model_time"),
+         stopped == "steady" ? "every criterion held" : "gross slip", e.num("steady_window"));
+  else if (e.num("steady_window") > 0 && stopped == "t_end")
+    line("    (run.until_steady: not steady by t_end = %.5g s; windows of %.4g s)\n", e.num("model_time"),
+         e.num("steady_window"));
+  for (const auto& r : e.list("reasons")) line("    - %s\n", r.c_str());
+  for (const auto& r : e.list("criteria")) line("    held: %s\n", r.c_str());
+  line("  means over t = %.5g .. %.5g s:\n", e.num("window_start"), e.num("window_end"));
+  line("    speed ratio              %.5f   (geometric ratio %.5f, slip %+.2f %%)\n", e.num("speed_ratio"),
+       e.num("geometric_ratio"), 100 * e.num("slip"));
+  line("    input / output speed     %.3f / %.3f rad/s\n", e.num("input_speed"), e.num("output_speed"));
+  line("    input / output torque    %.3f / %.3f N m   (load %.3f N m)\n", e.num("input_torque"),
+       e.num("output_torque"), e.num("load_torque"));
+  line("    clamping forces          %.4g / %.4g kN   (sheaves at %.4f / %.4f mm)\n",
+       1e-3 * e.num("clamping_force_driving"), 1e-3 * e.num("clamping_force_driven"),
+       1e3 * e.num("sheave_position_driving"), 1e3 * e.num("sheave_position_driven"));
+  const double efficiency = e.num("efficiency"), loss_efficiency = e.num("loss_efficiency");
+  const bool outside = !(efficiency >= 0 && efficiency <= 1);
+  if (e.flag("efficiency_meaningful") && !outside)
     line("    efficiency               %.4f   (mean output / input power; 1 - dissipated/input work %.4f)\n",
-         s.efficiency, s.loss_efficiency);
+         efficiency, loss_efficiency);
   else
     line("    efficiency               not meaningful (%s: the power ratio is %.4g%s; 1 - dissipated/input work "
          "%.4f)\n",
-         s.status == "steady" ? "outside [0, 1]" : "the run is not steady", s.efficiency,
-         outside ? ", outside [0, 1]" : "", s.loss_efficiency);
-  line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", s.energy_residual,
-       100 * s.residual_fraction, s.energy_turnover);
-  for (const auto& w : s.warnings) line("  warning: %s\n", w.c_str());
+         status == "steady" ? "outside [0, 1]" : "the run is not steady", efficiency,
+         outside ? ", outside [0, 1]" : "", loss_efficiency);
+  line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", e.num("energy_residual"),
+       100 * e.num("residual_fraction"), e.num("energy_turnover"));
+  line("  run: t = %.6g .. %.6g s, %ld steps (mean %.4g s, %ld rejected), stopped: %s%s; %.3g s wall time, %.1f us "
+       "per step, %.4g model s per hour\n",
+       e.num("t_start"), e.num("model_time"), e.count("steps"), e.num("mean_step"), e.count("rejected_steps"),
+       stopped.c_str(), e.flag("interrupted") ? " (interrupted)" : "", e.num("wall_s"), e.num("us_per_step"),
+       e.num("model_s_per_hour"));
+  for (const auto& w : e.list("warnings")) line("  warning: %s\n", w.c_str());
+  const std::string rest = e.rest();
+  if (!rest.empty()) os << "  also: " << rest << "\n";
   return os.str();
 }
 
 std::string summary_json(const RunSummary& s) {
-  std::ostringstream os;
-  os.precision(17);
-  const auto str = [&](const char* k, const std::string& v) { os << "  \"" << k << "\": \"" << json_escape(v) << "\",\n"; };
-  const auto num = [&](const char* k, double v) {
-    os << "  \"" << k << "\": ";
-    if (std::isfinite(v)) os << v;
-    else os << "null";
-    os << ",\n";
-  };
-  const auto list = [&](const char* k, const std::vector<std::string>& v) {
-    os << "  \"" << k << "\": [";
-    for (std::size_t i = 0; i < v.size(); ++i) os << (i ? ", " : "") << "\"" << json_escape(v[i]) << "\"";
-    os << "],\n";
-  };
-  os << "{\n";
-  str("status", s.status);
-  list("reasons", s.reasons);
-  list("criteria", s.criteria);
-  str("stopped", s.stopped);
-  num("steady_window", s.steady_window);
-  list("warnings", s.warnings);
-  os << "  \"efficiency_meaningful\": " << (s.efficiency_meaningful ? "true" : "false") << ",\n";
-  os << "  \"interrupted\": " << (s.interrupted ? "true" : "false") << ",\n";
-  str("method", s.method);
-  str("controller", s.controller);
-  num("step", s.step);
-  num("drive_speed", s.drive_speed);
-  num("load_torque_nominal", s.load_torque_nominal);
-  num("clamping_force_driving_nominal", s.clamp_driving_nominal);
-  num("clamping_force_driven_nominal", s.clamp_driven_nominal);
-  num("ratio_target", s.ratio_target);
-  num("window_start", s.window_start);
-  num("window_end", s.window_end);
-  num("speed_ratio", s.speed_ratio);
-  num("geometric_ratio", s.geometric_ratio);
-  num("slip", s.slip);
-  num("input_speed", s.input_speed);
-  num("output_speed", s.output_speed);
-  num("input_torque", s.input_torque);
-  num("output_torque", s.output_torque);
-  num("load_torque", s.load_torque);
-  num("clamping_force_driving", s.clamp_driving);
-  num("clamping_force_driven", s.clamp_driven);
-  num("sheave_position_driving", s.sheave_driving);
-  num("sheave_position_driven", s.sheave_driven);
-  num("efficiency", s.efficiency);
-  num("loss_efficiency", s.loss_efficiency);
-  num("energy_residual", s.energy_residual);
-  num("energy_turnover", s.energy_turnover);
-  num("residual_fraction", s.residual_fraction);
-  num("t_start", s.t_start);
-  num("model_time", s.model_time);
-  num("steps", static_cast<double>(s.steps));
-  num("rejected_steps", static_cast<double>(s.rejected_steps));
-  num("mean_step", s.mean_step);
-  num("wall_s", s.wall_s);
-  num("us_per_step", s.us_per_step);
-  os << "  \"model_s_per_hour\": " << (std::isfinite(s.model_s_per_hour) ? s.model_s_per_hour : 0.0) << "\n}\n";
-  return os.str();
+  Json j = Json::object();
+  for (const SummaryField& f : summary_fields())
+    std::visit(
+        [&](auto m) {
+          const auto& x = s.*m;
+          if constexpr (std::is_same_v<std::decay_t<decltype(x)>, double>) j[std::string(f.name)] = json_number(x);
+          else j[std::string(f.name)] = x;
+        },
+        f.member);
+  return json_text(j);
 }
 
 }  // namespace cvt

@@ -4,6 +4,8 @@
 #pragma once
 
 #include <string>
+#include <string_view>
+#include <variant>
 #include <vector>
 
 #include "engine/model/model.hpp"
@@ -76,13 +78,31 @@ struct RunSummary {
   std::vector<std::string> warnings;
 };
 
+// One entry of the summary: its key in /summary and in the JSON, its unit ("1": a ratio;
+// "" for text, flags and counts), what it means, and the member of RunSummary that holds it.
+// /summary writes a double as a double attribute, a long or a bool as an integer, a string
+// or a list of strings as UTF-8 strings; the JSON as numbers (null when not finite),
+// integers, true/false, strings and arrays.
+struct SummaryField {
+  using Member = std::variant<double RunSummary::*, long RunSummary::*, bool RunSummary::*, std::string RunSummary::*,
+                              std::vector<std::string> RunSummary::*>;
+  std::string_view name, unit, meaning;
+  Member member;
+};
+
+// Every entry of the summary, in the order of the JSON: the text, /summary and the JSON are
+// written from this table (docs/output.md lists it).
+const std::vector<SummaryField>& summary_fields();
+
 // Fills the window, the means and the verdicts of s from the channels (the whole run).
 // The window is the last c.window_fraction of the run, or from window_start when that is
 // >= 0; never before the ramps have ended.
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {},
                double window_start = -1);
 
-// The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json).
+// The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json). The text
+// shows every entry of the table: those its lines do not place, on its last line as
+// "name value unit".
 std::string format_summary(const RunSummary& s);
 std::string summary_json(const RunSummary& s);
 

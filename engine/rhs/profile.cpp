@@ -143,21 +143,26 @@ std::string format_profile(const Profiler::Report& r) {
 }
 
 std::string profile_json(const Profiler::Report& r) {
-  std::ostringstream os;
-  os.precision(17);
-  os << "{\"header\": {\"steps\": " << r.steps << ", \"us_per_step\": " << r.us_per_step
-     << ", \"model_s_per_hour\": " << r.model_s_per_hour << ", \"threads\": " << r.threads
-     << ", \"numa_nodes\": " << r.numa_nodes << ", \"scheduler\": \"" << json_escape(r.scheduler)
-     << "\", \"wall_s\": " << r.wall_s << "},\n \"rows\": [";
-  for (std::size_t i = 0; i < r.rows.size(); ++i) {
-    const auto& row = r.rows[i];
-    os << (i ? ",\n  " : "\n  ") << "{\"name\": \"" << json_escape(row.name) << "\", \"calls\": " << row.calls
-       << ", \"wall_s\": " << row.wall_s << ", \"us_per_step\": " << row.us_per_step << ", \"percent\": " << row.percent
-       << ", \"busy_min_s\": " << row.busy_min_s << ", \"busy_avg_s\": " << row.busy_avg_s
-       << ", \"busy_max_s\": " << row.busy_max_s << ", \"imbalance_percent\": " << row.imbalance_percent << "}";
-  }
-  os << "]}\n";
-  return os.str();
+  Json j = {{"header",
+             {{"steps", r.steps},
+              {"us_per_step", json_number(r.us_per_step)},
+              {"model_s_per_hour", json_number(r.model_s_per_hour)},
+              {"threads", r.threads},
+              {"numa_nodes", r.numa_nodes},
+              {"scheduler", r.scheduler},
+              {"wall_s", json_number(r.wall_s)}}},
+            {"rows", Json::array()}};
+  for (const auto& row : r.rows)
+    j["rows"].push_back({{"name", row.name},
+                         {"calls", row.calls},
+                         {"wall_s", json_number(row.wall_s)},
+                         {"us_per_step", json_number(row.us_per_step)},
+                         {"percent", json_number(row.percent)},
+                         {"busy_min_s", json_number(row.busy_min_s)},
+                         {"busy_avg_s", json_number(row.busy_avg_s)},
+                         {"busy_max_s", json_number(row.busy_max_s)},
+                         {"imbalance_percent", json_number(row.imbalance_percent)}});
+  return json_text(j);
 }
 
 }  // namespace cvt

@@ -401,18 +401,17 @@ std::string mode_table(const std::vector<ModeRow>& rows) {
 }
 
 
-std::string json_rows(const std::vector<ModeRow>& rows) {
-  std::string s = "[";
-  for (size_t k = 0; k < rows.size(); ++k) {
-    const auto& r = rows[k];
-    s += fmt("%s\n    {\"index\": %d, \"omega2\": %.17g, \"frequency_hz\": %.17g, \"parts\": [", k ? "," : "", r.index,
-             r.omega2, r.freq_hz);
-    for (size_t p = 0; p < r.parts.size(); ++p)
-      s += fmt("%s{\"name\": \"%s\", \"share\": %.6g}", p ? ", " : "", json_escape(r.parts[p].name).c_str(),
-               r.parts[p].share);
-    s += "]}";
+Json json_rows(const std::vector<ModeRow>& rows) {
+  Json a = Json::array();
+  for (const auto& r : rows) {
+    Json parts = Json::array();
+    for (const auto& p : r.parts) parts.push_back({{"name", p.name}, {"share", json_number(p.share, 6)}});
+    a.push_back({{"index", r.index},
+                 {"omega2", json_number(r.omega2)},
+                 {"frequency_hz", json_number(r.freq_hz)},
+                 {"parts", std::move(parts)}});
   }
-  return s + (rows.empty() ? "]" : "\n  ]");
+  return a;
 }
 
 
@@ -465,32 +464,40 @@ std::string format_modal_report(const ModalReport& r, double config_step) {
 }
 
 std::string modal_report_json(const ModalReport& r, double config_step) {
-  std::string s = "{\n";
-  s += fmt("  \"t\": %.17g,\n  \"ndof\": %d,\n", r.t, r.ndof);
-  s += fmt("  \"rocker_active\": %d, \"rocker_pairs\": %d, \"pulley_active\": %d, \"pulley_pairs\": %d,\n",
-           r.rocker_active, r.rocker_pairs, r.pulley_active, r.pulley_pairs);
-  s += fmt("  \"stiffness_asymmetry\": %.6g,\n  \"damping_asymmetry\": %.6g,\n", r.asymmetry, r.damping_asymmetry);
-  s += fmt("  \"nonsmooth_entries\": %ld,\n  \"nonsmooth_jacobian_entries\": %ld,\n", r.nonsmooth_entries,
-           r.nonsmooth_jacobian_entries);
-  s += fmt("  \"rigid_modes\": %d,\n  \"negative_modes\": %d,\n", r.rigid, r.negative);
-  s += fmt("  \"seconds\": {\"differences\": %.4g, \"modes\": %.4g, \"jacobian_eigenvalues\": %.4g},\n",
-           r.t_differences, r.t_modes, r.t_eigen_jacobian);
-  s += "  \"rigid\": " + json_rows(r.rigid_modes) + ",\n";
-  s += "  \"negative\": " + json_rows(r.negative_modes) + ",\n";
-  s += "  \"lowest\": " + json_rows(r.lowest) + ",\n";
-  s += "  \"highest\": " + json_rows(r.highest);
+  Json j = {{"t", json_number(r.t)},
+            {"ndof", r.ndof},
+            {"rocker_active", r.rocker_active},
+            {"rocker_pairs", r.rocker_pairs},
+            {"pulley_active", r.pulley_active},
+            {"pulley_pairs", r.pulley_pairs},
+            {"stiffness_asymmetry", json_number(r.asymmetry, 6)},
+            {"damping_asymmetry", json_number(r.damping_asymmetry, 6)},
+            {"nonsmooth_entries", r.nonsmooth_entries},
+            {"nonsmooth_jacobian_entries", r.nonsmooth_jacobian_entries},
+            {"rigid_modes", r.rigid},
+            {"negative_modes", r.negative},
+            {"seconds",
+             {{"differences", json_number(r.t_differences, 4)},
+              {"modes", json_number(r.t_modes, 4)},
+              {"jacobian_eigenvalues", json_number(r.t_eigen_jacobian, 4)}}},
+            {"rigid", json_rows(r.rigid_modes)},
+            {"negative", json_rows(r.negative_modes)},
+            {"lowest", json_rows(r.lowest)},
+            {"highest", json_rows(r.highest)}};
   if (r.has_jacobian) {
     const auto& st = r.stability;
-    s += ",\n  \"jacobian\": {\n";
-    s += fmt("    \"size\": %d,\n    \"rho\": %s,\n", r.jac_size, json_number(st.rho).c_str());
-    s += fmt("    \"lambda_rho\": [%s, %s],\n    \"h_rho\": %s,\n", json_number(st.lambda_rho.real()).c_str(),
-             json_number(st.lambda_rho.imag()).c_str(), json_number(st.h_rho).c_str());
-    s += fmt("    \"h_stable\": %s,\n    \"lambda_limit\": [%s, %s],\n", json_number(st.h_stable).c_str(),
-             json_number(st.lambda_limit.real()).c_str(), json_number(st.lambda_limit.imag()).c_str());
-    s += fmt("    \"zero\": %d,\n    \"growing\": %d,\n    \"max_growth\": %s,\n    \"config_step\": %s\n  }", st.zero,
-             st.growing, json_number(st.max_growth).c_str(), json_number(config_step).c_str());
+    j["jacobian"] = {{"size", r.jac_size},
+                     {"rho", json_number(st.rho)},
+                     {"lambda_rho", {json_number(st.lambda_rho.real()), json_number(st.lambda_rho.imag())}},
+                     {"h_rho", json_number(st.h_rho)},
+                     {"h_stable", json_number(st.h_stable)},
+                     {"lambda_limit", {json_number(st.lambda_limit.real()), json_number(st.lambda_limit.imag())}},
+                     {"zero", st.zero},
+                     {"growing", st.growing},
+                     {"max_growth", json_number(st.max_growth)},
+                     {"config_step", json_number(config_step)}};
   }
-  return s + "\n}\n";
+  return json_text(j);
 }
 
 }  // namespace cvt

@@ -198,27 +198,27 @@ std::string scale_csv(const std::vector<ScaleRow>& rows) {
 }
 
 std::string scale_json(const std::vector<ScaleRow>& rows, const std::string& config) {
-  std::ostringstream os;
-  os.precision(9);
-  const auto str = [](const std::string& s) {
-    std::string o = "\"";  // (+= : GCC 12 warns falsely, -Wrestrict, on "\"" + ...)
-    o += json_escape(s);
-    o += '"';
-    return o;
-  };
-  os << "{\"config\": " << str(config) << ", \"rows\": [";
-  for (std::size_t i = 0; i < rows.size(); ++i) {
-    const ScaleRow& r = rows[i];
-    os << (i ? ",\n  " : "\n  ") << "{\"scheduler\": " << str(r.scheduler) << ", \"layout\": " << str(r.layout)
-       << ", \"threads\": " << r.threads << ", \"steps\": " << r.steps << ", \"repeat\": " << r.repeat
-       << ", \"us_per_step\": " << r.us_per_step << ", \"speedup\": " << r.speedup << ", \"efficiency\": " << r.efficiency
-       << ", \"chain_us\": " << r.chain_us << ", \"chain_speedup\": " << r.chain_speedup << ", \"pulley_us\": " << r.pulley_us
-       << ", \"pulley_speedup\": " << r.pulley_speedup << ", \"zero_gather_us\": " << r.zero_gather_us
-       << ", \"compute_us\": " << r.compute_us << ", \"amdahl_serial_fraction\": " << r.amdahl_serial_fraction
-       << ", \"identical\": " << (r.identical ? "true" : "false") << "}";
-  }
-  os << "]}\n";
-  return os.str();
+  // Nine significant digits, as the table's figures are measured.
+  const auto num = [](double x) { return json_number(x, 9); };
+  Json j = {{"config", config}, {"rows", Json::array()}};
+  for (const ScaleRow& r : rows)
+    j["rows"].push_back({{"scheduler", r.scheduler},
+                         {"layout", r.layout},
+                         {"threads", r.threads},
+                         {"steps", r.steps},
+                         {"repeat", r.repeat},
+                         {"us_per_step", num(r.us_per_step)},
+                         {"speedup", num(r.speedup)},
+                         {"efficiency", num(r.efficiency)},
+                         {"chain_us", num(r.chain_us)},
+                         {"chain_speedup", num(r.chain_speedup)},
+                         {"pulley_us", num(r.pulley_us)},
+                         {"pulley_speedup", num(r.pulley_speedup)},
+                         {"zero_gather_us", num(r.zero_gather_us)},
+                         {"compute_us", num(r.compute_us)},
+                         {"amdahl_serial_fraction", num(r.amdahl_serial_fraction)},
+                         {"identical", r.identical}});
+  return json_text(j);
 }
 
 std::string scale_table(const std::vector<ScaleRow>& rows) {

@@ -10,8 +10,13 @@
 #include <filesystem>
 #include <random>
 #include <string>
+#include <type_traits>
+#include <variant>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
+#include "engine/summary.hpp"
 #include "tests/test_util.hpp"
 
 namespace cvt {
@@ -343,6 +348,49 @@ TEST_F(OutputLayoutTest, SummaryAndProfileAttributes) {
       }
   // A run that ends in the ramp is not steady.
   EXPECT_NE(string_attribute("/summary", "status"), "steady");
+}
+
+// /summary holds every entry of the summary's table, typed by its member: doubles as
+// doubles, counts and flags as integers, text as UTF-8 strings.
+TEST_F(OutputLayoutTest, SummaryHoldsEveryEntryOfTheTable) {
+  for (const SummaryField& e : summary_fields()) {
+    const std::string name(e.name);
+    bool utf8 = false;
+    const H5T_class_t c = attribute_class(f_, "/summary", name.c_str(), &utf8);
+    std::visit(
+        [&](auto m) {
+          using T = std::decay_t<decltype(RunSummary{}.*m)>;
+          if constexpr (std::is_same_v<T, double>) EXPECT_EQ(c, H5T_FLOAT) << name;
+          else if constexpr (std::is_same_v<T, long> || std::is_same_v<T, bool>) EXPECT_EQ(c, H5T_INTEGER) << name;
+          else {
+            EXPECT_EQ(c, H5T_STRING) << name;
+            EXPECT_TRUE(utf8) << name << " is not a variable-length UTF-8 string";
+          }
+        },
+        e.member);
+  }
+  Id g(H5Gopen2(f_, "/summary", H5P_DEFAULT));
+  ASSERT_TRUE(g.ok());
+  std::size_t count = 0;
+  H5Aiterate2(
+      g, H5_INDEX_NAME, H5_ITER_NATIVE, nullptr,
+      [](hid_t, const char*, const H5A_info_t*, void* n) -> herr_t {
+        ++*static_cast<std::size_t*>(n);
+        return 0;
+      },
+      &count);
+  EXPECT_EQ(count, summary_fields().size()) << "attributes beyond the table";
+}
+
+// The layout the viewer reads is JSON that a parser reads back.
+TEST_F(OutputLayoutTest, LayoutIsJson) {
+  const nlohmann::json j = nlohmann::json::parse(string_attribute("/parameters", "layout"));
+  EXPECT_EQ(j.at("links").get<int>(), kLinks);
+  ASSERT_EQ(j.at("pulleys").size(), 2u);
+  for (const auto& p : j.at("pulleys")) {
+    EXPECT_EQ(p.at("centre").size(), 2u);
+    EXPECT_GT(p.at("running_radius").get<double>(), 0.0);
+  }
 }
 
 TEST_F(OutputLayoutTest, H5dumpReadsHeader) {

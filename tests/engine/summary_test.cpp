@@ -6,7 +6,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <functional>
+#include <sstream>
+#include <type_traits>
+#include <variant>
+
+#include <nlohmann/json.hpp>
 
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
@@ -206,6 +212,112 @@ TEST(GuardTest, Rk4StepAboveItsStabilityLimitWarnsWithTheStableStep) {
   EXPECT_NE(w.find("above its stability limit of about 1.12e-08 s"), std::string::npos) << w;
   EXPECT_NE(w.find("--step 5.6e-09 or less"), std::string::npos) << w;
   EXPECT_EQ(rk4_stability_warning(1e-7, 0, 0), "") << "no estimate, no warning";
+}
+
+// A summary in which every entry differs from every other and from its default: numbers
+// with all 17 digits, strings with quotes, backslashes, control characters and non-ASCII.
+RunSummary busy_summary() {
+  RunSummary s;
+  int k = 0;
+  for (const SummaryField& f : summary_fields())
+    std::visit(
+        [&](auto m) {
+          auto& x = s.*m;
+          using T = std::decay_t<decltype(x)>;
+          ++k;
+          if constexpr (std::is_same_v<T, double>) x = (k + 0.1234567890123456) / 7.0;
+          else if constexpr (std::is_same_v<T, long>) x = 1000 + k;
+          else if constexpr (std::is_same_v<T, bool>) x = true;
+          else if constexpr (std::is_same_v<T, std::string>) x = std::string(f.name) + " \"quoted\" C:\\dir";
+          else x = {std::string(f.name) + " line\nnext\ttab \x01\x1f \u00e9\u00fc \u4e2d\u6587 \\ \"q\"", "second"};
+        },
+        f.member);
+  s.status = "steady", s.stopped = "steady";  // the values the text has lines for
+  s.efficiency = 0.9;
+  return s;
+}
+
+// The JSON is what a real parser reads back: every string exactly, every number to its
+// last bit, the keys those of the table in its order.
+TEST(SummaryTest, JsonParsesAndGivesBackEveryEntryOfTheTable) {
+  RunSummary s = busy_summary();
+  s.warnings.push_back(std::string("nul \0 inside", 12) + ", delete \x7f, bell \a");
+  const nlohmann::json j = nlohmann::json::parse(summary_json(s));
+  ASSERT_TRUE(j.is_object());
+  EXPECT_EQ(j.size(), summary_fields().size()) << "keys beyond the table";
+  for (const SummaryField& f : summary_fields()) {
+    const std::string name(f.name);
+    ASSERT_TRUE(j.contains(name)) << name;
+    std::visit(
+        [&](auto m) {
+          const auto& x = s.*m;
+          using T = std::decay_t<decltype(x)>;
+          const auto& v = j.at(name);
+          if constexpr (std::is_same_v<T, double>) {
+            ASSERT_TRUE(v.is_number_float()) << name;
+            EXPECT_EQ(v.get<double>(), x) << name;
+          } else if constexpr (std::is_same_v<T, long>) {
+            ASSERT_TRUE(v.is_number_integer()) << name;
+            EXPECT_EQ(v.get<long>(), x) << name;
+          } else if constexpr (std::is_same_v<T, bool>) {
+            ASSERT_TRUE(v.is_boolean()) << name;
+            EXPECT_EQ(v.get<bool>(), x) << name;
+          } else {
+            EXPECT_EQ(v.get<T>(), x) << name;
+          }
+        },
+        f.member);
+  }
+  const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(summary_json(s));
+  std::size_t i = 0;
+  for (auto it = ordered.begin(); it != ordered.end() && i < summary_fields().size(); ++it)
+    EXPECT_EQ(it.key(), summary_fields()[i++].name) << "the JSON's keys in the order of the table";
+}
+
+TEST(SummaryTest, JsonWritesNonFiniteNumbersAsNull) {
+  RunSummary s;
+  s.efficiency = std::nan("");
+  s.model_s_per_hour = HUGE_VAL;
+  const nlohmann::json j = nlohmann::json::parse(summary_json(s));
+  EXPECT_TRUE(j.at("efficiency").is_null());
+  EXPECT_TRUE(j.at("model_s_per_hour").is_null());
+  EXPECT_TRUE(j.at("slip").is_number());
+}
+
+// Each entry of the table shows in the text: changing it alone changes the text.
+TEST(SummaryTest, TextShowsEveryEntryOfTheTable) {
+  const RunSummary base = busy_summary();
+  const std::string text = format_summary(base);
+  for (const SummaryField& f : summary_fields()) {
+    RunSummary s = base;
+    std::visit(
+        [&](auto m) {
+          auto& x = s.*m;
+          using T = std::decay_t<decltype(x)>;
+          if constexpr (std::is_same_v<T, double>) x = 3.5 * x + 1.75;
+          else if constexpr (std::is_same_v<T, long>) x += 7;
+          else if constexpr (std::is_same_v<T, bool>) x = !x;
+          else if constexpr (std::is_same_v<T, std::string>) x += "-changed";
+          else x.push_back("an added line");
+        },
+        f.member);
+    EXPECT_NE(format_summary(s), text) << f.name << " does not show in the text:\n" << text;
+  }
+}
+
+// docs/output.md names every entry of the table in its /summary section.
+TEST(SummaryTest, OutputDocumentationNamesEveryEntry) {
+  std::ifstream in(std::string(CVT_SOURCE_DIR) + "/docs/output.md");
+  ASSERT_TRUE(in) << "docs/output.md";
+  std::stringstream doc;
+  doc << in.rdbuf();
+  const std::string text = doc.str();
+  const std::size_t a = text.find("\n## /summary"), b = text.find("\n## ", a + 1);
+  ASSERT_NE(a, std::string::npos) << "docs/output.md has no /summary section";
+  const std::string section = text.substr(a, b == std::string::npos ? std::string::npos : b - a);
+  for (const SummaryField& f : summary_fields())
+    EXPECT_NE(section.find("`" + std::string(f.name) + "`"), std::string::npos)
+        << "docs/output.md, /summary, does not name `" << f.name << "`";
 }
 
 }  // namespace

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <sstream>
 
+#include <nlohmann/json.hpp>
+
 #include "engine/studies/scale.hpp"
 #include "tests/test_util.hpp"
 
@@ -63,7 +65,13 @@ TEST(ScaleTest, SmallStudyOnTheMiniModel) {
   EXPECT_EQ(line.rfind("scheduler,layout,threads,steps,repeat,us_per_step,speedup,efficiency,chain_us,", 0), 0u);
   while (std::getline(in, line)) ++lines;
   EXPECT_EQ(lines, 7);
-  EXPECT_NE(scale_json(rows, "mini").find("\"amdahl_serial_fraction\""), std::string::npos);
+  const nlohmann::json j = nlohmann::json::parse(scale_json(rows, "mini"));
+  EXPECT_EQ(j.at("config").get<std::string>(), "mini");
+  ASSERT_EQ(j.at("rows").size(), rows.size());
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    EXPECT_EQ(j.at("rows")[i].at("threads").get<int>(), rows[i].threads);
+    EXPECT_TRUE(j.at("rows")[i].contains("amdahl_serial_fraction"));
+  }
 }
 
 }  // namespace
