@@ -58,8 +58,8 @@ RESUMED = {
 
 # what a run may differ in without a change of its numbers: the wall clock, the random run
 # id, and the file names (the runs write into a new temporary folder each time)
-WALL_CLOCK = ("wall", "elapsed", "seconds_per", "steps_per_second", "date", "created", "host",
-              "run_id", "output")
+WALL_CLOCK = ("wall", "elapsed", "seconds_per", "steps_per_second", "us_per", "per_hour", "date", "created",
+              "host", "run_id", "output")
 
 
 def wall_clock(name):
