@@ -1,20 +1,34 @@
 #!/usr/bin/python3
 """The house rules of docs/architecture.md that a program can check.
 
-    tools/check_house.py          # exit 1 on a broken rule, naming the file and line
-    tools/check_house.py --dot    # the include graph between the folders, as GraphViz
+    tools/check_house.py               # exit 1 on a broken rule, naming the file and line
+    tools/check_house.py --root DIR    # check another copy of the tree
+    tools/check_house.py --dot         # the include graph between the folders, as GraphViz
 
-1. Layers: a folder may include itself and the folders listed for it in LAYERS (each of
-   which sits below it), so the data flows one way and there are no cycles between folders.
-2. Short functions: no function in engine/, modules/, graph/ or numa/ longer than
-   MAX_LINES lines (from its signature to its closing brace; the house style puts a
-   function's closing brace at the indentation of its signature).
+1. Layers: every source folder (a folder under engine/, modules/, graph/ or numa/ that
+   holds .cpp or .hpp files) has a row in LAYERS, and includes only itself and the folders
+   its row lists (each of which sits below it), so the data flows one way and there are
+   no cycles between folders.
+2. Short functions: no function (free function, method, operator, member defined inside
+   its class, in a .cpp or a .hpp) longer than MAX_FUNCTION lines, no constructor longer
+   than MAX_CONSTRUCTOR lines, no class, struct or union longer than MAX_CLASS lines.
+   A function is measured from the line of its name to its closing brace, a class from
+   the line of its name to its closing brace.
+
+The functions and classes come from universal-ctags (Debian package universal-ctags),
+a parser that follows the braces whatever the layout of a signature. Exit codes: 0 all
+rules hold, 1 a rule is broken, 2 the check could not run (the message says why).
 """
+import argparse
+import json
 import os
-import re
+import shutil
+import subprocess
 import sys
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+SOURCE_TOPS = ("engine", "modules", "graph", "numa")
+SUFFIXES = (".cpp", ".hpp")
 
 # folder -> the folders it may include (bottom to top)
 LAYERS = {
@@ -36,67 +50,169 @@ LAYERS = {
     "engine/python": ["engine/studies", "engine", "engine/wmethod", "graph", "engine/rhs", "modules", "engine/model",
                       "engine/ode", "engine/io", "numa", "engine/base"],
 }
-MAX_LINES = 120
-INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
+MAX_FUNCTION = 120
+MAX_CONSTRUCTOR = 60
+MAX_CLASS = 400
+CTAGS_PACKAGE = "universal-ctags"
 
 
-def edges():
-    for folder in LAYERS:
-        path = os.path.join(ROOT, folder)
-        for name in sorted(os.listdir(path)):
-            if not name.endswith((".cpp", ".hpp")):
-                continue
-            with open(os.path.join(path, name)) as f:
-                for inc in INCLUDE.findall(f.read()):
-                    yield f"{folder}/{name}", folder, os.path.dirname(inc), inc
-
-
-SIGNATURE = re.compile(r"^( {0,2})(?![ }#/])(?!(?:namespace|struct|class|enum|union|template|typedef|using|return|if|for|while|switch|else|do)\b)[^;=]*\)\s*(?:const\s*)?(?:noexcept\s*)?(?:override\s*)?(?:->\s*[\w:<>]+\s*)?(?::.*)?\{\s*$")
-
-
-def long_functions():
-    for folder in ("engine", "modules", "graph", "numa"):
-        for dirpath, _, names in os.walk(os.path.join(ROOT, folder)):
-            for name in sorted(names):
-                if not name.endswith((".cpp", ".hpp")):
-                    continue
-                path = os.path.join(dirpath, name)
-                with open(path) as f:
-                    lines = f.read().split("\n")
-                i = 0
-                while i < len(lines):
-                    m = SIGNATURE.match(lines[i])
-                    if m:
-                        close = m.group(1) + "}"
-                        j = i + 1
-                        while j < len(lines) and not (lines[j].startswith(close) and
-                                                      (len(lines[j]) == len(close) or lines[j][len(close)] in ";) /")):
-                            j += 1
-                        if j - i + 1 > MAX_LINES:
-                            yield os.path.relpath(path, ROOT), i + 1, j - i + 1, lines[i].strip()
-                        i = j
-                    i += 1
+class CannotCheck(Exception):
+    """The check could not run: a missing tool or an answer it cannot read."""
 
 
 def main(argv):
-    if "--dot" in argv:
-        pairs = sorted({(a, b) for _, a, b, _ in edges() if a != b})
-        print("digraph layers {\n  rankdir=BT;")
-        for a, b in pairs:
-            print(f'  "{a}" -> "{b}";')
-        print("}")
-        return 0
-    bad = [(src, inc) for src, a, b, inc in edges() if b != a and b not in LAYERS.get(a, [])]
-    for src, inc in bad:
-        print(f"{src}: includes {inc}, which its folder may not (docs/architecture.md)")
-    unknown = sorted(set(os.path.dirname(i) for _, _, _, i in edges()) - set(LAYERS))
-    if unknown:
-        print(f"includes of folders that have no layer: {unknown}")
-    long = list(long_functions())
-    for path, line, n, sig in long:
-        print(f"{path}:{line}: {n} lines, over {MAX_LINES}: {sig}")
-    print(f"check_house: {len(bad)} includes against the layers, {len(long)} functions over {MAX_LINES} lines")
-    return 1 if bad or unknown or long else 0
+    args = parse_args(argv[1:])
+    try:
+        files = source_files(args.root)
+        if args.dot:
+            print_dot(args.root, files)
+            return 0
+        broken, seen = check(args.root, files)
+    except CannotCheck as e:
+        print(f"check_house: cannot check: {e}")
+        return 2
+    for line in broken:
+        print(line)
+    print(f"check_house: {seen['files']} files, {seen['folders']} source folders, "
+          f"{seen['functions']} functions ({seen['constructors']} constructors), "
+          f"{seen['classes']} classes; {len(broken)} broken rules")
+    return 1 if broken else 0
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(description="Check the house rules of docs/architecture.md.")
+    p.add_argument("--root", default=ROOT, help="the tree to check (default: this checkout)")
+    p.add_argument("--dot", action="store_true", help="print the include graph between folders")
+    return p.parse_args(argv)
+
+
+def check(root, files):
+    """All broken rules, each a line 'where: what', and what was seen."""
+    folders = sorted({os.path.dirname(f) for f in files})
+    broken = [f"{folder}/: a source folder with no row in LAYERS (tools/check_house.py); "
+              f"give it its place in docs/architecture.md, 'The layers'"
+              for folder in folders if folder not in LAYERS]
+    for src, line, inc, target in includes(root, files):
+        if target != os.path.dirname(src) and target not in LAYERS.get(os.path.dirname(src), []):
+            broken.append(f"{src}:{line}: includes {inc}, but {os.path.dirname(src)}/ may not include "
+                          f"{target}/ (docs/architecture.md, 'The layers')")
+    tags = ctags(root, files)
+    broken += too_long(tags)
+    functions = [t for t in tags if t["kind"] == "function"]
+    seen = {"files": len(files), "folders": len(folders), "functions": len(functions),
+            "constructors": sum(is_constructor(t) for t in functions),
+            "classes": len(tags) - len(functions)}
+    return broken, seen
+
+
+# --- the layers -------------------------------------------------------------------------
+
+def source_files(root):
+    """Every .cpp and .hpp under the source folders, relative to root, sorted."""
+    found = []
+    for top in SOURCE_TOPS:
+        for dirpath, dirnames, names in os.walk(os.path.join(root, top)):
+            dirnames.sort()
+            found += [os.path.relpath(os.path.join(dirpath, n), root) for n in sorted(names) if n.endswith(SUFFIXES)]
+    if not found:
+        raise CannotCheck(f"no .cpp or .hpp files under {', '.join(SOURCE_TOPS)} of {root}")
+    return found
+
+
+def includes(root, files):
+    """(file, line, the include as written, the folder it names) for each #include "..."."""
+    for src in files:
+        with open(os.path.join(root, src), errors="replace") as f:
+            for number, text in enumerate(f, 1):
+                inc = quoted_include(text)
+                if inc is None:
+                    continue
+                here = os.path.join(os.path.dirname(src), inc)
+                if not os.path.exists(os.path.join(root, inc)) and os.path.exists(os.path.join(root, here)):
+                    inc_folder = os.path.dirname(os.path.normpath(here))
+                else:
+                    inc_folder = os.path.dirname(os.path.normpath(inc))
+                yield src, number, inc, inc_folder
+
+
+def quoted_include(text):
+    s = text.strip()
+    if not s.startswith("#"):
+        return None
+    s = s[1:].lstrip()
+    if not s.startswith("include"):
+        return None
+    s = s[len("include"):].strip()
+    if not s.startswith('"'):
+        return None
+    end = s.find('"', 1)
+    return s[1:end] if end > 1 else None
+
+
+def print_dot(root, files):
+    pairs = sorted({(os.path.dirname(src), target) for src, _, _, target in includes(root, files)
+                    if os.path.dirname(src) != target})
+    print("digraph layers {\n  rankdir=BT;")
+    for a, b in pairs:
+        print(f'  "{a}" -> "{b}";')
+    print("}")
+
+
+# --- the sizes --------------------------------------------------------------------------
+
+def ctags(root, files):
+    """The function definitions and the classes, structs and unions of the files, each a
+    dict with path, line, end, kind, name and scope, as universal-ctags reads them."""
+    exe = shutil.which("ctags")
+    if exe is None:
+        raise CannotCheck(f"ctags is not installed; install the Debian package {CTAGS_PACKAGE} "
+                          f"(apt-get install {CTAGS_PACKAGE}, or `make deps`)")
+    version = subprocess.run([exe, "--version"], capture_output=True, text=True).stdout
+    if "Universal Ctags" not in version:
+        raise CannotCheck(f"{exe} is not universal-ctags; install the Debian package {CTAGS_PACKAGE}")
+    cmd = [exe, "--options=NONE", "--language-force=C++", "--kinds-C++=fcsu", "--fields=+neZ",
+           "--extras=+F", "--output-format=json", "-f", "-", "-L", "-"]
+    run = subprocess.run(cmd, cwd=root, input="\n".join(files) + "\n", capture_output=True, text=True)
+    if run.returncode != 0:
+        raise CannotCheck(f"{' '.join(cmd)} exited {run.returncode}: {run.stderr.strip()} "
+                          f"(the JSON output needs the Debian package {CTAGS_PACKAGE})")
+    tags = []
+    for text in run.stdout.splitlines():
+        tag = json.loads(text)
+        if tag.get("_type") != "tag":
+            continue
+        if "end" not in tag:
+            raise CannotCheck(f"{tag['path']}:{tag['line']}: ctags found no closing brace for {tag['kind']} "
+                              f"{tag['name']}, so its length is unknown")
+        tags.append(tag)
+    if not any(t["kind"] == "function" for t in tags):
+        raise CannotCheck("ctags found no function at all")
+    return tags
+
+
+def too_long(tags):
+    for t in sorted(tags, key=lambda t: (t["path"], t["line"])):
+        n = t["end"] - t["line"] + 1
+        if t["kind"] != "function":
+            what, limit = t["kind"], MAX_CLASS
+        elif is_constructor(t):
+            what, limit = "constructor", MAX_CONSTRUCTOR
+        else:
+            what, limit = "function", MAX_FUNCTION
+        if n > limit:
+            yield f"{t['path']}:{t['line']}: {what} {qualified(t)} is {n} lines long, over the limit of {limit}"
+
+
+def is_constructor(tag):
+    scope = tag.get("scope", "")
+    return tag["kind"] == "function" and tag.get("scopeKind") in ("class", "struct") and \
+        scope.split("::")[-1] == tag["name"]
+
+
+def qualified(tag):
+    """The name with its scope, the anonymous namespaces left out."""
+    parts = [p for p in tag.get("scope", "").split("::") if p and not p.startswith("__anon")]
+    return "::".join(parts + [tag["name"]])
 
 
 if __name__ == "__main__":
