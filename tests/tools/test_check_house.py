@@ -135,6 +135,11 @@ class CheckHouse(unittest.TestCase):
         self.write({"engine/model/long.cpp": long_function(115)})
         self.assert_fails_naming("engine/model/long.cpp:2:", "long_sum", "121 lines")
 
+    def test_a_lambda_over_120_lines_fails_even_outside_a_function(self):
+        self.write({"engine/model/lambda.cpp": "namespace cvt {\nconst auto stepper = [](double s) {\n"
+                    + lines(125) + "\n  return s;\n};\n}  // namespace cvt\n"})
+        self.assert_fails_naming("engine/model/lambda.cpp:2:", "lambda", "128 lines", "120")
+
     def test_a_constructor_over_60_lines_fails_out_of_its_class_and_inside_it(self):
         self.write({"engine/model/thing.cpp": CLEAN["engine/model/thing.cpp"].replace(
             "Thing::Thing() {\n", "Thing::Thing() {\n" + lines(67, "  now();") + "\n")})
