@@ -149,6 +149,13 @@ class CheckHouse(unittest.TestCase):
             "  Clock() : t(now()) {}\n", "  Clock() : t(now()) {\n" + lines(68, "    tick();") + "\n  }\n")})
         self.assert_fails_naming("engine/base/timing.hpp:5:", "constructor", "Clock::Clock", "70 lines", "60")
 
+    def test_a_long_constructor_in_the_else_branch_of_a_class_fails(self):
+        # ctags itself reads only the first branch of an #if inside a class.
+        self.write({"engine/base/timing.hpp": CLEAN["engine/base/timing.hpp"].replace(
+            "  Clock() : t(now()) {}\n", "#if defined(FAST)\n  Clock() : t(0.0) {}\n#else\n  Clock() : t(now()) {\n"
+            + lines(68, "    tick();") + "\n  }\n#endif\n")})
+        self.assert_fails_naming("engine/base/timing.hpp:8:", "constructor", "Clock::Clock", "70 lines", "60")
+
     def test_a_class_over_400_lines_fails(self):
         members = "\n".join(f"  double m{i};" for i in range(448))
         self.write({"engine/model/big.hpp": f"#pragma once\nnamespace cvt {{\nclass Big {{\n{members}\n}};\n}}\n"})
