@@ -1,13 +1,14 @@
 // The flow-graph schedule (docs/runtime.md): per NUMA arena one oneTBB graph, built once and
-// reused for every stage:
-//   start -> {chain_forces, pulley_contact, other_forces, inertia_decomposition}
+// reused for every stage, with one continue_node per stage of the stage table and one edge
+// per dependency (engine/rhs/stages.hpp):
+//   start -> link_kinematics -> {chain_forces, pulley_contact, inertia_decomposition, other_forces}
 //         -> {gather (pins), gather_shafts} -> accelerations + stage update
-// Module nodes are continue_nodes whose bodies run a chunked parallel_for over the arena's
-// pin segment (owner-preferred parts of about `grain` pins); data lives in the workspace,
-// not in messages. With one NUMA node the whole stage is one graph run. With several,
-// the gather of a segment reads the slots of its neighbour's boundary pin and the solve
-// reads the neighbours' A0^-1 F, so the graphs stop after the modules and the gather and
-// the solve run as two more all-node phases.
+// A per-pin node's body runs a chunked parallel_for over the arena's pin segment
+// (owner-preferred parts of about `grain` pins); data lives in the workspace, not in
+// messages. With one NUMA node the whole stage is one graph run. With several, a stage
+// that reads another stage's results at neighbouring pins (or reads or writes what one
+// call on node 0 does) cannot start before every node is done with that stage: the table
+// is cut there into phases, each run on all nodes as a graph of its own.
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/flow_graph.h>
 #include <oneapi/tbb/parallel_for.h>
@@ -15,16 +16,13 @@
 #include <oneapi/tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <sstream>
 #include <vector>
 
 #include "graph/schedule.hpp"
-#include "modules/chain_forces.hpp"
-#include "modules/inertia.hpp"
-#include "modules/other_forces.hpp"
-#include "modules/pulley_contact.hpp"
 #include "numa/arenas.hpp"
 #include "numa/node_buffer.hpp"
 #include "numa/topology.hpp"
@@ -54,51 +52,25 @@ class FlowGraphSchedule final : public Schedule {
         claims_.push_back(std::make_unique<std::atomic<unsigned char>[]>(
             static_cast<std::size_t>(kMaxPartsPerThread * arenas_->threads(n))));
     for (int n = 0; n < nodes; ++n)
-      for (const char* name : {"chain_forces", "pulley_contact", "inertia_decomposition", "other_forces"})
-        spans_.push_back({"node" + std::to_string(n) + "/" + name, 0, 0});
-    for (int n = 0; n < nodes; ++n) arenas_->execute_on(n, [&, n] { build(n, nodes == 1); });
+      for (const StageDecl& s : kStages) spans_.push_back({"node" + std::to_string(n) + "/" + s.name, 0, 0});
+    if (nodes > 1) cut_phases();
+    for (int n = 0; n < nodes; ++n) arenas_->execute_on(n, [&, n] { build(n); });
     if (nodes > 1) place_slots();
   }
 
   void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x) override {
     set_stage_input(m_, ws_, t, y);
-    // With one node the graph computes the link kinematics itself, in parallel: done here by
-    // the master it would pull the whole state across to one core every stage. With
-    // several, every node's modules read links of the neighbouring segment, so it is
-    // done before the graphs start.
-    if (!empty_ && arenas_->nodes() > 1) {
-      ScopedTimer tm(prof_, 0, Section::inertia);
-      link_kinematics(m_, ws_, 0, m_.links);
-    }
-    dy_ = dy;
-    op_ = op;
-    extras_ = x;
+    args_.dy = dy;
+    args_.op = op;
+    args_.x = x;
     if (prof_) prof_->call_rhs(op != nullptr);
-    const int nodes = arenas_->nodes();
-    if (nodes == 1) {
-      const auto run = [&] {
-        parts_[0].start->try_put(Msg());
-        parts_[0].graph->wait_for_all();
-      };
+    if (arenas_->nodes() == 1) {
+      const auto run = [&] { parts_[0][0].run(); };
       if (inside_) run();
       else arenas_->arena(0).execute(run);
       return;
     }
-    arenas_->run_on_all_nodes([&](int n) {
-      parts_[n].start->try_put(Msg());
-      parts_[n].graph->wait_for_all();
-    });
-    arenas_->run_on_all_nodes([&](int n) {
-      pins(n, kGather, Section::accel, [&](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
-      if (n == 0) {
-        ScopedTimer tm(prof_, worker(0), Section::accel);
-        gather_shafts(m_, ws_);
-      }
-    });
-    arenas_->run_on_all_nodes([&](int n) {
-      pins(n, kFinish, Section::count, [&](int b, int e) { finish(n, b, e); }, coarse(n));
-      if (n == 0) finish(0, -1, -1);
-    });
+    for (int p = 0; p < phases_; ++p) arenas_->run_on_all_nodes([&](int n) { parts_[n][p].run(); });
   }
 
   std::string describe() const override {
@@ -111,37 +83,29 @@ class FlowGraphSchedule final : public Schedule {
     return os.str();
   }
 
+  // Every stage a node runs, and every dependency of the table as an edge into it (dashed:
+  // across a phase cut, waiting for all nodes).
   std::string graphviz() const override {
     std::ostringstream os;
     os << "digraph stage {\n  rankdir=LR;\n  node [shape=box];\n";
     for (int n = 0; n < arenas_->nodes(); ++n) {
-      // (Built with += : GCC 12 warns falsely, -Wrestrict, on "n" + std::to_string(n).)
-      std::string p = "n";
-      p += std::to_string(n);
-      p += '_';
+      const std::string p = prefix(n);
       os << "  subgraph cluster_" << n << " {\n    label=\"NUMA node " << n << ": pins [" << bounds_[n] << ", "
-         << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n";
-      if (arenas_->nodes() == 1)
-        os << "    " << p << "start;\n    " << p << "kinematics [label=\"link kinematics\\nper-thread parts\"];\n    " << p
-           << "start -> " << p << "kinematics;\n";
-      else
-        os << "    " << p << "start [label=\"start\\n(link kinematics, all links)\"];\n";
-      const std::string src = arenas_->nodes() == 1 ? p + "kinematics" : p + "start";
-      for (const char* mod : {"chain_forces", "pulley_contact", "inertia_decomposition"})
-        os << "    " << p << mod << " [label=\"" << mod << "\\nper-thread parts, grain " << grain_ << "\"];\n"
-           << "    " << src << " -> " << p << mod << ";\n";
-      if (n == 0) os << "    " << p << "other_forces;\n    " << src << " -> " << p << "other_forces;\n";
-      if (arenas_->nodes() == 1) {
-        os << "    " << p << "gather [label=\"gather\\nper-thread parts\"];\n    " << p
-           << "gather_shafts;\n    " << p << "accelerations [label=\"accelerations + stage update\\nper-thread parts\"];\n";
-        for (const char* mod : {"chain_forces", "pulley_contact", "other_forces", "inertia_decomposition"})
-          os << "    " << p << mod << " -> {" << p << "gather " << p << "gather_shafts};\n";
-        os << "    {" << p << "gather " << p << "gather_shafts} -> " << p << "accelerations;\n";
+         << bounds_[n + 1] << "), " << arenas_->threads(n) << " threads\";\n    " << p << "start;\n";
+      for (const StageDecl& s : kStages)
+        if (runs_on(n, s)) os << "    " << p << s.name << " [label=\"" << label(s) << "\"];\n";
+      for (const StageDecl& s : kStages) {
+        if (!runs_on(n, s)) continue;
+        if (s.after == 0) os << "    " << p << "start -> " << p << s.name << ";\n";
+        for (const StageDecl& d : kStages) {
+          if (!contains(s.after, d.id)) continue;
+          os << "    " << prefix(runs_on(n, d) ? n : 0) << d.name << " -> " << p << s.name;
+          if (phase_[stage_index(d.id)] != phase_[stage_index(s.id)]) os << " [style=dashed, label=\"all nodes\"]";
+          os << ";\n";
+        }
       }
       os << "  }\n";
     }
-    if (arenas_->nodes() > 1)
-      os << "  all_nodes_modules -> gather_phase -> accelerations_phase [style=dashed, label=\"cross-node\"];\n";
     os << "}\n";
     return os.str();
   }
@@ -157,7 +121,10 @@ class FlowGraphSchedule final : public Schedule {
       begin_status_update(m_, ws_, t, y);
     }
     const auto pass = [&](int n) {
-      pins(n, kStatus, Section::status, [this](int b, int e) { update_status_joints(m_, ws_, b, e); }, coarse(n));
+      pins(n, kStatusPass, [this, n](int b, int e) {
+        ScopedTimer tm(prof_, worker(n), Section::status);
+        update_status_joints(m_, ws_, b, e);
+      }, coarse(n));
     };
     if (arenas_->nodes() == 1) {
       if (inside_) pass(0);
@@ -195,31 +162,30 @@ class FlowGraphSchedule final : public Schedule {
   }
 
  private:
+  // One node's graph of one phase (with one NUMA node: of the whole stage).
   struct Part {
     std::unique_ptr<flow::graph> graph;
     std::unique_ptr<flow::broadcast_node<Msg>> start;
     std::vector<std::unique_ptr<flow::continue_node<Msg>>> nodes;
+    void run() {
+      if (nodes.empty()) return;
+      start->try_put(Msg());
+      graph->wait_for_all();
+    }
   };
 
-  // Runs f(b, e) over the node's pin segment in chunks of `grain` pins (default: the
-  // configured grain, for the expensive chain kernel; the cheap passes use coarse chunks,
-  // two per thread, since a task costs a fraction of a microsecond).
+  // Runs f(b, e) over the node's pin segment in chunks of `grain` pins (the configured
+  // grain for the expensive chain kernel; the cheap passes use coarse chunks, two per
+  // thread, since a task costs a fraction of a microsecond).
   // Every pass gives a pin to the same thread while all are awake (owner-preferred parts,
   // below), so that its data stays in that core's cache (a cache line moved between cores
   // costs about 80 ns here, and a stage touches ~2000).
-  enum Pass { kKinematics, kChain, kPulley, kInertia, kGather, kFinish, kStatus, kPasses };
-  // Each chunk is timed as `sec` on the worker that runs it when profiling
-  // (Section::count: f times itself).
+  // The passes: the stages of the table, then the status update.
+  static constexpr int kStatusPass = kStageCount, kPasses = kStageCount + 1;
   template <class F>
-  void pins(int n, Pass pass, Section sec, const F& f, int grain = 0) {
-    if (grain == 0) grain = grain_;
-    const auto chunk = [&](int b, int e) {
-      if (!prof_ || sec == Section::count) return f(b, e);
-      ScopedTimer tm(prof_, worker(n), sec);
-      f(b, e);
-    };
+  void pins(int n, int pass, const F& f, int grain) {
     const int T = arenas_->threads(n), b0 = bounds_[n], len = bounds_[n + 1] - b0;
-    if (T == 1) return chunk(b0, b0 + len);
+    if (T == 1) return f(b0, b0 + len);
     // Owner-preferred parts (docs/runtime.md): the segment is cut into parts of about
     // `grain` pins, c per thread; thread k runs its own parts [k c, (k+1) c) first, then
     // takes what is left from the end. A pin thus stays on the same thread in every pass
@@ -235,7 +201,7 @@ class FlowGraphSchedule final : public Schedule {
           const int me = tbb::this_task_arena::current_thread_index();
           const auto run = [&](int p) {
             if (claim[p].exchange(1, std::memory_order_acq_rel)) return;
-            chunk(b0 + p * len / P, b0 + (p + 1) * len / P);
+            f(b0 + p * len / P, b0 + (p + 1) * len / P);
           };
           if (me >= 0 && me < T)
             for (int p = me * c; p < (me + 1) * c; ++p) run(p);
@@ -246,23 +212,16 @@ class FlowGraphSchedule final : public Schedule {
   // This thread's index among all the schedule's threads (arena n's slots come after
   // those of the nodes before it).
   int worker(int n) const { return offset_[n] + tbb::this_task_arena::current_thread_index(); }
-  // Accelerations and dy of joints [b, e) (b < 0: the shafts), then the stage update,
-  // timed apart.
-  void finish(int n, int b, int e) {
-    const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
-    if (b < 0) finish_shafts(m_, ws_, dy_, nullptr);
-    else finish_joints(m_, ws_, dy_, nullptr, b, e);
-    const std::uint64_t t1 = prof_ ? Profiler::ticks() : 0;
-    if (op_) {
-      if (b < 0) stage_update_shafts(m_, op_, dy_);
-      else stage_update_joints(m_, op_, dy_, b, e);
-    }
-    if (prof_) {
-      const int w = worker(n);
-      prof_->add(w, Section::accel, t1 - t0);
-      prof_->add(w, Section::update, Profiler::ticks() - t1);
-    }
+  // Stage s on node n: its pins of the node's segment, then (node 0) its part off the pins.
+  void run(int n, const StageDecl& s) {
+    if (s.pins)
+      pins(n, stage_index(s.id), [this, n, &s](int b, int e) {
+        run_stage_pins(s, args_, prof_, prof_ ? worker(n) : 0, b, e);
+      }, s.split == Split::fine ? grain_ : coarse(n));
+    if (n == 0) run_stage_once(s, args_, prof_, prof_ ? worker(0) : 0);
   }
+  // Once stages run on node 0 only.
+  static bool runs_on(int n, const StageDecl& s) { return n == 0 || s.split != Split::once; }
   int coarse(int n) const {
     const int len = bounds_[n + 1] - bounds_[n], chunks = 2 * arenas_->threads(n);
     return std::max(1, (len + chunks - 1) / chunks);
@@ -297,9 +256,9 @@ class FlowGraphSchedule final : public Schedule {
       for (Eigen::VectorXd* v : {&ws_.force, &ws_.accel, &ws_.accel_free})
         mv.note(numa::migrate_to_node(*arenas_, v->data() + m_.joint(b), sizeof(double) * kJointSize * (e - b), n));
       arenas_->execute_on(n, [&] {
-        pins(n, kChain, Section::count, [&](int pb, int pe) {
+        pins(n, stage_index(StageId::chain_forces), [&](int pb, int pe) {
           for (int j = pb; j < pe; ++j) ws_.chain_slots[j].clear(), ws_.pulley_slots[j].clear(), ws_.inertia_slots[j].clear();
-        });
+        }, grain_);
       });
     }
     placement_ = mv.text("per-node array segments");
@@ -316,70 +275,67 @@ class FlowGraphSchedule final : public Schedule {
     placement_ += "; " + mv.text("per-node state segments (q, v of the integrator's vectors)");
   }
 
-  // Declares node n's graph; it reads like the DAG of a stage.
-  void build(int n, bool whole_stage) {
-    Part& p = parts_[n];
-    p.graph = std::make_unique<flow::graph>();
-    flow::graph& g = *p.graph;
-    p.start = std::make_unique<flow::broadcast_node<Msg>>(g);
-    const auto node = [&](auto body) {
-      p.nodes.push_back(std::make_unique<flow::continue_node<Msg>>(g, [this, body](const Msg&) {
-        if (!empty_) body();
-      }));
-      return p.nodes.back().get();
-    };
-    // Module nodes, traced when asked (spans_[slot] of node n's stage).
-    const auto module = [&](int slot, auto body) {
-      return node([this, n, slot, body] {
-        if (!tracing_) return body();
-        NodeSpan& s = spans_[4 * n + slot];
-        s.begin = now();
-        body();
-        s.end = now();
-      });
-    };
-    // One node: start -> kinematics -> modules. Several: start -> modules.
-    flow::sender<Msg>* source = p.start.get();
-    if (whole_stage) {
-      auto* kin = node([this, n] {
-        pins(n, kKinematics, Section::inertia, [this](int b, int e) { link_kinematics(m_, ws_, b, e); }, coarse(n));
-      });
-      flow::make_edge(*p.start, *kin);
-      source = kin;
+  // With several NUMA nodes: the phase of each stage, the first after every stage it reads
+  // that it must wait for on all nodes (it reads that stage's results at neighbouring pins,
+  // or one of the two is a call on node 0 alone).
+  void cut_phases() {
+    for (const StageDecl& s : kStages) {
+      int p = 0;
+      for (const StageDecl& d : kStages) {
+        if (!contains(s.after, d.id)) continue;
+        const bool cut = contains(s.neighbours, d.id) || d.split == Split::once || s.split == Split::once;
+        p = std::max(p, phase_[stage_index(d.id)] + (cut ? 1 : 0));
+      }
+      phase_[stage_index(s.id)] = p;
+      phases_ = std::max(phases_, p + 1);
     }
-    auto* chain = module(0, [this, n] {
-      pins(n, kChain, Section::chain, [this](int b, int e) { chain_forces(m_, ws_, b, e, extras_); });
-    });
-    auto* pulley = module(1, [this, n] {
-      pins(n, kPulley, Section::pulley, [this](int b, int e) { pulley_contact(m_, ws_, b, e, extras_); }, coarse(n));
-    });
-    auto* inertia = module(2, [this, n] {
-      pins(n, kInertia, Section::inertia, [this](int b, int e) { inertia_decomposition(m_, ws_, b, e); }, coarse(n));
-    });
-    std::vector<flow::continue_node<Msg>*> modules = {chain, pulley, inertia};
-    if (n == 0) modules.push_back(module(3, [this] {
-      ScopedTimer tm(prof_, worker(0), Section::other);
-      other_forces(m_, ws_);
-    }));
-    for (auto* mod : modules) flow::make_edge(*source, *mod);
-    if (!whole_stage) return;
-    auto* gather = node([this, n] {
-      pins(n, kGather, Section::accel, [this](int b, int e) { gather_joints(m_, ws_, b, e); }, coarse(n));
-    });
-    auto* shafts = node([this] {
-      ScopedTimer tm(prof_, worker(0), Section::accel);
-      gather_shafts(m_, ws_);
-    });
-    auto* accel = node([this, n] {
-      pins(n, kFinish, Section::count, [this, n](int b, int e) { finish(n, b, e); }, coarse(n));
-      finish(n, -1, -1);
-    });
-    for (auto* mod : modules) {
-      flow::make_edge(*mod, *gather);
-      flow::make_edge(*mod, *shafts);
+  }
+
+  // Declares node n's graphs, one per phase: a continue_node per stage of the table that
+  // runs on the node, an edge per dependency within the phase, the start into the others.
+  void build(int n) {
+    parts_[n].resize(phases_);
+    for (int ph = 0; ph < phases_; ++ph) {
+      Part& p = parts_[n][ph];
+      p.graph = std::make_unique<flow::graph>();
+      p.start = std::make_unique<flow::broadcast_node<Msg>>(*p.graph);
+      std::array<flow::continue_node<Msg>*, kStageCount> made{};
+      for (const StageDecl& s : kStages) {
+        if (phase_[stage_index(s.id)] != ph || !runs_on(n, s)) continue;
+        p.nodes.push_back(std::make_unique<flow::continue_node<Msg>>(*p.graph, [this, n, &s](const Msg&) {
+          if (empty_) return;
+          if (!tracing_) return run(n, s);
+          NodeSpan& span = spans_[n * kStageCount + stage_index(s.id)];
+          span.begin = now();
+          run(n, s);
+          span.end = now();
+        }));
+        flow::continue_node<Msg>* node = made[stage_index(s.id)] = p.nodes.back().get();
+        bool fed = false;
+        for (const StageDecl& d : kStages)
+          if (contains(s.after, d.id) && made[stage_index(d.id)]) {
+            flow::make_edge(*made[stage_index(d.id)], *node);
+            fed = true;
+          }
+        if (!fed) flow::make_edge(*p.start, *node);
+      }
     }
-    flow::make_edge(*gather, *accel);
-    flow::make_edge(*shafts, *accel);
+  }
+
+  static std::string prefix(int n) {
+    // (Built with += : GCC 12 warns falsely, -Wrestrict, on "n" + std::to_string(n).)
+    std::string p = "n";
+    p += std::to_string(n);
+    p += '_';
+    return p;
+  }
+  std::string label(const StageDecl& s) const {
+    std::string l = s.name;
+    if (s.update_pins) l += " + stage update";
+    if (s.split == Split::fine) l += "\\nper-thread parts, grain " + std::to_string(grain_);
+    else if (s.split == Split::coarse) l += "\\nper-thread parts";
+    if (phases_ > 1) l += "\\nphase " + std::to_string(phase_[stage_index(s.id)]);
+    return l;
   }
 
   const Model& m_;
@@ -388,10 +344,10 @@ class FlowGraphSchedule final : public Schedule {
   numa::Topology topo_;
   std::unique_ptr<numa::NodeArenas> arenas_;
   std::vector<int> bounds_, offset_;
-  std::vector<Part> parts_;
-  double* dy_ = nullptr;
-  const StageOp* op_ = nullptr;
-  FrictionExtras extras_;  // what the evaluation in progress is asked for besides f
+  std::vector<std::vector<Part>> parts_;  // [NUMA node][phase]
+  std::array<int, kStageCount> phase_{};  // all 0 with one NUMA node
+  int phases_ = 1;
+  StageArgs args_{m_, ws_};  // the evaluation in progress
   bool empty_ = false, tracing_ = false;
   bool inside_ = false;  // the master is in arena 0 (within())
   std::vector<NodeSpan> spans_;

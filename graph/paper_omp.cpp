@@ -2,18 +2,15 @@
 // one parallel region per RHS in which every thread zeroes its thread-local force
 // buffers, runs static loops over the pins for chain forces and pulley contact adding
 // into its buffers, and then gathers a slice of the buffers into the common vectors;
-// everything else (other forces, inertia, the solve) runs serially. Each coordinate gets
-// at most two contributions per module, so the buffer sums equal the ordered gather to
-// the bit (engine/rhs/rhs.hpp) and the trajectory is that of the serial schedule.
+// everything else (the rest of the stage table: other forces, inertia, the solve) runs
+// serially. Each coordinate gets at most two contributions per module, so the buffer sums
+// equal the ordered gather to the bit (engine/rhs/rhs.hpp) and the trajectory is that of
+// the serial schedule.
 #include <omp.h>
 
 #include <vector>
 
 #include "graph/schedule.hpp"
-#include "modules/chain_forces.hpp"
-#include "modules/inertia.hpp"
-#include "modules/other_forces.hpp"
-#include "modules/pulley_contact.hpp"
 
 namespace cvt {
 
@@ -27,16 +24,70 @@ class PaperOmpSchedule final : public Schedule {
         csum_(size_), psum_(size_), times_(threads) {}
 
   void rhs(double t, const double* y, double* dy, const StageOp* op, const FrictionExtras& x) override {
+    set_stage_input(m_, ws_, t, y);
+    if (prof_) prof_->call_rhs(op != nullptr);
+    const StageArgs a{m_, ws_, dy, op, x};
+    // The table top to bottom on the master, but for the published parallel region (chain
+    // and pulley forces into the thread buffers) and the gather from the buffers' sums.
+    for (const StageDecl& s : kStages) {
+      if (s.id == StageId::chain_forces) {
+        parallel_region(a);
+      } else if (s.id == StageId::pulley_contact) {
+        continue;  // in the region
+      } else if (s.id == StageId::gather) {
+        ScopedTimer tm(prof_, 0, s.section);
+        gather_joints_from_sums(m_, ws_, csum_.data(), psum_.data(), 0, m_.links);
+      } else {
+        run_stage(s, a, prof_, 0);
+      }
+    }
+  }
+
+  // The published code updated its contact events serially.
+  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
+
+  std::string describe() const override {
+    return "paper-omp (" + std::to_string(threads_) + " OpenMP threads, static loops, thread-local buffers)";
+  }
+  std::string graphviz() const override {
+    std::string dot = "digraph stage {\n  rankdir=LR;\n  start";
+    for (const StageDecl& s : kStages) {
+      if (s.id == StageId::pulley_contact) continue;
+      if (s.id == StageId::chain_forces) {
+        dot += " -> zero_buffers;\n  subgraph cluster_omp { label=\"omp parallel\"; zero_buffers -> chain_forces -> "
+               "pulley_contact -> gather_buffers; }\n  gather_buffers";
+        continue;
+      }
+      (dot += " -> ") += s.name;
+    }
+    dot += ";\n  gather [label=\"gather\\nfrom the buffers' sums\"];\n  accelerations [label=\"accelerations\\n+ stage "
+           "update\"];\n}\n";
+    return dot;
+  }
+  int threads() const override { return threads_; }
+  ScheduleCounters counters() const override {
+    ScheduleCounters c;
+    for (const Times& t : times_) {
+      c.zero_s += t.zero;
+      c.compute_s += t.compute;
+      c.gather_s += t.gather;
+    }
+    return c;
+  }
+
+ private:
+  // The published region: chain and pulley forces of the thread's static block of pins,
+  // each pin's slot added into the thread's buffers, then the buffers summed.
+  static constexpr PinKernel kChain = stage(StageId::chain_forces).pins;
+  static constexpr PinKernel kPulley = stage(StageId::pulley_contact).pins;
+  static_assert(stage_index(StageId::pulley_contact) == stage_index(StageId::chain_forces) + 1 &&
+                    stage(StageId::pulley_contact).after == stage(StageId::chain_forces).after,
+                "one region runs chain and pulley forces: neighbours in the table, reading the same stages");
+  void parallel_region(const StageArgs& a) {
     const Model& m = m_;
     Workspace& ws = ws_;
-    set_stage_input(m, ws, t, y);
     const int N = m.links;
     Profiler* prof = prof_;
-    if (prof) prof->call_rhs(op != nullptr);
-    {
-      ScopedTimer tm(prof, 0, Section::inertia);
-      link_kinematics(m, ws, 0, N);
-    }
 #pragma omp parallel num_threads(threads_)
     {
       const int th = omp_get_thread_num();
@@ -52,7 +103,7 @@ class PaperOmpSchedule final : public Schedule {
       // time of each thread is timed without its wait.)
 #pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
-        chain_forces(m, ws, j, j + 1, x);
+        kChain(a, j, j + 1);
         scatter_slot(m, ws.chain_slots[j], j, cb);
       }
       const std::uint64_t c2 = prof ? Profiler::ticks() : 0;
@@ -60,7 +111,7 @@ class PaperOmpSchedule final : public Schedule {
       const std::uint64_t c3 = prof ? Profiler::ticks() : 0;
 #pragma omp for schedule(static) nowait
       for (int j = 0; j < N; ++j) {
-        pulley_contact(m, ws, j, j + 1, x);
+        kPulley(a, j, j + 1);
         scatter_slot(m, ws.pulley_slots[j], j, pb);
       }
       const std::uint64_t c4 = prof ? Profiler::ticks() : 0;
@@ -89,46 +140,8 @@ class PaperOmpSchedule final : public Schedule {
         prof->add(th, Section::pulley, c4 - c3);
       }
     }
-    {
-      ScopedTimer tm(prof, 0, Section::other);
-      other_forces(m, ws);
-    }
-    {
-      ScopedTimer tm(prof, 0, Section::inertia);
-      inertia_decomposition(m, ws, 0, N);
-    }
-    {
-      ScopedTimer tm(prof, 0, Section::accel);
-      gather_joints_from_sums(m, ws, csum_.data(), psum_.data(), 0, N);
-      gather_shafts(m, ws);
-    }
-    finish_stage(m, ws, dy, op, prof);
   }
 
-  // The published code updated its contact events serially.
-  void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
-
-  std::string describe() const override {
-    return "paper-omp (" + std::to_string(threads_) + " OpenMP threads, static loops, thread-local buffers)";
-  }
-  std::string graphviz() const override {
-    return "digraph stage {\n  rankdir=LR;\n  start -> link_kinematics -> omp_parallel;\n"
-           "  subgraph cluster_omp { label=\"omp parallel\"; zero_buffers -> chain_forces -> pulley_contact -> "
-           "gather_buffers; }\n  omp_parallel -> zero_buffers; gather_buffers -> other_forces -> "
-           "inertia_decomposition -> gather -> accelerations -> stage_update;\n}\n";
-  }
-  int threads() const override { return threads_; }
-  ScheduleCounters counters() const override {
-    ScheduleCounters c;
-    for (const Times& t : times_) {
-      c.zero_s += t.zero;
-      c.compute_s += t.compute;
-      c.gather_s += t.gather;
-    }
-    return c;
-  }
-
- private:
   struct alignas(64) Times {
     double zero = 0, compute = 0, gather = 0;
   };

@@ -1,6 +1,6 @@
-// How one RHS evaluation is scheduled: the same kernels and passes
-// (engine/rhs/rhs.hpp) run module after module on one thread, as a oneTBB flow graph per
-// NUMA arena, or as the published OpenMP scheme. All three give the same bits.
+// How one RHS evaluation is scheduled: the same stages and kernels (the stage DAG of
+// engine/rhs/stages.hpp) run top to bottom on one thread, as a oneTBB flow graph per NUMA
+// arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
 #include <functional>
@@ -11,6 +11,7 @@
 
 #include "engine/rhs/profile.hpp"
 #include "engine/rhs/rhs.hpp"
+#include "engine/rhs/stages.hpp"
 
 namespace cvt {
 
@@ -66,7 +67,8 @@ class Schedule {
   // was taken, the caller runs f itself.
   virtual bool enqueue(std::function<void()>&& f) { return false; }
   virtual std::string describe() const = 0;
-  // GraphViz of one stage (flowgraph; a chain of passes for the others).
+  // GraphViz of one evaluation: the table's stages (engine/rhs/stages.hpp) as this schedule
+  // runs them (flowgraph: its nodes and edges; the others: the order they run them in).
   virtual std::string graphviz() const = 0;
   virtual int threads() const = 0;
   virtual ScheduleCounters counters() const { return {}; }
@@ -88,16 +90,13 @@ class Schedule {
   Profiler* prof_ = nullptr;
 };
 
-// After a step of any method: the contact statuses for the next step at (t, y), scheduled
-// like the RHS, and the contact energy they switched in or out added to y's work integral
-// (docs/model.md 4.4).
-inline void update_statuses_after_step(const Model& m, Schedule& s, const Workspace& ws, double t,
-                                       Eigen::VectorXd& y) {
-  s.update_status(t, y.data());
-  y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
-}
-
-// Builds the schedule for model m over workspace ws (both must outlive it).
+// Builds the schedule for model m over workspace ws (both must outlive it)
+// (graph/schedule.cpp).
 std::unique_ptr<Schedule> make_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
+
+// The schedules make_schedule chooses from (graph/serial.cpp, flowgraph.cpp, paper_omp.cpp).
+std::unique_ptr<Schedule> make_serial_schedule(const Model& m, Workspace& ws);
+std::unique_ptr<Schedule> make_flowgraph_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
+std::unique_ptr<Schedule> make_paper_omp_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
 
 }  // namespace cvt

@@ -1,6 +1,4 @@
-// The serial schedule: one thread, module after module (the baseline).
-#include <stdexcept>
-
+// The serial schedule: one thread, the stage table top to bottom (the baseline).
 #include "graph/schedule.hpp"
 
 namespace cvt {
@@ -16,8 +14,10 @@ class SerialSchedule final : public Schedule {
   void update_status(double t, const double* y) override { update_contact_status(m_, ws_, t, y, prof_); }
   std::string describe() const override { return "serial (1 thread)"; }
   std::string graphviz() const override {
-    return "digraph stage {\n  rankdir=LR;\n  start -> link_kinematics -> chain_forces -> pulley_contact -> "
-           "other_forces -> inertia_decomposition -> gather -> accelerations -> stage_update;\n}\n";
+    std::string dot = "digraph stage {\n  rankdir=LR;\n  start";
+    for (const StageDecl& s : kStages) (dot += " -> ") += s.name;
+    dot += ";\n  accelerations [label=\"accelerations\\n+ stage update\"];\n}\n";
+    return dot;
   }
   int threads() const override { return 1; }
 
@@ -28,34 +28,8 @@ class SerialSchedule final : public Schedule {
 
 }  // namespace
 
-std::unique_ptr<Schedule> make_flowgraph_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
-std::unique_ptr<Schedule> make_paper_omp_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt);
-
-SchedulerKind parse_scheduler(const std::string& name) {
-  if (name == "serial") return SchedulerKind::serial;
-  if (name == "flowgraph") return SchedulerKind::flowgraph;
-  if (name == "paper-omp") return SchedulerKind::paper_omp;
-  throw std::invalid_argument("unknown scheduler '" + name + "' (serial, flowgraph or paper-omp)");
-}
-
-const char* scheduler_name(SchedulerKind kind) {
-  switch (kind) {
-    case SchedulerKind::serial: return "serial";
-    case SchedulerKind::flowgraph: return "flowgraph";
-    case SchedulerKind::paper_omp: return "paper-omp";
-  }
-  return "?";
-}
-
-std::unique_ptr<Schedule> make_schedule(const Model& m, Workspace& ws, const ScheduleOptions& opt) {
-  if (opt.threads < 1) throw std::invalid_argument("threads must be >= 1");
-  if (opt.grain < 1) throw std::invalid_argument("grain must be >= 1");
-  switch (opt.kind) {
-    case SchedulerKind::serial: return std::make_unique<SerialSchedule>(m, ws);
-    case SchedulerKind::flowgraph: return make_flowgraph_schedule(m, ws, opt);
-    case SchedulerKind::paper_omp: return make_paper_omp_schedule(m, ws, opt);
-  }
-  throw std::invalid_argument("unknown scheduler");
+std::unique_ptr<Schedule> make_serial_schedule(const Model& m, Workspace& ws) {
+  return std::make_unique<SerialSchedule>(m, ws);
 }
 
 }  // namespace cvt

@@ -8,6 +8,7 @@
 
 #include "modules/beam.hpp"
 #include "modules/contact_laws.hpp"
+#include "modules/damping.hpp"
 
 namespace cvt {
 namespace {
@@ -223,9 +224,10 @@ struct ChainConstants {
   A4 zeta4[kMaxPlateGroups], valid4[kMaxPlateGroups];
   explicit ChainConstants(const Model& m) {
     const Config& c = m.cfg;
-    kpl = c.chain.plate_stiffness, cpl = c.chain.plate_damping * m.damp;
-    crk = c.rocker.stiffness, brk = c.rocker.damping * m.damp;
-    ks = c.chain.pack_stiffness, cs = c.chain.pack_damping * m.damp;
+    const Damping d = damping(m);
+    kpl = c.chain.plate_stiffness, cpl = d.plate;
+    crk = c.rocker.stiffness, brk = d.rocker;
+    ks = c.chain.pack_stiffness, cs = d.pack;
     kkeep = c.rocker.keeper_stiffness;
     law = c.friction.law;
     f0 = c.friction.f0, v0 = c.friction.v0;
@@ -528,11 +530,12 @@ double link_tension(const Model& m, const Workspace& ws, int j) {
   const double* vb = ws.v + m.half_b(j);
   const double* qn = ws.q + m.half_a(j + 1);
   const double* vn = ws.v + m.half_a(j + 1);
+  const double cpl = damping(m).plate;
   double T = 0;
   for (double zeta : m.plate_zeta) {
     const PlateEval e = plate_eval(m, qb, vb, qn, vn, ws.q[m.pack(j)], ws.v[m.pack(j)], zeta);
     if (e.stretch > 0)
-      T += m.cfg.chain.plate_stiffness * e.stretch + m.cfg.chain.plate_damping * m.damp * e.rate;
+      T += m.cfg.chain.plate_stiffness * e.stretch + cpl * e.rate;
   }
   return T;
 }
@@ -542,15 +545,16 @@ void plate_tensions(const Model& m, const Workspace& ws, int j, double* out) {
   const double* vb = ws.v + m.half_b(j);
   const double* qn = ws.q + m.half_a(j + 1);
   const double* vn = ws.v + m.half_a(j + 1);
+  const double cpl = damping(m).plate;
   for (std::size_t k = 0; k < m.plate_zeta.size(); ++k) {
     const PlateEval e = plate_eval(m, qb, vb, qn, vn, ws.q[m.pack(j)], ws.v[m.pack(j)], m.plate_zeta[k]);
-    out[k] = e.stretch > 0 ? m.cfg.chain.plate_stiffness * e.stretch + m.cfg.chain.plate_damping * m.damp * e.rate : 0.0;
+    out[k] = e.stretch > 0 ? m.cfg.chain.plate_stiffness * e.stretch + cpl * e.rate : 0.0;
   }
 }
 
 double rocker_force(const Model& m, const Workspace& ws, int j) {
   const int nst = m.cfg.rocker.stations;
-  const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
+  const double crk = m.cfg.rocker.stiffness, brk = damping(m).rocker;
   double F = 0;
   for (int st = 0; st < nst; ++st) {
     if (!ws.status.rocker[j * nst + st]) continue;
@@ -611,7 +615,7 @@ double half_axial_force(const Model& m, const double* q, const double* v, int o)
 
 void update_rocker_status(const Model& m, Workspace& ws, int begin, int end) {
   const int nst = m.cfg.rocker.stations;
-  const double crk = m.cfg.rocker.stiffness, brk = m.cfg.rocker.damping * m.damp;
+  const double crk = m.cfg.rocker.stiffness, brk = damping(m).rocker;
   HermiteWeights sh[kMaxStations];
   for (int st = 0; st < nst; ++st) sh[st] = hermite(m.station_xi[st], m.L0);
   for (int j = begin; j < end; ++j) {

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "modules/damping.hpp"
+
 namespace cvt {
 
 namespace {
@@ -37,7 +39,7 @@ void other_forces(const Model& m, Workspace& ws) {
   o.p_diss = o.p_in = o.p_out = o.p_clamp = 0.0;
   const double* q = ws.q;
   const double* v = ws.v;
-  const double d = m.damp;
+  const Damping d = damping(m);
   // 4.6.1 supports: two radial bearings at z = -+l_b, an axial bearing.
   for (int k = 0; k < 2; ++k) {
     const double* s = q + m.shaft(k);
@@ -48,7 +50,7 @@ void other_forces(const Model& m, Workspace& ws) {
       const double dx = s[kUx] + s[kTy] * zb, dy = s[kUy] - s[kTx] * zb;
       const double ddx = sv[kUx] + sv[kTy] * zb, ddy = sv[kUy] - sv[kTx] * zb;
       const double stiff = c.bearing.k1 + c.bearing.k3 * (dx * dx + dy * dy);
-      const double cr = c.bearing.radial_damping * d;
+      const double cr = d.bearing_radial;
       const double Fx = stiff * dx + cr * ddx, Fy = stiff * dy + cr * ddy;  // force on the bearing
       o.p_diss += cr * (ddx * ddx + ddy * ddy);
       f[kUx] -= Fx;
@@ -57,25 +59,25 @@ void other_forces(const Model& m, Workspace& ws) {
       f[kTy] -= Fx * zb;
       o.support_force[k][b] = std::sqrt(Fx * Fx + Fy * Fy);
     }
-    const double ca = c.bearing.axial_damping * d;
+    const double ca = d.bearing_axial;
     f[kUz] -= c.bearing.axial_stiffness * s[kUz] + ca * sv[kUz];
     o.p_diss += ca * sv[kUz] * sv[kUz];
     // Moving sheave sliding on its shaft.
-    const double cw = c.clamping.sheave_damping * d;
+    const double cw = d.sheave;
     f[kW] -= cw * sv[kW];
     o.p_diss += cw * sv[kW] * sv[kW];
   }
   // 4.6.2 drive: torsion spring-damper from the prescribed input angle.
   const int p1 = m.shaft(0) + kPhi, p2 = m.shaft(1) + kPhi, pl = m.load_index();
   const double win = c.drive.speed;
-  const double ct = c.drive.damping * d;
+  const double ct = d.drive;
   const double Min = c.drive.stiffness * (input_angle(m, ws.t) - q[p1]) + ct * (win - v[p1]);
   o.f[kPhi] += Min;
   o.input_torque = Min;
   o.p_in = Min * win;
   o.p_diss += ct * (win - v[p1]) * (win - v[p1]);
   // 4.6.3 load: torsion spring-damper to the load inertia, load torque on it.
-  const double cl = c.load.damping * d;
+  const double cl = d.load;
   const double Ms = c.load.stiffness * (q[p2] - q[pl]) + cl * (v[p2] - v[pl]);
   o.f[kShaftSize + kPhi] -= Ms;
   o.f[2 * kShaftSize] += Ms;

@@ -6,6 +6,7 @@
 
 #include "modules/beam.hpp"
 #include "modules/contact_laws.hpp"
+#include "modules/damping.hpp"
 
 namespace cvt {
 namespace {
@@ -130,7 +131,7 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
                           const FrictionExtras& x) {
   FrictionJacobian* jac = x.jacobian;
   const Config& c = m.cfg;
-  const double cn = c.pulley_contact.stiffness, bn = c.pulley_contact.damping * m.damp;
+  const double cn = c.pulley_contact.stiffness, bn = damping(m).pulley_contact;
   const double R = c.pulley_contact.end_radius;
   const FrictionLaw law = c.friction.law;
   const double f0 = c.friction.f0, v0 = c.friction.v0;
@@ -281,7 +282,7 @@ double max_pulley_penetration(const Model& m, const double* q, int* joint) {
 }
 
 void update_pulley_status(const Model& m, Workspace& ws, int begin, int end) {
-  const double cn = m.cfg.pulley_contact.stiffness, bn = m.cfg.pulley_contact.damping * m.damp;
+  const double cn = m.cfg.pulley_contact.stiffness, bn = damping(m).pulley_contact;
   for (int j = begin; j < end; ++j)
     for (int h = 0; h < 2; ++h) {
       const int o = h == 0 ? m.half_a(j) : m.half_b(j);

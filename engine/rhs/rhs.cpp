@@ -1,5 +1,6 @@
 #include "engine/rhs/rhs.hpp"
 
+#include "engine/rhs/stages.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
 #include "modules/other_forces.hpp"
@@ -148,50 +149,12 @@ void gather_forces(const Model& m, Workspace& ws) {
   gather_shafts(m, ws);
 }
 
-void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, Profiler* prof) {
-  {
-    ScopedTimer tm(prof, 0, Section::accel);
-    finish_joints(m, ws, dy, nullptr, 0, m.links);
-    finish_shafts(m, ws, dy, nullptr);
-  }
-  if (op) {
-    ScopedTimer tm(prof, 0, Section::update);
-    stage_update_joints(m, op, dy, 0, m.links);
-    stage_update_shafts(m, op, dy);
-  }
-}
-
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy, const StageOp* op,
                 Profiler* prof, const FrictionExtras& x) {
   if (prof) prof->call_rhs(op != nullptr);
   set_stage_input(m, ws, t, y);
-  const int N = m.links;
-  {
-    ScopedTimer tm(prof, 0, Section::inertia);
-    link_kinematics(m, ws, 0, N);
-  }
-  {
-    ScopedTimer tm(prof, 0, Section::chain);
-    chain_forces(m, ws, 0, N, x);
-  }
-  {
-    ScopedTimer tm(prof, 0, Section::pulley);
-    pulley_contact(m, ws, 0, N, x);
-  }
-  {
-    ScopedTimer tm(prof, 0, Section::other);
-    other_forces(m, ws);
-  }
-  {
-    ScopedTimer tm(prof, 0, Section::inertia);
-    inertia_decomposition(m, ws, 0, N);
-  }
-  {
-    ScopedTimer tm(prof, 0, Section::accel);
-    gather_joints(m, ws, 0, N);
-    gather_shafts(m, ws);
-  }
-  finish_stage(m, ws, dy, op, prof);
+  const StageArgs a{m, ws, dy, op, x};
+  for (const StageDecl& s : kStages) run_stage(s, a, prof, 0);
 }
 
 void begin_status_update(const Model& m, Workspace& ws, double t, const double* y) {

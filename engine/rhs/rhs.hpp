@@ -41,12 +41,9 @@ void stage_update_shafts(const Model& m, const StageOp* op, double* dy);
 // Whole-vector forms of the passes (tests, benchmarks, sampling).
 void gather_forces(const Model& m, Workspace& ws);
 
-// Pass 3 and the stage update over all pins and the shafts, each timed into prof (if
-// given, as worker 0): the common tail of the serial and the paper-omp schedules.
-void finish_stage(const Model& m, Workspace& ws, double* dy, const StageOp* op, Profiler* prof = nullptr);
-
-// The serial schedule: module after module over all pins (the baseline); each pass timed
-// into prof (if given, as worker 0). With extras, the kernels' friction as they ask.
+// The serial schedule: the stages of engine/rhs/stages.hpp top to bottom, each over all
+// pins (the baseline); each timed into prof (if given, as worker 0). With extras, the
+// kernels' friction as they ask.
 void rhs_serial(const Model& m, Workspace& ws, double t, const double* y, double* dy,
                 const StageOp* op = nullptr, Profiler* prof = nullptr, const FrictionExtras& x = {});
 
@@ -58,6 +55,15 @@ void update_contact_status(const Model& m, Workspace& ws, double t, const double
 void begin_status_update(const Model& m, Workspace& ws, double t, const double* y);
 void update_status_joints(const Model& m, Workspace& ws, int begin, int end);
 void finish_status_update(const Model& m, Workspace& ws);
+
+// After a step of any method: the contact statuses for the next step at (t, y) by
+// `s.update_status(t, y)` (a schedule's, graph/schedule.hpp: it leaves the switched contact
+// energy in ws.switch_work), and that energy added to y's work integral (docs/model.md 4.4).
+template <class StatusUpdater>
+void update_statuses_after_step(const Model& m, StatusUpdater& s, const Workspace& ws, double t, Eigen::VectorXd& y) {
+  s.update_status(t, y.data());
+  y[2 * m.ndof + kWorkSwitch] += ws.switch_work;
+}
 
 // Energies of the state y at time t (docs/model.md 6).
 struct Energies {

@@ -1,13 +1,21 @@
 // Every schedule gives the same bits: the trajectory of the mini
 // model over a few hundred RK4 steps, from a perturbed state with contacts switching, is
-// compared byte for byte across schedulers, thread counts, grains and NUMA layouts.
+// compared byte for byte across schedulers, thread counts, grains and NUMA layouts; and
+// every schedule runs the stage table of engine/rhs/stages.hpp: its GraphViz names every
+// stage, and the flow graph's edges are the table's dependencies.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
+#include <regex>
+#include <set>
+#include <utility>
 
+#include "engine/rhs/stages.hpp"
 #include "engine/simulation.hpp"
+#include "graph/schedule.hpp"
 #include "tests/test_util.hpp"
 
 namespace cvt {
@@ -150,14 +158,135 @@ TEST(FlowGraphTest, ModuleNodesOverlap) {
     ++stages;
     schedule->rhs(0.0, m.y0.data(), dy.data(), nullptr);
     const auto spans = schedule->last_spans();
-    ASSERT_EQ(spans.size(), 4u);
+    ASSERT_EQ(spans.size(), static_cast<std::size_t>(kStageCount));
+    const NodeSpan* chain = nullptr;
+    for (const NodeSpan& s : spans)
+      if (s.name == "node0/chain_forces") chain = &s;
+    ASSERT_NE(chain, nullptr);
     bool any = false;
-    for (std::size_t a = 1; a < spans.size(); ++a)
-      any |= spans[a].begin < spans[0].end && spans[0].begin < spans[a].end;
+    for (const NodeSpan& s : spans)
+      any |= &s != chain && s.begin < chain->end && chain->begin < s.end;
     overlapping += any;
   }
   std::printf("stages where another module node overlapped chain_forces: %d of %d\n", overlapping, stages);
   EXPECT_GT(overlapping, 0);
+}
+
+using Edges = std::set<std::pair<std::string, std::string>>;
+
+// The table's dependencies as (from, to) stage names, with "start" into the stages that
+// depend on none.
+Edges table_edges() {
+  Edges e;
+  for (const StageDecl& s : kStages) {
+    if (s.after == 0) e.insert({"start", s.name});
+    for (const StageDecl& d : kStages)
+      if (contains(s.after, d.id)) e.insert({d.name, s.name});
+  }
+  return e;
+}
+
+// The edges of a flow-graph dump (nK_from -> nK_to), without the NUMA node's prefix.
+Edges dumped_edges(const std::string& dot) {
+  Edges e;
+  static const std::regex edge(R"(n\d+_(\w+) -> n\d+_(\w+))");
+  for (auto it = std::sregex_iterator(dot.begin(), dot.end(), edge); it != std::sregex_iterator(); ++it)
+    e.insert({(*it)[1].str(), (*it)[2].str()});
+  return e;
+}
+
+std::string dump(const Model& m, SchedulerKind kind, int threads) {
+  Workspace ws(m);
+  ScheduleOptions o;
+  o.kind = kind;
+  o.threads = threads;
+  return make_schedule(m, ws, o)->graphviz();
+}
+
+TEST(StageTableTest, FlowGraphHasOneEdgePerDependencyOfTheTable) {
+  const Model m = test::model("mini");
+  for (int threads : {1, 2}) {
+    const std::string dot = dump(m, SchedulerKind::flowgraph, threads);
+    EXPECT_EQ(dumped_edges(dot), table_edges()) << dot;
+  }
+}
+
+TEST(StageTableTest, FlowGraphOnTwoNodesHasEveryStageAndEveryDependencyOfTheTable) {
+  setenv("HWLOC_SYNTHETIC", "package:2 numa:1 core:1 pu:1", 1);
+  setenv("HWLOC_THISSYSTEM", "1", 1);
+  const Model m = test::model("mini");
+  const std::string dot = dump(m, SchedulerKind::flowgraph, 2);
+  unsetenv("HWLOC_SYNTHETIC");
+  unsetenv("HWLOC_THISSYSTEM");
+  ASSERT_NE(dot.find("cluster_1"), std::string::npos) << dot;
+  EXPECT_EQ(dumped_edges(dot), table_edges()) << dot;
+  // Per-pin stages on both nodes, once stages on node 0 alone.
+  for (const StageDecl& s : kStages) {
+    EXPECT_NE(dot.find("n0_" + std::string(s.name) + " [label"), std::string::npos) << s.name;
+    EXPECT_EQ(dot.find("n1_" + std::string(s.name) + " [label") != std::string::npos, s.split != Split::once)
+        << s.name << "\n" << dot;
+  }
+  // Where a stage reads another's results at neighbouring pins, the edge waits for all nodes.
+  EXPECT_NE(dot.find("n0_link_kinematics -> n0_chain_forces [style=dashed"), std::string::npos) << dot;
+  EXPECT_NE(dot.find("n1_gather -> n1_accelerations [style=dashed"), std::string::npos) << dot;
+}
+
+// The serial and the published schedules run the table top to bottom: their dumps name
+// every stage, each after every stage it reads.
+TEST(StageTableTest, SerialAndPaperOmpRunEveryStageAfterTheStagesItReads) {
+  const Model m = test::model("mini");
+  for (SchedulerKind kind : {SchedulerKind::serial, SchedulerKind::paper_omp}) {
+    const std::string dot = dump(m, kind, 2);
+    const auto at = [&](const StageDecl& s) { return dot.find(std::string(" ") + s.name + " "); };
+    for (const StageDecl& s : kStages) {
+      ASSERT_NE(at(s), std::string::npos) << scheduler_name(kind) << " lacks " << s.name << "\n" << dot;
+      for (const StageDecl& d : kStages) {
+        if (!contains(s.after, d.id)) continue;
+        EXPECT_LT(at(d), at(s)) << d.name << " -> " << s.name << "\n" << dot;
+      }
+    }
+  }
+}
+
+// One evaluation with an RK4 stage update, through every schedule and through the table
+// run over a split of the pins, gives the bits of rhs_serial.
+TEST(StageTableTest, EveryScheduleEvaluatesTheTableToTheBitsOfRhsSerial) {
+  const Model m = test::model("mini");
+  const Eigen::VectorXd y = test::perturbed_state(m, 3, 2e-6, 1e-4, 0.05);
+  const auto evaluate = [&](const auto& rhs) {
+    Eigen::VectorXd dy = Eigen::VectorXd::Zero(m.nstate), next = Eigen::VectorXd::Zero(m.nstate),
+                    acc = Eigen::VectorXd::Zero(m.nstate);
+    StageOp op;
+    op.base = y.data(), op.next = next.data(), op.acc = acc.data(), op.a = 0.5, op.first = true;
+    rhs(dy.data(), &op);
+    return std::make_pair(dy, next);
+  };
+  Workspace ws(m);
+  const auto reference = evaluate([&](double* dy, const StageOp* op) { rhs_serial(m, ws, 1e-4, y.data(), dy, op); });
+  EXPECT_GT(reference.first.cwiseAbs().maxCoeff(), 0.0);
+  const auto same = [&](const std::pair<Eigen::VectorXd, Eigen::VectorXd>& r, const std::string& what) {
+    EXPECT_TRUE(same_bits(reference.first, r.first) && same_bits(reference.second, r.second)) << what;
+  };
+  for (SchedulerKind kind : {SchedulerKind::serial, SchedulerKind::flowgraph, SchedulerKind::paper_omp})
+    for (int threads : {1, 2}) {
+      if (kind == SchedulerKind::serial && threads > 1) continue;
+      Workspace w(m);
+      ScheduleOptions o;
+      o.kind = kind;
+      o.threads = threads;
+      const auto s = make_schedule(m, w, o);
+      same(evaluate([&](double* dy, const StageOp* op) { s->rhs(1e-4, y.data(), dy, op); }),
+           std::string(scheduler_name(kind)) + " on " + std::to_string(threads) + " threads");
+    }
+  Workspace w(m);
+  same(evaluate([&](double* dy, const StageOp* op) {
+         set_stage_input(m, w, 1e-4, y.data());
+         const StageArgs a{m, w, dy, op, {}};
+         run_stages(kAllStages, a, [&](const auto& f) {
+           for (int b = 0; b < m.links; b += 5) f(b, std::min(b + 5, m.links));
+         });
+       }),
+       "run_stages over ranges of 5 pins");
 }
 
 }  // namespace
