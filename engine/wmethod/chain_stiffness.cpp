@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "engine/rhs/rhs.hpp"
+#include "engine/rhs/stages.hpp"
 #include "engine/wmethod/parallel.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
@@ -111,8 +112,8 @@ void ChainStiffness::items(Workspace& w, Eigen::VectorXd& yp, std::vector<double
 }
 
 void ChainStiffness::forces(Workspace& w, double t, const double* y, int color, bool threads) {
-  // The passes of an evaluation that the chain's generalized forces need: the link angles,
-  // the chain and pulley kernels, the gather. The inertia's velocity terms keep the values of
+  // The stages of an evaluation that the chain's generalized forces need (kChainForceStages
+  // of the stage table): the link angles, the chain and pulley kernels, the gather. The inertia's velocity terms keep the values of
   // the last full evaluation (a constant, which the differences cancel). With a colour: a
   // joint touches only links j-1 and j (docs/model.md 4: its halves a_j, b_j, the plates of
   // link j, the directions of links j-1 and j), so a joint next to no perturbed link keeps
@@ -125,31 +126,26 @@ void ChainStiffness::forces(Workspace& w, double t, const double* y, int color, 
       f(0, m_.links);
   };
   set_stage_input(m_, w, t, y);
-  ranges([this, &w](int b, int e) { link_kinematics(m_, w, b, e); });
-  if (color < 0) {
-    ranges([this, &w](int b, int e) {
-      chain_forces(m_, w, b, e);
-      pulley_contact(m_, w, b, e);
-    });
-  } else {
-    // Joint j is next to a perturbed link when link j-1 or link j has the colour.
-    const auto touched = [this, color](int j) { return color_[m_.wrap(j - 1)] == color || color_[j] == color; };
-    ranges([this, &w, &touched](int b, int e) {
-      for (int j = b; j < e;) {
-        if (!touched(j)) {
-          w.chain_slots[j] = chain0_[j], w.pulley_slots[j] = pulley0_[j];
-          ++j;
-          continue;
-        }
-        int k = j + 1;
-        while (k < e && touched(k)) ++k;
-        chain_forces(m_, w, j, k);
-        pulley_contact(m_, w, j, k);
-        j = k;
+  const StageArgs a{m_, w};
+  if (color < 0) return run_stages(kChainForceStages, a, ranges);
+  run_stages(stage_set(StageId::link_kinematics), a, ranges);
+  // Joint j is next to a perturbed link when link j-1 or link j has the colour.
+  const auto touched = [this, color](int j) { return color_[m_.wrap(j - 1)] == color || color_[j] == color; };
+  ranges([this, &w, &touched](int b, int e) {
+    for (int j = b; j < e;) {
+      if (!touched(j)) {
+        w.chain_slots[j] = chain0_[j], w.pulley_slots[j] = pulley0_[j];
+        ++j;
+        continue;
       }
-    });
-  }
-  ranges([this, &w](int b, int e) { gather_joints(m_, w, b, e); });
+      int k = j + 1;
+      while (k < e && touched(k)) ++k;
+      chain_forces(m_, w, j, k);
+      pulley_contact(m_, w, j, k);
+      j = k;
+    }
+  });
+  run_stages(stage_set(StageId::gather), a, ranges);
 }
 
 void ChainStiffness::pack_columns(const LinkBlock& b, PackedColumns& p) {
