@@ -395,6 +395,8 @@ Sample Simulation::sample(double next_step) {
   // taken now on the schedule (begin_w_step: the step then starts from it), read from the
   // integrator's workspace. Otherwise a diagnostic evaluation into diag_, beside the energies
   // (pure functions of the state) on the schedule's threads; the same bits either way.
+  // (The profile counts that evaluation, and the step's making when h changes, as the step's.)
+  const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
   const bool w_next = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite() &&
                       w_phase(next_step).step;
   const Eigen::VectorXd* f = &dy_;
@@ -402,7 +404,6 @@ Sample Simulation::sample(double next_step) {
     // On more than one thread the energies run beside it (they read the state and the
     // statuses, which the evaluation leaves alone), and the profile counts both as the
     // step's; serially the energies are the output's.
-    const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
     const auto evaluate = [&] { f = begin_w_step(next_step); };
     const bool beside = schedule_->threads() > 1;
     if (beside)

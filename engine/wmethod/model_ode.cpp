@@ -91,7 +91,7 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
     sys_.rhs = [this](double t, const double* z, double* dz) { eval_scaled(t, z, dz); };
   else
     sys_.rhs = [this](double t, const double* y, double* dy) { eval(t, y, dy); };
-  sys_.set_sparsity(model_jacobian_pattern(m, opt.band, opt.exact_dense_rows));
+  if (opt.sparsity) sys_.set_sparsity(model_jacobian_pattern(m, opt.band, opt.exact_dense_rows));
   sys_.sparse_jacobian = [this](double t, const double* z, Eigen::SparseMatrix<double>& jac) {
     if (!opt_.scaled) return jacobian(t, z, jac);
     // J_z = S^-1 J_y S.

@@ -22,6 +22,10 @@ struct ModelOdeOptions {
   // macro step, so rtol = atol = tol is meaningful (and so is Newton's tolerance, which
   // RADAU5-style is a fraction of rtol: a tiny rtol made Newton chase 1e-10 m).
   bool scaled = false;
+  // The Jacobian's sparsity pattern in the system (OdeSystem::sparsity), which the generic
+  // solvers' Jacobians and Newton need; the production W-step (WStep) has none (the pattern
+  // of the reference model takes tens of milliseconds to build).
+  bool sparsity = true;
   // Freeze each contact's friction branch (stick / slide) within a macro step: the first
   // evaluation of each OdeDriver macro step records it (FrozenFriction). Only
   // for the implicit methods; without it Newton diverges at h ~ 1e-6 on the kink of the

@@ -5,8 +5,15 @@
 
 namespace cvt {
 
+namespace {
+ModelOdeOptions without_sparsity(ModelOdeOptions opt) {
+  opt.sparsity = false;  // the stages need f and W alone
+  return opt;
+}
+}  // namespace
+
 WStep::WStep(const Model& m, Workspace& ws, Schedule& schedule, OdeMethod method, const ModelOdeOptions& opt)
-    : ode_(m, ws, schedule, opt), method_(method), gamma_(w_method_gamma(method)) {
+    : ode_(m, ws, schedule, without_sparsity(opt)), method_(method), gamma_(w_method_gamma(method)) {
   if (!opt.w_blocks) throw std::invalid_argument("WStep: the production step needs the chain's W (w_blocks)");
   f0_.resize(m.nstate);
   v_.resize(m.nstate);
