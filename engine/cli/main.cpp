@@ -271,10 +271,9 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
     else
       std::printf("\nrun complete: t = %.9g s in %s\n", r.model_time, out.c_str());
     std::printf("%s", format_summary(r).c_str());
-    const std::string rejected =
-        cvt::adaptive_steps(cfg) ? " (mean " + fmt_g(r.mean_step) + " s, " + std::to_string(r.rejected_steps) + " rejected)" : "";
-    std::printf("  throughput: %ld steps%s in %.1f s, %.1f us per step, %s per model second (%s, %d thread%s)\n",
-                r.steps, rejected.c_str(), r.wall_s, r.us_per_step, per_model_second(r.model_s_per_hour).c_str(),
+    // The steps, wall time and us per step are the summary's run line: this adds the
+    // wall time per model second and the schedule that gave them.
+    std::printf("  throughput: %s per model second (%s, %d thread%s)\n", per_model_second(r.model_s_per_hour).c_str(),
                 r.profile.scheduler.c_str(), r.profile.threads, r.profile.threads == 1 ? "" : "s");
     if (ra.profile) std::printf("\n%s", format_profile(r.profile).c_str());
   }

@@ -232,7 +232,7 @@ TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
                        "step before t = 0.0001 s)"),
             std::string::npos)
       << r.out;
-  EXPECT_NE(r.out.find("throughput: 20 steps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(", 20 steps (mean 1e-07 s"), std::string::npos) << r.out;
   EXPECT_TRUE(fs::exists(dir_ / "ros2.h5"));
 }
 
@@ -241,7 +241,7 @@ TEST_F(CliTest, Ros34pw2RunNamesTheMethod) {
                            "ros34.h5"});
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
   EXPECT_NE(r.out.find("ros34pw2 step = 2e-07 s (matrix every 4 steps"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("throughput: 10 steps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(", 10 steps (mean 2e-07 s"), std::string::npos) << r.out;
   EXPECT_TRUE(fs::exists(dir_ / "ros34.h5"));
 }
 
@@ -337,7 +337,7 @@ TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
   ASSERT_EQ(r.exit_code, 0) << "stderr: " << r.err << "\nstdout: " << r.out;
   for (const char* word : {"run complete", "operating point", "ros34pw2, step 8.333e-07 s", "status: ",
                            "means over t = ", "speed ratio", "efficiency", "energy balance residual",
-                           "throughput: 30 steps", "per model second"})
+                           "30 steps (mean 8.333e-07 s", "throughput: ", "per model second"})
     EXPECT_NE(r.out.find(word), std::string::npos) << "'" << word << "' missing from stdout:\n" << r.out;
   EXPECT_EQ(r.out.find("scheduling"), std::string::npos) << "the profile table without --profile:\n" << r.out;
   const std::string json = read_text(dir_ / "s.json");
