@@ -64,10 +64,10 @@ void Simulation::rk4_step(double h, bool update_status) {
 // evaluation (unless a sample of the state took it: begin_w_step), the matrix set up if due
 // and the stages with their solves (WStep::finish), then the contact statuses; then the
 // clock. Adaptive steps (integrator.tolerance) after the start-up run through the generic
-// OdeSolver (w_adaptive_step). A state gone non-finite is reported as RK4's is, by
-// check_finite() at the next sample (with the replay and the diagnosis): the step's own
-// error ("solution is not finite", or a singular matrix built from such a state) only ends
-// this step.
+// OdeSolver (w_adaptive_step). A state gone bad (not finite, or an absurd penetration) is
+// reported as RK4's is, by check_finite() at the next sample (with the replay and the
+// diagnosis): the step's own error ("solution is not finite", or a singular matrix built
+// from such a state) only ends this step.
 void Simulation::w_step(double h) {
   const WPhase p = w_phase(h);
   if (!p.step) return w_adaptive_step(h);
@@ -90,7 +90,9 @@ void Simulation::w_step(double h) {
         }
       });
     } catch (const std::exception&) {
-      if (y_.allFinite()) throw;
+      // A state gone bad (not finite, or an absurd penetration, which makes the matrix
+      // taken there singular) is a blow-up, which check_finite() names at the next sample.
+      if (state_problem(y_).empty()) throw;
       w_main_.reset(), w_startup_.reset();
     }
     // Adaptive runs count their start-up's sub-steps one by one, as their own steps.
@@ -116,7 +118,9 @@ void Simulation::w_adaptive_step(double h) {
       steps_taken_ += w_adaptive_->advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), steps_taken_);
       steps_rejected_ += w_adaptive_->stats().rejected - rejected0;
     } catch (const std::exception&) {
-      if (y_.allFinite()) throw;
+      // A state gone bad (not finite, or an absurd penetration, which makes the matrix
+      // taken there singular) is a blow-up, which check_finite() names at the next sample.
+      if (state_problem(y_).empty()) throw;
       w_adaptive_.reset(), w_startup_.reset();
     }
   }
@@ -275,6 +279,25 @@ std::string Simulation::state_problem(const Eigen::VectorXd& y) const {
                   "limit %.3g mm, where the Hertz force would be 10x the largest clamping force)",
                   j, 1e3 * dp, 1e3 * lim_p);
     return buf;
+  }
+  // A link stretched past where its plates' force would be 10x the largest clamping force
+  // (or folded to under half its length): the chain has come apart numerically, with no
+  // contact to show it.
+  const Config& c = m_.cfg;
+  const double F = 10.0 * std::max({c.clamping.driving, c.clamping.driven, 1e3});
+  const double lim_l = F / (c.chain.plates_per_link * c.chain.plate_stiffness);
+  for (int l = 0; l < m_.links; ++l) {
+    const double* b = y.data() + m_.half_b(l);
+    const double* a = y.data() + m_.half_a(l + 1);
+    const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
+    const double stretch = std::sqrt(dx * dx + dy * dy) - m_.plate_rest;
+    if (stretch > lim_l || stretch < -0.5 * m_.plate_rest) {
+      std::snprintf(buf, sizeof buf,
+                    "absurd stretch: link %d is %.3g mm %s than its plates' rest length (module chain forces, plates; "
+                    "limit %.3g mm, where the plates' force would be 10x the largest clamping force)",
+                    l, 1e3 * std::abs(stretch), stretch > 0 ? "longer" : "shorter", 1e3 * lim_l);
+      return buf;
+    }
   }
   const double dr = max_rocker_penetration(m_, y.data(), &j);
   const double lim_r = absurd_depth(m_.cfg.rocker.stiffness, m_.cfg);

@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
+#include <string>
 
 #include "engine/wmethod/parallel.hpp"
 #include "modules/inertia.hpp"
@@ -104,11 +106,39 @@ void WSolver::factor(double t, const double* y, double gh) {
     ok = lu_.factor(TwoTasks{threads()});
     if (ok && opt_.w_shafts) shaft_factor(gh);
   });
-  if (!ok) throw std::runtime_error("W-method: the W matrix is singular");
+  if (!ok) throw std::runtime_error(singular_matrix(t, index, gh));
   if (fresh_on()) {
     fresh_.clear();
     fjac_.mu_tol = opt_.w_fresh * m_.cfg.pin.mass / gh;
   }
+}
+
+// What a singular W names: the time, the step, the first link whose blocks hold a
+// non-finite number and where it came from (the stiffness's differences, the friction
+// blocks, the link inertia), and what to change.
+std::string WSolver::singular_matrix(double t, long index, double gh) const {
+  const auto finite = [](const auto& b) { return b.allFinite(); };
+  std::string where = "no block holds a non-finite number: a pivot block is singular";
+  for (int l = 0; l < m_.links; ++l) {
+    const char* what = nullptr;
+    if (opt_.w_stiffness && !(finite(stiffness_.diag(l)) && finite(stiffness_.sub(l)) && finite(stiffness_.super(l))))
+      what = "the stiffness K (finite differences of the chain's forces)";
+    else if (!finite(g_[l]))
+      what = "the link inertia (the link's direction)";
+    else if (!finite(cps_[l]))
+      what = "the pulley friction's coupling to the shafts";
+    if (what) {
+      where = "link " + std::to_string(l) + " holds a non-finite number in " + what;
+      break;
+    }
+  }
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "the W-method's matrix is singular at t = %.9g s (step %ld, gamma h = %.3g s): ", t,
+                index, gh);
+  return buf + where +
+         "; the state the matrix was taken at holds forces that are not finite or not smooth there. Take a smaller "
+         "integrator.step, or rebuild the matrix more often (integrator.w_every, integrator.w_k_every); RK4 "
+         "(--method rk4 --step 1e-8) shows whether the model itself fails there";
 }
 
 void WSolver::link_gradient(int l, LinkVector& g) const {

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "engine/wmethod/chain_stiffness.hpp"
@@ -74,6 +75,7 @@ class WSolver {
   using ShaftVectors = FreshFriction::ShaftVectors;
   using ShaftBlock = Eigen::Matrix<double, kLinkDim, 2 * kShaftSize>;
   void assemble_link(int l, double gh);
+  std::string singular_matrix(double t, long index, double gh) const;
   void link_gradient(int l, LinkVector& g) const;
   void shaft_factor(double gh);
   // The bordered solve's shaft step on x's shafts (right side M_s b_s), their x_s into x.

@@ -46,6 +46,25 @@ TEST(BlowUpTest, AbsurdPulleyPenetrationIsNamed) {
   EXPECT_NE(msg.find("joint 3"), std::string::npos) << msg;
 }
 
+// A link whose pin halves fly apart (its plates' force would be far beyond any clamping
+// force) is a blow-up, named as a stretch of that link, though no contact penetrates: a W
+// matrix taken at such a state is singular, and the run must end as a blow-up, not as a
+// linear-algebra error. Stretched by 1 um it is sound.
+TEST(BlowUpTest, AbsurdLinkStretchIsNamed) {
+  const Model m = test::model("mini");
+  for (const double dx : {1e-6, 5e-3}) {
+    Simulation sim(m);
+    for (int e = 0; e < 2; ++e) sim.mutable_state()[m.half_a(8) + e * half::kEnd + half::kX] += dx;
+    const std::string msg = blow_up_message(sim);
+    if (dx < 1e-5) {
+      EXPECT_EQ(msg, "") << "a 1 um stretch is no blow-up";
+      continue;
+    }
+    EXPECT_NE(msg.find("absurd stretch: link"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("module chain forces, plates"), std::string::npos) << msg;
+  }
+}
+
 TEST(BlowUpTest, NonFiniteCoordinateIsNamed) {
   const Model m = test::model("mini");
   Simulation sim(m);

@@ -584,3 +584,32 @@ TEST(ModelOde, StudyIntegratorsCacheRepeatAndIntervals) {
 
 }  // namespace
 }  // namespace cvt
+
+namespace cvt {
+namespace {
+
+// A W matrix taken at a state whose forces are not finite is singular, and says where: the
+// time, the step, the first link with a non-finite block and where that came from.
+TEST(WSolver, ASingularMatrixNamesTheTimeTheStepAndTheLink) {
+  const Model m = test::model("mini");
+  Workspace ws(m);
+  auto sched = make_schedule(m, ws, {});
+  Eigen::VectorXd y = m.y0, dy(m.nstate);
+  update_contact_status(m, ws, 0.0, y.data());
+  y[m.half_a(12) + half::kX] = std::nan("");
+  ModelOde ode(m, ws, *sched, {});
+  ode.ask_friction_jacobian(5);
+  ode.system().rhs(1.5e-6, y.data(), dy.data());
+  try {
+    ode.system().w_factor(1.5e-6, y.data(), 1e-7);
+    FAIL() << "a matrix of non-finite blocks was factorized";
+  } catch (const std::runtime_error& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("singular at t = 1.5e-06 s (step 5"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("holds a non-finite number in the stiffness"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("integrator.step"), std::string::npos) << msg;
+  }
+}
+
+}  // namespace
+}  // namespace cvt
