@@ -82,8 +82,7 @@ void Simulation::w_step(double h) {
         double t = t0;
         for (int i = 0; i < p.sub; ++i) {
           const double t_end = i + 1 == p.sub ? t1 : t0 + static_cast<double>(i + 1) * hs;
-          if (i > 0 || !begun) p.step->evaluate(t, y_, p.first + i);
-          p.step->finish(t, t_end - t, y_);
+          w_substep(*p.step, t, t_end, p.first + i, i > 0 || !begun);
           if (!y_.allFinite()) throw OdeError(t, t_end - t, "solution is not finite");
           update_statuses_after_step(m_, *schedule_, ws_, t_end, y_);
           t = t_end;
@@ -100,6 +99,47 @@ void Simulation::w_step(double h) {
   }
   clock_.tick(h);
   profile_update(tick0, rhs0, master0);
+}
+
+// One sub-step of the production W-step from (t, y) to t_end: its first evaluation (unless
+// a sample took it), the matrix if due and the stages. A sub-step that leaves the state bad
+// (not finite, an absurd penetration or stretch, or a matrix that turns out singular) is
+// rejected and taken again from its start with the whole matrix rebuilt, then, if need be,
+// in 2, 4, ... kMaxPieces pieces, each from a matrix rebuilt at its start. If none holds,
+// the bad state stays for check_finite() to report as a blow-up. A sound sub-step runs
+// exactly as it would without the check (which costs about 1 % of a step: the contacts'
+// depths).
+void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool evaluate) {
+  constexpr int kMaxPieces = 64;
+  y_start_ = y_;
+  std::string error;  // the last attempt's error (a singular matrix), if it threw
+  const auto attempt = [&](double a, double b) {
+    try {
+      s.finish(a, b - a, y_);
+    } catch (const std::exception& e) {
+      error = e.what();
+      return false;
+    }
+    error.clear();
+    return y_.allFinite() && state_problem(y_).empty();
+  };
+  if (evaluate) s.evaluate(t, y_, index);
+  if (attempt(t, t_end)) return;
+  const double span = t_end - t;
+  for (int pieces = 1; pieces <= kMaxPieces; pieces *= 2) {
+    ++steps_rejected_;
+    y_ = y_start_;
+    bool ok = true;
+    for (int k = 0; k < pieces && ok; ++k) {
+      const double a = t + span * k / pieces, b = k + 1 == pieces ? t_end : t + span * (k + 1) / pieces;
+      s.retake();
+      s.evaluate(a, y_, index);
+      ok = attempt(a, b);
+    }
+    if (ok) return;
+  }
+  // No attempt held: a bad state is a blow-up (check_finite); an error at a sound state ends the run.
+  if (!error.empty() && y_.allFinite() && state_problem(y_).empty()) throw std::runtime_error(error);
 }
 
 // Adaptive W-steps (integrator.tolerance) after the start-up: the generic OdeSolver through
@@ -266,6 +306,26 @@ static double absurd_depth(double stiffness, const Config& c) {
   return std::pow(F / stiffness, 2.0 / 3.0);
 }
 
+// The first link stretched past where its plates' force would be 10x the largest clamping
+// force (or folded to under half its length), -1 if none: the chain has come apart
+// numerically, with no contact to show it. Its stretch and the limit [m].
+int Simulation::absurd_stretch(const Eigen::VectorXd& y, double* stretch, double* limit) const {
+  const Config& c = m_.cfg;
+  const double F = 10.0 * std::max({c.clamping.driving, c.clamping.driven, 1e3});
+  const double lim = F / (c.chain.plates_per_link * c.chain.plate_stiffness);
+  for (int l = 0; l < m_.links; ++l) {
+    const double* b = y.data() + m_.half_b(l);
+    const double* a = y.data() + m_.half_a(l + 1);
+    const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
+    const double d = std::sqrt(dx * dx + dy * dy) - m_.plate_rest;
+    if (!(d <= lim && d >= -0.5 * m_.plate_rest)) {
+      if (stretch) *stretch = d, *limit = lim;
+      return l;
+    }
+  }
+  return -1;
+}
+
 std::string Simulation::state_problem(const Eigen::VectorXd& y) const {
   char buf[512];
   for (int i = 0; i < m_.nstate; ++i)
@@ -280,24 +340,13 @@ std::string Simulation::state_problem(const Eigen::VectorXd& y) const {
                   j, 1e3 * dp, 1e3 * lim_p);
     return buf;
   }
-  // A link stretched past where its plates' force would be 10x the largest clamping force
-  // (or folded to under half its length): the chain has come apart numerically, with no
-  // contact to show it.
-  const Config& c = m_.cfg;
-  const double F = 10.0 * std::max({c.clamping.driving, c.clamping.driven, 1e3});
-  const double lim_l = F / (c.chain.plates_per_link * c.chain.plate_stiffness);
-  for (int l = 0; l < m_.links; ++l) {
-    const double* b = y.data() + m_.half_b(l);
-    const double* a = y.data() + m_.half_a(l + 1);
-    const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
-    const double stretch = std::sqrt(dx * dx + dy * dy) - m_.plate_rest;
-    if (stretch > lim_l || stretch < -0.5 * m_.plate_rest) {
-      std::snprintf(buf, sizeof buf,
-                    "absurd stretch: link %d is %.3g mm %s than its plates' rest length (module chain forces, plates; "
-                    "limit %.3g mm, where the plates' force would be 10x the largest clamping force)",
-                    l, 1e3 * std::abs(stretch), stretch > 0 ? "longer" : "shorter", 1e3 * lim_l);
-      return buf;
-    }
+  double stretch = 0, lim_l = 0;
+  if ((j = absurd_stretch(y, &stretch, &lim_l)) >= 0) {
+    std::snprintf(buf, sizeof buf,
+                  "absurd stretch: link %d is %.3g mm %s than its plates' rest length (module chain forces, plates; "
+                  "limit %.3g mm, where the plates' force would be 10x the largest clamping force)",
+                  j, 1e3 * std::abs(stretch), stretch > 0 ? "longer" : "shorter", 1e3 * lim_l);
+    return buf;
   }
   const double dr = max_rocker_penetration(m_, y.data(), &j);
   const double lim_r = absurd_depth(m_.cfg.rocker.stiffness, m_.cfg);

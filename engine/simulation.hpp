@@ -113,6 +113,7 @@ class Simulation {
  private:
   // "" if y is fine; else what is wrong (non-finite coordinate, absurd penetration).
   std::string state_problem(const Eigen::VectorXd& y) const;
+  int absurd_stretch(const Eigen::VectorXd& y, double* stretch = nullptr, double* limit = nullptr) const;
   std::string replay_diagnosis(double h);
   // The two kinds of step (step() above), and adaptive W-steps.
   void rk4_step(double h, bool update_status);
@@ -127,6 +128,7 @@ class Simulation {
     long first;
   };
   WPhase w_phase(double h);
+  void w_substep(WStep& s, double t, double t_end, long index, bool evaluate);
   const Eigen::VectorXd* begin_w_step(double h);
 
   const Model& m_;
@@ -147,6 +149,7 @@ class Simulation {
   double begun_h_ = 0;
   long begun_steps_ = 0;
   Eigen::VectorXd y_, dy_;
+  Eigen::VectorXd y_start_;  // the state a W sub-step starts from (taken again if it fails)
   StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;
   long steps_taken_ = 0, steps_rejected_ = 0;

@@ -317,7 +317,7 @@ const std::vector<SummaryField>& summary_fields() {
       {"model_time", "s", "the model time reached", &S::model_time},
       {"steps", "", "steps taken by this invocation (adaptive: the integrator's accepted steps, start-up sub-steps too)",
        &S::steps},
-      {"rejected_steps", "", "adaptive steps the error test rejected (0 with fixed steps)", &S::rejected_steps},
+      {"rejected_steps", "", "steps rejected and taken again: adaptive steps the error test rejected, fixed W-steps whose state went bad", &S::rejected_steps},
       {"mean_step", "s", "model time of this invocation / steps", &S::mean_step},
       {"wall_s", "s", "wall time of the steps", &S::wall_s},
       {"us_per_step", "us", "wall time per step", &S::us_per_step},

@@ -71,7 +71,7 @@ void WSolver::factor(double t, const double* y, double gh) {
   // dearer (finite differences): they are taken at the rebuilding steps whose index is a
   // multiple of w_k_every.
   const long index = index_;
-  const bool first = gh_ == 0 || invalid_;
+  const bool first = gh_ == 0 || invalid_ || retake_;
   // A new gh refactorizes outside the band of ModelOdeOptions::w_h_grow / w_h_shrink (with
   // the defaults, at any change beyond rounding).
   const bool gh_out = gh > gh_ * opt_.w_h_grow * (1 + 1e-9) || gh * opt_.w_h_shrink * (1 + 1e-9) < gh_;
@@ -98,7 +98,7 @@ void WSolver::factor(double t, const double* y, double gh) {
       stiffness_.take(t, y);
     });
   if (invalid_) ++status_rebuilds_;
-  invalid_ = false;
+  invalid_ = retake_ = false;
   gh_ = gh;
   timed(Section::w_assembly, [&] { for_joints(schedule_, m_.links, [this, gh](int l) { assemble_link(l, gh); }); });
   bool ok = false;

@@ -54,13 +54,15 @@ class WSolver {
 
   // Whether the next step rebuilds the matrix.
   bool due() const {
-    return gh_ == 0 || invalid_ || fresh_.force_rebuild() || opt_.w_every <= 1 || index_ % opt_.w_every == 0;
+    return gh_ == 0 || invalid_ || retake_ || fresh_.force_rebuild() || opt_.w_every <= 1 || index_ % opt_.w_every == 0;
   }
   double gh() const { return gh_; }  // gh of the factorized W (0: none yet)
   long index() const { return index_; }  // the index of the next step
   // The contact statuses changed: the next step rebuilds the whole matrix, its stiffness
   // included (a contact that turned on is stiff in J but absent from a stale W).
   void invalidate() { invalid_ = true; }
+  // A step taken again after it failed: the next step rebuilds the whole matrix.
+  void retake() { retake_ = true; }
   bool fresh_on() const { return opt_.w_fresh > 0 && opt_.w_blocks && opt_.w_secant; }
   const FrictionJacobian& friction_jacobian() const { return fjac_; }
   const ChainStiffness& stiffness() const { return stiffness_; }
@@ -122,7 +124,7 @@ class WSolver {
   mutable ShaftVectors bz_;
   double gh_ = 0;    // gh of the factorization (0: none yet)
   long index_ = 0;   // index of the next step
-  bool invalid_ = false, fresh_recorded_ = false;
+  bool invalid_ = false, retake_ = false, fresh_recorded_ = false;
   std::int64_t status_rebuilds_ = 0, fresh_rebuilds_ = 0;
 };
 

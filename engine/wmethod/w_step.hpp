@@ -24,6 +24,8 @@ class WStep {
   void evaluate(double t, const Eigen::VectorXd& y, long index);
   // The rest of that step, of size h: y <- y(t + h).
   void finish(double t, double h, Eigen::VectorXd& y);
+  // The next step rebuilds the whole matrix, its stiffness included (a step taken again).
+  void retake() { ode_.w_solver().retake(); }
   const ModelOde& system() const { return ode_; }
   const Eigen::VectorXd& f0() const { return f0_; }  // the last evaluate()'s f(t, y)
 
