@@ -39,7 +39,10 @@ def main():
     v = lambda k: o[k + "/value"][:]
     d = lambda k: v(k)[i1] - v(k)[i0]
     Min, Mout, Mload = v("input_torque")[w].mean(), v("output_torque")[w].mean(), v("load_torque")[w].mean()
-    ratio, geo = v("speed_ratio")[w].mean(), v("geometric_ratio")[w].mean()
+    # The geometric ratio is 0 (undefined) while no pin touches a sheave: the mean of the
+    # samples above 0, as the run's summary takes it.
+    g = v("geometric_ratio")[w]
+    ratio, geo = v("speed_ratio")[w].mean(), (g[g > 0].mean() if (g > 0).any() else float("nan"))
     print(f"window {t[i0]*1e3:.2f} .. {t[i1]*1e3:.2f} ms ({i1 - i0 + 1} samples)")
     print(f"  torque in / out / load      {Min:8.2f} / {Mout:8.2f} / {Mload:8.2f} N m   (out/load {Mout / Mload:.3f})")
     print(f"  speed ratio / geometric     {ratio:.5f} / {geo:.5f}   (creep {100 * (ratio / geo - 1):+.3f} %)")

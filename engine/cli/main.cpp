@@ -57,7 +57,9 @@ struct ScheduleArgs {
 
 void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
   auto* scheduler = cmd->add_option("--scheduler", a.scheduler,
-                                    "serial | flowgraph | paper-omp (default: serial on 1 thread, flowgraph on more)")
+                                    a.scheduler.empty()
+                                        ? "serial | flowgraph | paper-omp (default: serial on 1 thread, flowgraph on more)"
+                                        : "serial | flowgraph | paper-omp")
                         ->check(CLI::IsMember({"serial", "flowgraph", "paper-omp"}));
   if (!a.scheduler.empty()) scheduler->capture_default_str();
   cmd->add_option("--threads", a.threads, "threads (flowgraph, paper-omp)")->check(CLI::Range(1, 4096))->capture_default_str();
@@ -555,7 +557,7 @@ Command add_study_command(CLI::App& app) {
   study_int->add_option("--w-steps,--ros2-steps", si_w_steps,
                         "W-methods' (ros2, ros34pw2) fixed steps tried in (b), largest first [s]; H:W:K also sets "
                         "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
-                        "keeps it to one method (default 5e-7,2e-7,1e-7,5e-8)")
+                        "keeps it to one method, tol=T an adaptive candidate (default: the configuration's step)")
       ->delimiter(',');
   study_int->add_flag("--all", si.all, "(b): run every candidate (the default)");
   study_int->add_flag("--first-accurate", si_first_accurate, "(b): stop at each method's first accurate candidate");
