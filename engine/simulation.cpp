@@ -65,9 +65,10 @@ void Simulation::rk4_step(double h, bool update_status) {
 // and the stages with their solves (WStep::finish), then the contact statuses; then the
 // clock. Adaptive steps (integrator.tolerance) after the start-up run through the generic
 // OdeSolver (w_adaptive_step). A state gone bad (not finite, an absurd penetration or
-// stretch) that no retake of its sub-step (w_substep) avoided is reported as RK4's is, by check_finite() at the next sample (with the replay and the
-// diagnosis): the step's own error ("solution is not finite", or a singular matrix built
-// from such a state) only ends this step.
+// stretch) that no retake of its sub-step (w_substep) avoided is reported as RK4's is, by
+// check_finite() at the next sample (with the replay and the diagnosis): the step's own
+// error ("solution is not finite", or a singular matrix built from such a state) only ends
+// this step.
 void Simulation::w_step(double h) {
   const WPhase p = w_phase(h);
   if (!p.step) return w_adaptive_step(h);
@@ -159,10 +160,7 @@ void Simulation::w_adaptive_step(double h) {
       steps_taken_ += w_adaptive_->advance(clock_.t, y_, clock_.time_after(clock_.steps + 1, h), steps_taken_);
       steps_rejected_ += w_adaptive_->stats().rejected - rejected0;
     } catch (const std::exception&) {
-      // A state gone bad (not finite, an absurd penetration or stretch, which makes the
-      // matrix taken there singular) is a blow-up, which check_finite() names at the next
-      // sample.
-      if (state_problem(y_).empty()) throw;
+      if (state_problem(y_).empty()) throw;  // else a blow-up, as in w_step
       w_adaptive_.reset(), w_startup_.reset();
     }
   }
@@ -208,10 +206,9 @@ Simulation::WPhase Simulation::w_phase(double h) {
   return {step.get(), n, first};
 }
 
-// The first evaluation of the next fixed W-step of size h, taken now so that a sample of
-// this state reads it (the step then starts from it): its f(t, y).
-const Eigen::VectorXd* Simulation::begin_w_step(double h) {
-  const WPhase p = w_phase(h);
+// The first evaluation of the next fixed W-step of size h (w_phase(h), p), taken now so that
+// a sample of this state reads it (the step then starts from it): its f(t, y).
+const Eigen::VectorXd* Simulation::begin_w_step(const WPhase& p, double h) {
   schedule_->within([&] { p.step->evaluate(clock_.t, y_, p.first); });
   begun_ = true, begun_h_ = h, begun_steps_ = clock_.steps;
   return &p.step->f0();
@@ -471,14 +468,16 @@ Sample Simulation::sample(double next_step) {
   // (pure functions of the state) on the schedule's threads; the same bits either way.
   // (The profile counts that evaluation, and the step's making when h changes, as the step's.)
   const std::uint64_t t0 = prof_ ? Profiler::ticks() : 0;
-  const bool w_next = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite() &&
-                      w_phase(next_step).step;
+  const WPhase next = next_step > 0 && m_.cfg.integrator.method != IntegratorMethod::rk4 && y_.allFinite()
+                         ? w_phase(next_step)
+                         : WPhase{nullptr, 1, 0};
+  const bool ahead = next.step != nullptr;
   const Eigen::VectorXd* f = &dy_;
-  if (w_next) {
+  if (ahead) {
     // On more than one thread the energies run beside it (they read the state and the
     // statuses, which the evaluation leaves alone), and the profile counts both as the
     // step's; serially the energies are the output's.
-    const auto evaluate = [&] { f = begin_w_step(next_step); };
+    const auto evaluate = [&] { f = begin_w_step(next, next_step); };
     const bool beside = schedule_->threads() > 1;
     if (beside)
       schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
@@ -494,7 +493,6 @@ Sample Simulation::sample(double next_step) {
     else
       evaluate(), energy();
   }
-  const bool ahead = w_next;
   Workspace& w = ahead ? ws_ : diag_;
   const double* q = y_.data();
   const double* v = q + m_.ndof;

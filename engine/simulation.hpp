@@ -129,7 +129,7 @@ class Simulation {
   };
   WPhase w_phase(double h);
   void w_substep(WStep& s, double t, double t_end, long index, bool evaluate);
-  const Eigen::VectorXd* begin_w_step(double h);
+  const Eigen::VectorXd* begin_w_step(const WPhase& p, double h);
 
   const Model& m_;
   Workspace ws_;     // the integrator's
