@@ -128,6 +128,11 @@ class Run {
   RunResult r_;
   EnergyGuard energy_;
   bool warned_stability_ = false;
+  // Gross slip (SteadyCriteria::gross_slip) at every sample since slip_from_ (< 0: not
+  // slipping); warned once it has lasted run.efficiency_window, and named by a blow-up.
+  double slip_from_ = -1;
+  bool warned_slip_ = false;
+  double slipped_from_ = -1, slipped_most_ = 0;  // the warned gross slip's start and largest slip
   bool stop_asked_ = false;  // RunOptions::on_progress returned false
   double next_stability_check_ = 0;
   const bool tty_ = isatty(fileno(stderr));
@@ -258,6 +263,13 @@ void Run::open_output() {
   file_->start_swmr();
 }
 
+// "gross slip since t = 0.1 s (slip +8.1 %, over 5 %)": the slip at its start, or the largest
+static std::string fmt_slip(const char* what, double from, double slip, double limit) {
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "%s since t = %.6g s (slip %+.1f %%, over %.3g %%)", what, from, 100 * slip, 100 * limit);
+  return buf;
+}
+
 // The sample of the current state, with the running-mean efficiency (work out over work
 // in across the last run.efficiency_window, or since the first sample while the run is
 // shorter), into the file, the summary's channels and the guards.
@@ -281,9 +293,24 @@ void Run::record() {
   });
 }
 
-// The guards at a sample: the energy balance, and RK4's step against its stability limit.
+// The guards at a sample: the energy balance, gross slip, and RK4's step against its
+// stability limit.
 void Run::watch(const Sample& s) {
   if (std::string w = energy_.check(s); !w.empty()) warn(w);
+  const double slip = slip_of(s.speed_ratio, s.geometric_ratio), gross = SteadyCriteria::of(c_).gross_slip;
+  if (!(std::abs(slip) > gross) || s.t < ramps_end(c_)) {
+    slip_from_ = -1;
+  } else {
+    if (slip_from_ < 0) slip_from_ = s.t;
+    if (warned_slip_ && std::abs(slip) > std::abs(slipped_most_)) slipped_most_ = slip;
+    if (!warned_slip_ && s.t - slip_from_ >= c_.run.efficiency_window) {
+      warned_slip_ = true;
+      slipped_from_ = slip_from_, slipped_most_ = slip;
+      warn(fmt_slip("gross slip", slip_from_, slip, gross) +
+           ": the load exceeds what the clamping holds; the chain slides over the sheaves and the model is not "
+           "meant to run on there (raise the clamping, turn on the ratio controller, or lower the load)");
+    }
+  }
   if (c_.integrator.method == IntegratorMethod::rk4 && !warned_stability_ && s.t >= next_stability_check_) {
     next_stability_check_ = s.t + 1e-3;
     const double rho = sim_.spectral_radius(sim_.state(), sim_.time(), sim_.workspace().status);
@@ -403,7 +430,12 @@ void Run::steps() {
     }
     file_->close();
     std::filesystem::rename(tmp_, opt_.out_path);
-    throw BlowUpError(std::string(e.what()) + ". Every sample before the blow-up is in " + opt_.out_path);
+    std::string slip;
+    if (warned_slip_)
+      slip = ". It followed " + fmt_slip("gross slip", slipped_from_, slipped_most_, SteadyCriteria::of(c_).gross_slip) +
+             ": the load exceeds what the clamping holds (a physical limit, not the integrator's): raise the clamping, "
+             "turn on the ratio controller, or lower the load";
+    throw BlowUpError(std::string(e.what()) + slip + ". Every sample before the blow-up is in " + opt_.out_path);
   }
   step_wall_ = seconds_since(t0_);
   if (opt_.progress && tty_) std::fprintf(stderr, "\n");

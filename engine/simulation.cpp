@@ -105,16 +105,22 @@ void Simulation::w_step(double h) {
 
 // One sub-step of the production W-step from (t, y) to t_end: its first evaluation (unless
 // a sample took it), the matrix if due and the stages. A sub-step that leaves the state bad
-// (not finite, an absurd penetration or stretch, or a matrix that turns out singular) is
-// rejected and taken again from its start with the whole matrix rebuilt, then, if need be,
-// in 2, 4, ... kMaxPieces pieces, each from a matrix rebuilt at its start. If none holds,
-// the bad state stays for check_finite() to report as a blow-up. A sound sub-step runs
-// exactly as it would without the check (which costs about 10 us per sub-step on the
-// reference model: the contacts' depths).
+// (not finite, an absurd penetration or stretch, or a matrix that turns out singular) or,
+// unless integrator.fixed_steps, whose error estimate is gross (WStep::gross()) is rejected
+// and taken again from its start with the whole matrix rebuilt, then, if need be, in 2, 4,
+// ... kMaxPieces pieces, each from a matrix rebuilt at its start. The sub-steps after it
+// start with the pieces that held (pieces_), and halve them while the pieces' estimates stay
+// below a quarter of the gross bound, so that a stretch of fast dynamics (the start from
+// rest at a ratio whose pins land hard) costs one ladder, not one per sub-step. If none
+// holds, the bad state stays for check_finite() to report as a blow-up. A sound sub-step in
+// one piece runs exactly as it would without the checks (which cost about 10 us per
+// sub-step on the reference model: the contacts' depths and the estimate's norm).
 void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool evaluate) {
   constexpr int kMaxPieces = 64;
+  const bool judge_error = !m_.cfg.integrator.fixed_steps;
   y_start_ = y_;
   std::string error;  // the last attempt's error (a singular matrix), if it threw
+  double worst = 0;   // the largest estimate of the pieces that held
   const auto attempt = [&](double a, double b) {
     try {
       s.finish(a, b - a, y_);
@@ -123,23 +129,36 @@ void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool ev
       return false;
     }
     error.clear();
-    return y_.allFinite() && state_problem(y_).empty();
+    if (!y_.allFinite() || !state_problem(y_).empty()) return false;
+    worst = std::max(worst, s.error());
+    return !judge_error || s.error() <= s.gross();
   };
-  if (evaluate) s.evaluate(t, y_, index);
-  if (attempt(t, t_end)) return;
   const double span = t_end - t;
-  for (int pieces = 1; pieces <= kMaxPieces; pieces *= 2) {
+  // pieces from (t, y_start_), the first from a fresh matrix if `retake`
+  const auto take = [&](int pieces, bool retake) {
+    worst = 0;
+    for (int k = 0; k < pieces; ++k) {
+      const double a = t + span * k / pieces, b = k + 1 == pieces ? t_end : t + span * (k + 1) / pieces;
+      if (retake) s.retake();
+      if (k > 0 || retake || evaluate) s.evaluate(a, y_, index);
+      if (!attempt(a, b)) return false;
+    }
+    return true;
+  };
+  const int first = std::min(pieces_, kMaxPieces);
+  bool ok = take(first, false);
+  int pieces = first;
+  for (bool retake = true; !ok && pieces <= kMaxPieces; pieces *= 2, retake = true) {
     ++steps_rejected_;
     y_ = y_start_;
-    bool ok = true;
-    for (int k = 0; k < pieces && ok; ++k) {
-      const double a = t + span * k / pieces, b = k + 1 == pieces ? t_end : t + span * (k + 1) / pieces;
-      s.retake();
-      s.evaluate(a, y_, index);
-      ok = attempt(a, b);
-    }
-    if (ok) return;
+    ok = take(pieces, retake);
+    if (ok) break;
   }
+  if (ok) {
+    pieces_ = pieces > 1 && worst < 0.25 * s.gross() ? pieces / 2 : pieces;
+    return;
+  }
+  pieces_ = 1;
   // No attempt held: a bad state is a blow-up (check_finite); an error at a sound state ends the run.
   if (!error.empty() && y_.allFinite() && state_problem(y_).empty()) throw std::runtime_error(error);
 }
@@ -433,19 +452,14 @@ void Simulation::check_finite() {
     cause = buf;
     std::snprintf(buf, sizeof buf, "%.3g", h);
     const Config::Integrator& in = m_.cfg.integrator;
-    if (in.method != IntegratorMethod::rk4 && t_bad <= std::max(in.startup_time, ramps_end(m_.cfg)) * (1 + 1e-9)) {
-      const int k1 = std::max(1, in.w_k_every / 4), k2 = std::max(1, in.w_k_every / 8);
-      cause += std::string(to_string(in.method)) + " could not start from rest at h = " + std::string(buf) +
-               " s: while the pins settle onto the sheaves and the loads ramp up, its matrix (the stiffness "
-               "rebuilt every integrator.w_k_every = " + std::to_string(in.w_k_every) +
-               " steps) falls behind the contacts loading up. Rebuild the stiffness more often (--set "
-               "integrator.w_k_every=" + std::to_string(k1) + (k2 < k1 ? ", or " + std::to_string(k2) : "") +
-               "), or take a smaller integrator.step; RK4 (--method rk4 --step 1e-8) always starts";
-    }
+    if (in.method != IntegratorMethod::rk4 && in.fixed_steps)
+      cause += "the run takes fixed " + std::string(to_string(in.method)) + " steps of h = " + std::string(buf) +
+               " s (integrator.fixed_steps = true), which no gross error estimate retakes: run without "
+               "integrator.fixed_steps, or with a smaller integrator.step";
     else if (in.method != IntegratorMethod::rk4)
-      cause += "the run uses " + std::string(to_string(in.method)) + " with h = " + std::string(buf) +
-               " s, stable past that limit only while its matrix holds the stiff terms: reduce integrator.step, or "
-               "rebuild the matrix more often (integrator.w_every, integrator.w_k_every)";
+      cause += "every retake of the " + std::string(to_string(in.method)) + " step of h = " + std::string(buf) +
+               " s failed too (the whole matrix afresh, then up to 64 pieces): the model leaves what it can "
+               "represent there, not the step; RK4 (--method rk4 --step 1e-8) shows whether it fails the same way";
     else
       cause += h > h_stable ? "the step h = " + std::string(buf) + " s is above it: reduce integrator.step"
                             : "the step is below it: look for a contact or friction instability, or an unphysical "

@@ -150,6 +150,7 @@ class Simulation {
   long begun_steps_ = 0;
   Eigen::VectorXd y_, dy_;
   Eigen::VectorXd y_start_;  // the state a W sub-step starts from (taken again if it fails)
+  int pieces_ = 1;           // the pieces the next W sub-step starts with (w_substep)
   StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;
   long steps_taken_ = 0, steps_rejected_ = 0;

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Fingerprints of short runs, to show that a refactor keeps the bits.
 
-    tools/same_bits.py run BUILD/cvt-engine OUT.json     # run the cases, write their fingerprints
+    tools/same_bits.py run BUILD/cvt-engine OUT.json [OPTION ...]   # run the cases, write their fingerprints
     tools/same_bits.py compare BEFORE.json AFTER.json     # exit 1 if any fingerprint differs
 
 The cases: 500 RK4 steps and 2000 ROS34PW2 steps of configs/reference.toml, each serial and
@@ -11,7 +11,8 @@ its own method and step, serial and on two threads, through the start-up into th
 step (integrator.settle_time = 2e-4 s, t_end = 4e-4 s), and RK4 on the mini model. A fingerprint is the SHA-256 of every
 dataset's bytes (shape and type included) and attribute in the output file, apart from what
 depends on the wall clock (/profile, wall-time attributes), and of the final checkpoint's
-datasets. Build the binary before and after the change with the same flags.
+datasets. Build the binary before and after the change with the same flags. OPTIONs are added
+to every run (`--set integrator.fixed_steps=true`: a behaviour that a key turns off).
 """
 import hashlib
 import json
@@ -98,17 +99,17 @@ def run(exe, args):
         sys.exit(f"same_bits: {' '.join(cmd)} exited {res.returncode}:\n{res.stderr}")
 
 
-def fingerprints(exe):
+def fingerprints(exe, extra=()):
     result = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (opts, t_end, *cfg) in CASES.items():
             out = os.path.join(tmp, name + ".h5")
             config = os.path.join(HERE, "..", "configs", cfg[0] + ".toml") if cfg else CONFIG
-            run(exe, [config] + opts + ["--t-end", t_end, "-o", out, "--checkpoint-every", "0"])
+            run(exe, [config] + opts + list(extra) + ["--t-end", t_end, "-o", out, "--checkpoint-every", "0"])
             result[name] = fingerprint_h5(out) | {"checkpoint:" + k: v for k, v in fingerprint_h5(out + ".ckpt").items()}
         for name, (opts, t_half, t_end) in RESUMED.items():
             out = os.path.join(tmp, name + ".h5")
-            run(exe, [CONFIG] + opts + ["--t-end", t_half, "-o", out, "--checkpoint-every", "0"])
+            run(exe, [CONFIG] + opts + list(extra) + ["--t-end", t_half, "-o", out, "--checkpoint-every", "0"])
             run(exe, ["--resume", out + ".ckpt", "--t-end", t_end, "--checkpoint-every", "0"])
             result[name] = fingerprint_h5(out) | {"checkpoint:" + k: v for k, v in fingerprint_h5(out + ".ckpt").items()}
     return result
@@ -127,9 +128,9 @@ def compare(before, after):
 
 
 def main(argv):
-    if len(argv) == 4 and argv[1] == "run":
+    if len(argv) >= 4 and argv[1] == "run":
         with open(argv[3], "w") as f:
-            json.dump(fingerprints(argv[2]), f, indent=1, sort_keys=True)
+            json.dump(fingerprints(argv[2], argv[4:]), f, indent=1, sort_keys=True)
         return 0
     if len(argv) == 4 and argv[1] == "compare":
         with open(argv[2]) as f, open(argv[3]) as g:

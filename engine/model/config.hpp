@@ -188,6 +188,10 @@ struct Config {
     // steps end on the sample times, and no longer than run.sample_interval. 0: fixed steps
     // of `step`.
     double tolerance = 0.0;  // [1]
+    // Fixed W-steps: true takes every step as scheduled and retakes it only where its state
+    // went bad (the bits of the published comparisons); false (default) retakes a step whose
+    // error estimate is gross too, with a fresh matrix and in pieces (docs/integrators.md 12.3).
+    bool fixed_steps = false;
   } integrator;
   struct Run {
     double t_end = 2.0e-2;            // [s]

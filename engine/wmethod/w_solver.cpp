@@ -136,9 +136,9 @@ std::string WSolver::singular_matrix(double t, long index, double gh) const {
   std::snprintf(buf, sizeof buf, "the W-method's matrix is singular at t = %.9g s (step %ld, gamma h = %.3g s): ", t,
                 index, gh);
   return buf + where +
-         "; the state the matrix was taken at holds forces that are not finite or not smooth there. Take a smaller "
-         "integrator.step, or rebuild the matrix more often (integrator.w_every, integrator.w_k_every); RK4 "
-         "(--method rk4 --step 1e-8) shows whether the model itself fails there";
+         "; the state the matrix was taken at holds forces that are not finite or not smooth there, and every "
+         "retake of the step (the matrix afresh, up to 64 pieces) met it too. RK4 (--method rk4 --step 1e-8) shows "
+         "whether the model itself fails there; a smaller integrator.step steps past it";
 }
 
 void WSolver::link_gradient(int l, LinkVector& g) const {

@@ -8,6 +8,7 @@ namespace cvt {
 namespace {
 ModelOdeOptions without_sparsity(ModelOdeOptions opt) {
   opt.sparsity = false;  // the stages need f and W alone
+  if (opt.error_tol == 0) opt.error_tol = 1;  // the step's estimate in units of (1 um, 1 mm/s)
   return opt;
 }
 }  // namespace
@@ -31,9 +32,10 @@ void WStep::finish(double t, double h, Eigen::VectorXd& y) {
   const auto f = [&sys](double tt, const Eigen::VectorXd& yy, Eigen::VectorXd& dy) { sys.rhs(tt, yy.data(), dy.data()); };
   const auto solve = [&w](Eigen::VectorXd& x) { w.solve(x.data()); };
   if (method_ == OdeMethod::Ros2)
-    ros2_stages(t, h, y, f0_, nullptr, v_, false, f, solve);
+    ros2_stages(t, h, y, f0_, nullptr, v_, true, f, solve);
   else
-    ros34pw2_stages(t, h, y, f0_, nullptr, v_, false, f, solve);
+    ros34pw2_stages(t, h, y, f0_, nullptr, v_, true, f, solve);
+  err_ = sys.error_norm(v_.err.data(), y.data(), v_.y_new.data());
   y = v_.y_new;
 }
 

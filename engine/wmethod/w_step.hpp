@@ -28,11 +28,18 @@ class WStep {
   void retake() { ode_.w_solver().retake(); }
   const ModelOde& system() const { return ode_; }
   const Eigen::VectorXd& f0() const { return f0_; }  // the last evaluate()'s f(t, y)
+  // The last finish()'s error estimate in units of (1 um, 1 mm/s) at the pin, shaft or load
+  // that errs most (ModelOde's error norm, docs/integrators.md 16), and the estimate above
+  // which a step is gross: no accuracy the run reports survives it (ROS2's first-order
+  // estimate runs about ten times ROS34PW2's on the same step).
+  double error() const { return err_; }
+  double gross() const { return method_ == OdeMethod::Ros2 ? 1000.0 : 100.0; }
 
  private:
   ModelOde ode_;
   OdeMethod method_;
   double gamma_;
+  double err_ = 0;
   Eigen::VectorXd f0_;
   WStageVectors v_;
 };

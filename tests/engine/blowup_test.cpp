@@ -87,16 +87,20 @@ std::string ros2_blow_up_message(std::vector<std::string> sets) {
   return push_joint_3_into_a_sheave(sim);
 }
 
-TEST(BlowUpTest, Ros2BlowUpPointsAtItsStepAndMatrixIntervals) {
-  // A ros2 run's step is far above RK4's limit by design: the advice is its own step and
-  // matrix intervals, not RK4's limit. A blow-up while the pins settle and the loads ramp
-  // up is a W-method that could not start from rest, and says what to change.
+TEST(BlowUpTest, Ros2BlowUpNamesItsStepAndWhatToChange) {
+  // A ros2 run's step is far above RK4's limit by design: the advice is not RK4's limit.
+  // By default every retake failed, so the model, not the step, fails there, and RK4 tells;
+  // with fixed steps the advice is the retakes and a smaller step.
   const std::string msg = ros2_blow_up_message({});
   ASSERT_FALSE(msg.empty()) << "no blow-up reported";
-  EXPECT_NE(msg.find("ros2 could not start from rest at h = 2e-07 s"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("--set integrator.w_k_every=4, or 2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("every retake of the ros2 step of h = 2e-07 s failed"), std::string::npos) << msg;
   EXPECT_NE(msg.find("--method rk4 --step 1e-8"), std::string::npos) << msg;
   EXPECT_EQ(msg.find("is above it"), std::string::npos) << msg;
+  EXPECT_EQ(msg.find("w_k_every"), std::string::npos) << msg;
+  const std::string fixed = ros2_blow_up_message({"integrator.fixed_steps=true"});
+  ASSERT_FALSE(fixed.empty()) << "no blow-up reported";
+  EXPECT_NE(fixed.find("run without integrator.fixed_steps, or with a smaller integrator.step"), std::string::npos)
+      << fixed;
 }
 
 // A W-method step whose state goes non-finite in every attempt (the driven shaft spun at 1e300
@@ -121,17 +125,7 @@ TEST(BlowUpTest, NonFiniteInsideAWMethodStepReachesTheDiagnosis) {
   EXPECT_NE(msg.find("is not finite"), std::string::npos) << msg;
   EXPECT_NE(msg.find("(step 3)"), std::string::npos) << msg;
   EXPECT_NE(msg.find("so RK4 is stable for h up to"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("integrator.w_k_every"), std::string::npos) << msg;
-}
-
-// Past the start-up and the ramp, a W-method's blow-up points at its step and its matrix
-// intervals, not at RK4's limit.
-TEST(BlowUpTest, WMethodBlowUpAfterTheStartPointsAtItsMatrixIntervals) {
-  const std::string msg = ros2_blow_up_message({"ramp.time=0", "integrator.startup_time=0"});
-  ASSERT_FALSE(msg.empty()) << "no blow-up reported";
-  EXPECT_NE(msg.find("uses ros2"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("integrator.w_every"), std::string::npos) << msg;
-  EXPECT_EQ(msg.find("could not start"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("every retake of the ros34pw2 step"), std::string::npos) << msg;
 }
 
 }  // namespace
@@ -159,6 +153,36 @@ TEST(WStepRetake, AFailedSubStepIsTakenAgainAndTheRunGoesOn) {
   for (int n = 0; n < 20; ++n) ok.step(h);
   EXPECT_NO_THROW(ok.check_finite());
   EXPECT_EQ(ok.steps_rejected(), 0);
+}
+
+// The mini model from rest at ratio 0.9: the start-up's ROS2 sub-steps estimate hundreds of
+// um from the first one on, and with fixed steps the rocker faces of one joint overlap
+// absurdly by 5 us, too late for a retake to save; by default the gross estimates are
+// retaken in pieces and the run goes on (docs/integrators.md 12.3).
+TEST(WStepRetake, AGrossErrorEstimateIsTakenAgainInPieces) {
+  bool sound[2] = {false, false};
+  long rejected[2] = {0, 0};
+  for (int fixed = 0; fixed < 2; ++fixed) {
+    const Model m = test::model("mini", {"integrator.method=ros34pw2", "integrator.step=8.333333333333333e-7",
+                                         "geometry.ratio=0.9",
+                                         fixed ? "integrator.fixed_steps=true" : "integrator.fixed_steps=false"});
+    Simulation sim(m);
+    const double h = m.cfg.integrator.step;
+    bool ok = true;
+    for (int n = 0; n < 24 && ok; ++n) {
+      sim.step(h);
+      try {
+        sim.check_finite();
+      } catch (const std::exception&) {
+        ok = false;
+      }
+    }
+    sound[fixed] = ok;
+    rejected[fixed] = sim.steps_rejected();
+  }
+  EXPECT_TRUE(sound[0]) << "the default run blew up";
+  EXPECT_GT(rejected[0], 0);
+  EXPECT_FALSE(sound[1]) << "fixed steps no longer blow up here: the case no longer exercises the error test";
 }
 
 }  // namespace

@@ -64,7 +64,7 @@ TEST(UntilSteadyTest, MiniStopsWhenSteadyAndSaysWhichCriteriaHeld) {
 }
 
 // 40 N m on the mini model (its capacity 2 f0 F1 R1 / cos(beta) is about 35 N m): gross
-// slip, named, and the run stops at the first check.
+// slip, named, and the run stops at the first check; the guard warned of it as it began.
 TEST(UntilSteadyTest, MiniGrossSlipIsNamedAndStopsTheRun) {
   const RunResult r = run_until_steady("mini", {"load.torque=40", "run.t_end=0.05"}, "slip_mini");
   EXPECT_EQ(r.status, "slip");
@@ -74,6 +74,7 @@ TEST(UntilSteadyTest, MiniGrossSlipIsNamedAndStopsTheRun) {
   EXPECT_GT(r.slip, 0.05);
   EXPECT_LT(r.model_time, 0.05);
   EXPECT_FALSE(r.efficiency_meaningful);
+  EXPECT_TRUE(any_starts(r.warnings, "gross slip since t = ")) << (r.warnings.empty() ? "" : r.warnings.front());
 }
 
 // The torsion period against the two-inertia formula worked by hand for the reference

@@ -157,14 +157,15 @@ TEST_F(SweepDir, LedgerKeepsWholeRowsDropsATornLineRefusesAnotherSweep) {
 }
 
 // The mini model, 4 points: one runs to t_end (short windows), one blows up (a step far
-// too large), one cannot be built (a ratio the pulleys do not allow); each a row, the sweep
+// too large, taken as fixed steps, which no gross estimate retakes in pieces), one cannot be built (a ratio the pulleys do not allow); each a row, the sweep
 // goes on. Serial, then mpirun -np 3, then mpirun killed with kill -9 and started again:
 // the same CSV (but wall_s), cell by cell.
 TEST_F(SweepDir, MiniSerialMpiAndKilledGiveTheSameCsv) {
   const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
   const std::string args = " sweep " + test::shell_quote(test::config_path("mini")) +
                            " --axis integrator.step=8.333333333333333e-7,1e-5 --axis geometry.ratio=1.0,3.5"
-                           " --set run.t_end=0.008 --set run.steady_window=2e-3 --set clamping.driving=1.13e4";
+                           " --set run.t_end=0.008 --set run.steady_window=2e-3 --set clamping.driving=1.13e4"
+                           " --set integrator.fixed_steps=true";
   ASSERT_EQ(sh(exe + args + " --out serial > serial.log 2>&1"), 0) << read_text(dir_ / "serial.log");
   const std::string serial = read_text(dir_ / "serial.csv");
   const auto rows = lines(serial);
