@@ -67,6 +67,7 @@ SKIP = {
     "make plots OUT=ref20.h5 PLOTS=fig": "as make plots",
     "make plots STUDY=study.csv": "as make plots",
     "make plots INTEGRATORS=int.csv": "as make plots",
+    "/usr/bin/python3 tests/tools/test_cvt_plot.py [-v]": "the ctest CvtPlotTest runs this command",
     "build/schedule_bench --benchmark_repetitions=5":
         "a benchmark program (make bench): timings, not a recipe with an outcome",
 }
@@ -104,13 +105,13 @@ RECIPES = {
              "--set integrator.w_k_every=32 --scheduler flowgraph --threads 2 --profile-json w_2.json"]),
     "build/cvt-engine run --resume study-cache/study-KEY.ckpt --t-end 4.5e-3 --out p.h5 $OLD "
     "--profile-json serial.json": dict(
-        why="KEY is the cache key of the study before it: the one checkpoint in study-cache/",
-        run=["build/cvt-engine run --resume $(ls study-cache/study-*.ckpt | head -1) --t-end 4.5e-3 "
+        why="KEY is the cache key of the study before it: its one running state in study-cache/",
+        run=["build/cvt-engine run --resume study-cache/study-*.ckpt --t-end 4.5e-3 "
              "--out p.h5 $OLD --profile-json serial.json"]),
     "build/cvt-engine run --resume study-cache/study-KEY.ckpt --t-end 4.5e-3 --out p.h5 $OLD "
     "--scheduler flowgraph --threads 2 --profile-json two.json": dict(
         why="KEY as above",
-        run=["build/cvt-engine run --resume $(ls study-cache/study-*.ckpt | head -1) --t-end 4.5e-3 "
+        run=["build/cvt-engine run --resume study-cache/study-*.ckpt --t-end 4.5e-3 "
              "--out p.h5 $OLD --scheduler flowgraph --threads 2 --profile-json two.json"]),
     "build/cvt-engine scale CONFIG --threads 1,2,4,8,16 --layouts native,'package:2 numa:1 core:8 pu:1' "
     "--out study.csv": dict(
@@ -135,8 +136,6 @@ RECIPES = {
     "tools/cvt_view.py run.h5 --port 0 --no-browser": dict(
         why="run.h5 is any run with snapshots; the viewer serves until stopped",
         setup=[f"build/cvt-engine run configs/mini.toml --t-end 2e-4 -o run.h5"], server=True),
-    "/usr/bin/python3 tests/tools/test_cvt_plot.py [-v]": dict(
-        why="the bracket is optional", run=["/usr/bin/python3 tests/tools/test_cvt_plot.py"]),
 }
 
 # Run as documented with --full: the commands that take a few minutes at most on 2 cores.
@@ -326,6 +325,12 @@ class Folder:
         self.ends = {}      # run file -> model time its checkpoint is at (fast mode)
         self.shell = ""     # variables set by earlier lines of the document
 
+    def record(self, command, kind):
+        """The end time of a run that is not shortened, where the command gives it."""
+        end = option_value(command, "--t-end")
+        if kind == "run" and end is not None and "--resume" not in command:
+            self.ends[option_value(command, "-o", "--out") or "results.h5"] = float(end)
+
     def shorten(self, command, kind):
         if kind == "run":
             resume = option_value(command, "--resume")
@@ -377,7 +382,9 @@ def run_one(folder, command, recipe, full, env, log):
     forms = recipe.get("run", [command])
     for form in forms:
         actual = form
-        if not (full and command in FULL):
+        if full and command in FULL:
+            folder.record(actual, kind_of(form))
+        else:
             for old, new in recipe.get("fast", []):
                 actual = actual.replace(old, new)
             actual = folder.shorten(actual, kind_of(form))
