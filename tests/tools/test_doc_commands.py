@@ -21,6 +21,7 @@ With --full, the commands of FULL run as documented (no shortening): the ones th
 few minutes at most; the others are shortened as without --full.
 """
 import argparse
+import concurrent.futures
 import glob
 import os
 import re
@@ -55,9 +56,6 @@ SHORTEN = {
 # Commands that are not run, each with its reason (the normalized text, as --list prints it).
 SKIP = {
     "make test": "the whole test suite, of which this test is a part",
-    "make test-slow": "the long tests, of which the full variant of this test is a part",
-    "make bench": "the benchmarks: timings, run by hand",
-    "make view": "serves the 3D viewer until stopped; ViewerTest runs the viewer",
     "make run && make view": "make view serves until stopped; make run is run (RECIPES)",
     "make video OUT=results.h5 VIDEO=run.webm":
         "make installs packages first (make deps); the command it runs is the next line's "
@@ -76,7 +74,8 @@ SKIP = {
 # (in order), `shell` a shell variable they need, `setup` commands run before it
 # (files the document means but does not make), `rc` the documented exit code, `fast` text
 # replacements of fast mode, `server` a command that serves until stopped: it passes when it
-# prints its address.
+# prints its address; `needs` a path that `make deps` makes (without it the command is
+# reported as not run), `full_only` a command that runs with --full only.
 RECIPES = {
     "make run": dict(
         why="make also installs packages and builds; this is the command its run target runs",
@@ -135,7 +134,13 @@ RECIPES = {
         setup=["build/cvt-engine study integrators configs/reference.toml -o study.csv"]),
     "tools/cvt_view.py run.h5 --port 0 --no-browser": dict(
         why="run.h5 is any run with snapshots; the viewer serves until stopped",
-        setup=[f"build/cvt-engine run configs/mini.toml --t-end 2e-4 -o run.h5"], server=True),
+        setup=["build/cvt-engine run configs/mini.toml --t-end 2e-4 -o run.h5"], server=True,
+        needs="tools/viewer/node_modules"),
+    "tools/cvt_view.py run.h5 --video run.webm --fps 30 --size 1280x720": dict(
+        why="the viewer's libraries come with make deps", needs="tools/viewer/node_modules"),
+    "PYTHONPATH=build/python docs/examples/optimize_clamping.py --load 15 --json opt.json": dict(
+        why="a bisection on the slip verdict of runs until steady: a shortened run never slips, "
+            "so its bracket holds no change of sign; run in full only", full_only=True),
 }
 
 # Run as documented with --full: the commands that take a few minutes at most on 2 cores.
@@ -154,6 +159,7 @@ FULL = {
     "cvt-engine study shift configs/mini.toml --set clamping.driving=1.13e4 --thrust-ratios 0.9,1.13,1.4 "
     "--speeds 104.7,209.4 --window 5e-3 --settle 1e-3 --steady-bound 0.05 --out mini-shift.csv",
     "PYTHONPATH=build/python docs/examples/efficiency_curve.py --out eff",
+    "PYTHONPATH=build/python docs/examples/optimize_clamping.py --load 15 --json opt.json",
     "build/cvt-engine run configs/reference.toml --t-end 0.1 --scheduler flowgraph --threads 2",
     "c++ -std=c++20 -O2 -DEIGEN_MAX_ALIGN_BYTES=32 -DEIGEN_MAX_STATIC_ALIGN_BYTES=32 -I. -I/usr/include/eigen3 "
     "tests/engine/ode/example_hires.cpp build/libcvt_ode.a -o example_hires",
@@ -379,6 +385,12 @@ def run_one(folder, command, recipe, full, env, log):
         failure = run_one(folder, pre, {}, full, env, log)
         if failure:
             return f"its set-up `{pre}`: {failure}"
+    if recipe.get("full_only") and not full:
+        log(f"    not run without --full: {recipe['why']}")
+        return None
+    if "needs" in recipe and not os.path.exists(os.path.join(ROOT, recipe["needs"])):
+        log(f"    NOT RUN: {recipe['needs']} is missing (make deps)")
+        return None
     forms = recipe.get("run", [command])
     for form in forms:
         actual = form
@@ -420,6 +432,32 @@ def run_one(folder, command, recipe, full, env, log):
     return None
 
 
+def run_document(source, commands, files, tmp, engine, full, env):
+    """Runs the commands of one document in order; (its log, commands run, failures)."""
+    folder = Folder(os.path.join(tmp, re.sub(r"\W", "_", source)), engine)
+    for name, content in files.items():
+        with open(os.path.join(folder.path, name), "w") as f:
+            f.write(content)
+    log, ran, failures = [f"== {source}"], 0, []
+    for line, command in commands:
+        verdict, recipe = classify(command)
+        if verdict != "run":
+            continue
+        if kind_of(command) == "shell":
+            folder.shell += command + "; "
+            continue
+        ran += 1
+        log.append(f"  {source}:{line}: {command}")
+        try:
+            failure = run_one(folder, command, recipe, full, env, log.append)
+        except subprocess.TimeoutExpired as e:
+            failure = f"timed out after {e.timeout} s"
+        if failure:
+            log.append(f"  FAILED: {failure}")
+            failures.append(f"{source}:{line}: `{command}`: {failure}")
+    return "\n".join(log) + "\n", ran, failures
+
+
 def collect(engine):
     """[(source, [(line, command)], files)] for every document and for the --help texts."""
     found = []
@@ -437,6 +475,7 @@ def main():
     ap.add_argument("--full", action="store_true", help="run the commands of FULL as documented")
     ap.add_argument("--list", action="store_true", help="list the commands and what is done with each")
     ap.add_argument("--only", help="only the documents whose name contains one of these (comma-separated)")
+    ap.add_argument("--jobs", type=int, default=2, help="documents run side by side (default 2)")
     args = ap.parse_args()
     engine = os.path.abspath(args.engine)
     sources = collect(engine)
@@ -461,37 +500,25 @@ def main():
                 if command not in seen:
                     failures.append(f"{name} names a command no document shows: `{command}`")
     if args.list:
+        for failure in failures:
+            print("FAIL " + failure)
         return 1 if failures else 0
 
     env = dict(os.environ)
     env["PATH"] = os.path.dirname(engine) + os.pathsep + env.get("PATH", "")
     env.update(MPLBACKEND="Agg", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMP_WAIT_POLICY="passive")
+               OMP_WAIT_POLICY="passive", PYTHONUNBUFFERED="1")
     t_start = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="doc-commands-") as tmp:
-        for source, commands, files in sources:
-            folder = Folder(os.path.join(tmp, re.sub(r"\W", "_", source)), engine)
-            for name, content in files.items():
-                with open(os.path.join(folder.path, name), "w") as f:
-                    f.write(content)
-            print(f"== {source}", flush=True)
-            for line, command in commands:
-                verdict, recipe = classify(command)
-                if verdict != "run":
-                    continue
-                if kind_of(command) == "shell":
-                    folder.shell += command + "; "
-                    continue
-                counts["run"] += 1
-                print(f"  {source}:{line}: {command}", flush=True)
-                try:
-                    failure = run_one(folder, command, recipe, args.full, env,
-                                      lambda s: print(s, flush=True))
-                except subprocess.TimeoutExpired as e:
-                    failure = f"timed out after {e.timeout} s"
-                if failure:
-                    print(f"  FAILED: {failure}", flush=True)
-                    failures.append(f"{source}:{line}: `{command}`: {failure}")
+        # The documents are independent of each other: two at a time, each in its own folder.
+        with concurrent.futures.ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            jobs = [pool.submit(run_document, source, commands, files, tmp, engine, args.full, env)
+                    for source, commands, files in sources]
+            for job in jobs:
+                text, ran, failed = job.result()
+                print(text, end="", flush=True)
+                counts["run"] += ran
+                failures += failed
     print(f"\n{counts['run']} commands run, {counts['skip']} skipped, {len(failures)} failed, "
           f"{time.monotonic() - t_start:.0f} s")
     for failure in failures:
