@@ -111,7 +111,8 @@ TEST_F(VerifyTest, HalvedStepGivesSmallErrorsAndLeavesTheRunsNumbers) {
     EXPECT_TRUE(std::isfinite(e)) << name;
     EXPECT_GE(e, 0) << name;
   }
-  for (const char* n : {"input_torque", "output_torque", "clamping_force_driven", "speed_ratio"}) {
+  // (The mini model's clamping forces and load torque are prescribed: their errors are 0.)
+  for (const char* n : {"input_torque", "output_torque", "speed_ratio", "efficiency"}) {
     const double e = numerical_error(r, n);
     for (const auto& [name, x] : means(r))
       if (name == n) {
