@@ -78,8 +78,13 @@ std::string new_run_id() {
 // Strings that h5py reads as str, flags and counts as integers, the rest as doubles.
 void write_summary(H5File& f, const RunSummary& s) {
   f.remove("/summary");
-  for (const SummaryField& e : summary_fields()) {
+  const auto& fields = summary_fields();
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    const SummaryField& e = fields[i];
     const std::string name(e.name);
+    // A verified mean's numerical error beside it (run.verify).
+    if (e.verify.verified && i < s.numerical_error.size())
+      f.set_double_attribute("/summary", name + "_numerical_error", s.numerical_error[i]);
     std::visit(
         [&](auto m) {
           const auto& x = s.*m;

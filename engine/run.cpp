@@ -8,6 +8,7 @@
 #include <mutex>
 #include <cmath>
 #include <cstdio>
+#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <numeric>
@@ -104,6 +105,9 @@ class Run {
   Checkpoint checkpoint() const;
   void progress(long n, WallClock::time_point now);
   bool steady_now();
+  void plan_verify();
+  void keep_for_verify(long n);
+  void verify();
 
   const Model& m_;
   const Config& c_;
@@ -146,6 +150,13 @@ class Run {
   double window_ = 0, first_check_ = 0;
   long check_every_ = 1;
   std::string stopped_ = "t_end";
+  // run.verify: the states the summary's window may start from, kept in memory: at step
+  // verify_at_ (a run to t_end: the last step before the window's start at which a
+  // continuation repeats the bits), or every verify_every_ steps (run.until_steady: those
+  // within reach of the last two windows).
+  const bool verify_ = c_.run.verify;
+  long verify_at_ = -1, verify_every_ = 0;
+  std::deque<Checkpoint> verify_states_;
   SideJob writes_{sim_.schedule()};  // last: it ends its job before the file and buffers go
 };
 
@@ -261,6 +272,31 @@ void Run::open_output() {
     sync_writes();
   }
   file_->start_swmr();
+  plan_verify();
+}
+
+// run.verify: where the states for the window's second integration are kept. A run to
+// t_end knows its window in advance (summarize's: the last window_fraction of the samples,
+// not before the ramps end); a run until steady keeps about 16 states per window and
+// drops those before the last two windows.
+void Run::plan_verify() {
+  if (!verify_) return;
+  if (until_) {
+    verify_every_ = rebuild_every_ * std::max(1L, std::lround(window_ / (16 * h_ * rebuild_every_)));
+  } else {
+    const double t1 = static_cast<double>(total_) * h_, t0 = channels_.t.front(), ramp_end = ramps_end(c_);
+    double w0 = t1 - SteadyCriteria::of(c_).window_fraction * (t1 - t0);
+    if (w0 < ramp_end && ramp_end < t1) w0 = ramp_end;
+    // A step's margin: the window's first sample is the first at or after w0.
+    verify_at_ = static_cast<long>(std::floor((w0 / h_ - 1) / static_cast<double>(rebuild_every_))) * rebuild_every_;
+  }
+  keep_for_verify(start_);
+}
+
+void Run::keep_for_verify(long n) {
+  if (!verify_ || !(n == verify_at_ || (verify_every_ > 0 && n % verify_every_ == 0))) return;
+  verify_states_.push_back(sim_.checkpoint());
+  while (verify_states_.size() > 1 && verify_states_[1].t <= sim_.time() - 2 * window_) verify_states_.pop_front();
 }
 
 // "gross slip since t = 0.1 s (slip +8.1 %, over 5 %)": the slip at its start, or the largest
@@ -393,6 +429,7 @@ void Run::steps() {
       const bool on_grid = n % every_sample_ == 0 || n == total_;
       if (on_grid) sim_.check_finite(), record();
       if (every_snapshot_ && n % every_snapshot_ == 0) snapshot();
+      keep_for_verify(n);
       start_writes();
       if (checkpoint_every_ > 0 && n % checkpoint_every_ == 0)
         output([&] {
@@ -471,6 +508,7 @@ RunResult Run::finish() {
   r_.work_input = last.work_input;
   r_.energy_turnover = energy_turnover(last);
   r_.residual_fraction = r_.energy_turnover > 0 ? std::abs(r_.energy_residual) / r_.energy_turnover : 0.0;
+  verify();
   {
     H5File f = H5File::open(tmp_);
     write_profile(f, r_.profile);
@@ -481,6 +519,57 @@ RunResult Run::finish() {
   if (!opt_.summary_json.empty()) write_text(opt_.summary_json, summary_json(r_));
   std::filesystem::rename(tmp_, opt_.out_path);
   return r_;
+}
+
+// run.verify (docs/output.md, "Numerical error"): the summary's window integrated again from
+// the state kept at or before its start, with the step h / verify_refine and every other key
+// as it is, sampled on the same grid in memory (nothing is written), and summarized by the
+// same code over the same window; each mean's numerical error is its change. The run's
+// simulation does it: its output is complete by now.
+void Run::verify() {
+  if (!verify_) return;
+  const auto skip = [&](const std::string& why) { warn("run.verify: the means are not verified: " + why); };
+  if (r_.interrupted) return skip("the run was interrupted");
+  if (adaptive_steps(c_)) return skip("adaptive steps (integrator.tolerance) are not verified by a halved step");
+  const Checkpoint* ck = nullptr;
+  for (const Checkpoint& c : verify_states_)
+    if (c.t <= r_.window_start) ck = &c;
+  if (!ck)
+    return skip("no state was kept at or before the window's start (t = " + std::to_string(r_.window_start) +
+                " s; a continuation keeps none before its own start)");
+  const int k = std::max(1, opt_.verify_refine);
+  const double hv = h_ / k, from = r_.window_start - 0.5 * h_;
+  const long n_end = sim_.steps() * k, every = every_sample_ * k;
+  if (opt_.progress) {
+    std::printf("  verifying: t = %.6g .. %.6g s again with the step %.4g s\n", ck->t, sim_.time(), hv);
+    std::fflush(stdout);
+  }
+  const auto t0 = WallClock::now();
+  StopSignals signals;
+  SummaryChannels ch;
+  try {
+    sim_.restore(*ck);
+    if (k > 1) sim_.set_clock(ck->t, ck->steps * k);
+    if (sim_.time() >= from) ch.push(sim_.sample(hv));
+    for (long n = ck->steps * k + 1; n <= n_end; ++n) {
+      sim_.step(hv);
+      if (n % every == 0 || n == n_end) {
+        sim_.check_finite();
+        if (sim_.time() >= from) ch.push(sim_.sample(hv));
+      }
+      if (g_stop_signal) return skip("stopped by a signal");
+    }
+  } catch (const BlowUpError& e) {
+    return skip(std::string("the integration with the step ") + std::to_string(hv) + " s blew up: " + e.what());
+  }
+  if (ch.size() < 2) return skip("the window holds fewer than two samples");
+  RunSummary tight;
+  summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from));
+  if (std::abs(tight.window_start - r_.window_start) > 0.5 * h_ || std::abs(tight.window_end - r_.window_end) > 0.5 * h_)
+    return skip("its window " + std::to_string(tight.window_start) + " .. " + std::to_string(tight.window_end) +
+                " s is not the run's");
+  set_numerical_errors(r_, tight, hv);
+  r_.verify_wall_s = seconds_since(t0);
 }
 
 }  // namespace

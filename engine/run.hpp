@@ -52,6 +52,10 @@ struct RunOptions {
   // Warnings as they happen (default: "cvt-engine: warning: ..." on stderr); they are also
   // kept in the summary and the file's /summary.
   std::function<void(const std::string&)> warn;
+  // run.verify: the window's second integration takes steps of integrator.step /
+  // verify_refine (2: the step halved). 1 repeats the run's own steps, whose errors are
+  // then exactly 0 (the tests' check of the verification itself).
+  int verify_refine = 2;
 };
 
 // What run_simulation returns: the summary and the profile.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <type_traits>
@@ -277,7 +278,7 @@ const std::vector<SummaryField>& summary_fields() {
   using S = RunSummary;
   static const std::vector<SummaryField> fields = {
       {"status", "", "steady, not_steady or slip (printed as steady, not yet steady, slip)", &S::status},
-      {"reasons", "", "why the run is not steady, or its slip (empty when steady); the slip reasons first", &S::reasons},
+      {"reasons", "", "why the run is not steady, or its slip, the slip reasons first; then the means whose numerical error passes its goal (run.verify); empty when steady and within the goals", &S::reasons},
       {"criteria", "", "the checks that held, each with its figures", &S::criteria},
       {"stopped", "", "what ended the run: t_end, steady or slip (run.until_steady), signal, callback", &S::stopped},
       {"steady_window", "s", "with run.until_steady: the length of each of the two windows compared; else 0",
@@ -296,20 +297,34 @@ const std::vector<SummaryField>& summary_fields() {
       {"ratio_target", "1", "geometry.ratio as configured", &S::ratio_target},
       {"window_start", "s", "the start of the window of the means", &S::window_start},
       {"window_end", "s", "the end of the window of the means", &S::window_end},
-      {"speed_ratio", "1", "the mean speed ratio over the window", &S::speed_ratio},
-      {"geometric_ratio", "1", "the mean geometric ratio over the window's samples above 0", &S::geometric_ratio},
-      {"slip", "1", "1 - geometric_ratio / speed_ratio of the two means (0 where undefined)", &S::slip},
-      {"input_speed", "rad/s", "the mean input speed over the window", &S::input_speed},
-      {"output_speed", "rad/s", "the mean output speed over the window", &S::output_speed},
-      {"input_torque", "N m", "the mean input torque over the window", &S::input_torque},
-      {"output_torque", "N m", "the mean output torque over the window", &S::output_torque},
-      {"load_torque", "N m", "the mean load torque over the window", &S::load_torque},
-      {"clamping_force_driving", "N", "the mean driving clamping force over the window", &S::clamp_driving},
-      {"clamping_force_driven", "N", "the mean driven clamping force over the window", &S::clamp_driven},
-      {"sheave_position_driving", "m", "the mean driving sheave position over the window", &S::sheave_driving},
-      {"sheave_position_driven", "m", "the mean driven sheave position over the window", &S::sheave_driven},
-      {"efficiency", "1", "mean output power / mean input power over the window", &S::efficiency},
-      {"loss_efficiency", "1", "1 - dissipated work / input work over the window", &S::loss_efficiency},
+      {"speed_ratio", "1", "the mean speed ratio over the window", &S::speed_ratio, {true}},
+      {"geometric_ratio", "1", "the mean geometric ratio over the window's samples above 0", &S::geometric_ratio,
+       {true}},
+      {"slip", "1", "1 - geometric_ratio / speed_ratio of the two means (0 where undefined)", &S::slip,
+       {true, VerifiedMean::absolute, 5e-4}},
+      {"input_speed", "rad/s", "the mean input speed over the window", &S::input_speed, {true}},
+      {"output_speed", "rad/s", "the mean output speed over the window", &S::output_speed, {true}},
+      {"input_torque", "N m", "the mean input torque over the window", &S::input_torque,
+       {true, VerifiedMean::relative, 5e-3}},
+      {"output_torque", "N m", "the mean output torque over the window", &S::output_torque,
+       {true, VerifiedMean::relative, 5e-3}},
+      {"load_torque", "N m", "the mean load torque over the window", &S::load_torque,
+       {true, VerifiedMean::relative, 5e-3}},
+      {"clamping_force_driving", "N", "the mean driving clamping force over the window", &S::clamp_driving,
+       {true, VerifiedMean::relative, 5e-3}},
+      {"clamping_force_driven", "N", "the mean driven clamping force over the window", &S::clamp_driven,
+       {true, VerifiedMean::relative, 5e-3}},
+      {"sheave_position_driving", "m", "the mean driving sheave position over the window", &S::sheave_driving,
+       {true}},
+      {"sheave_position_driven", "m", "the mean driven sheave position over the window", &S::sheave_driven,
+       {true}},
+      {"efficiency", "1", "mean output power / mean input power over the window", &S::efficiency,
+       {true, VerifiedMean::absolute, 1e-3}},
+      {"loss_efficiency", "1", "1 - dissipated work / input work over the window", &S::loss_efficiency,
+       {true, VerifiedMean::absolute, 1e-3}},
+      {"verify_step", "s", "run.verify: the step of the window's second integration (integrator.step / 2); 0: not verified",
+       &S::verify_step},
+      {"verify_wall_s", "s", "run.verify: wall time of the window's second integration", &S::verify_wall_s},
       {"energy_residual", "J", "the energy balance's residual at the end", &S::energy_residual},
       {"energy_turnover", "J", "|W_in| + |W_out| + |W_diss| + |W_clamp| + |W_switch| at the end", &S::energy_turnover},
       {"residual_fraction", "1", "|energy_residual| / energy_turnover (printed in %)", &S::residual_fraction},
@@ -324,6 +339,36 @@ const std::vector<SummaryField>& summary_fields() {
       {"model_s_per_hour", "s/h", "model time per hour of wall time", &S::model_s_per_hour},
   };
   return fields;
+}
+
+void set_numerical_errors(RunSummary& s, const RunSummary& tight, double tight_step) {
+  const auto& fields = summary_fields();
+  s.verify_step = tight_step;
+  s.numerical_error.assign(fields.size(), std::numeric_limits<double>::quiet_NaN());
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    const SummaryField& f = fields[i];
+    if (!f.verify.verified) continue;
+    const auto member = std::get<double RunSummary::*>(f.member);
+    const double x = s.*member, ref = tight.*member, e = std::abs(ref - x);
+    s.numerical_error[i] = e;
+    const double bound = f.verify.goal == VerifiedMean::relative ? f.verify.bound * std::abs(ref) : f.verify.bound;
+    // A NaN error (a mean that is not finite in one of the runs) passes every goal.
+    if (f.verify.goal == VerifiedMean::no_goal || e <= bound) continue;
+    const std::string unit = f.unit == "1" ? "" : " " + std::string(f.unit);
+    s.reasons.push_back(
+        "numerical error of " + std::string(f.name) + " " + fmt("%.3g", e) + unit + " > " +
+        (f.verify.goal == VerifiedMean::relative ? fmt("%.3g", bound) + unit + fmt(" (%.3g %%)", 100 * f.verify.bound)
+                                                  : fmt("%.3g", bound) + unit) +
+        fmt(": the mean moves from %.6g to %.6g", x, ref) + unit +
+        fmt(" with the step %.4g s; take a smaller integrator.step", tight_step));
+  }
+}
+
+double numerical_error(const RunSummary& s, std::string_view name) {
+  const auto& fields = summary_fields();
+  for (std::size_t i = 0; i < fields.size() && i < s.numerical_error.size(); ++i)
+    if (fields[i].name == name) return s.numerical_error[i];
+  return std::numeric_limits<double>::quiet_NaN();
 }
 
 namespace {
@@ -348,6 +393,12 @@ class Entries {
   bool flag(std::string_view name) { return get<bool>(name); }
   const char* str(std::string_view name) { return get<std::string>(name).c_str(); }
   const std::string& text(std::string_view name) { return get<std::string>(name); }
+  // " +- e" with the numerical error of a verified mean (times scale, in the value's printf
+  // format f), or "" when the run is not verified.
+  std::string pm(std::string_view name, const char* f = "%.2g", double scale = 1) const {
+    const double e = numerical_error(s_, name);
+    return std::isnan(e) ? "" : " +- " + fmt(f, scale * e);
+  }
   const std::vector<std::string>& list(std::string_view name) { return get<std::vector<std::string>>(name); }
   // "name value unit" of every entry not read, separated by ", " (empty when all were read).
   std::string rest() const {
@@ -407,24 +458,37 @@ std::string format_summary(const RunSummary& s) {
   for (const auto& r : e.list("reasons")) line("    - %s\n", r.c_str());
   for (const auto& r : e.list("criteria")) line("    held: %s\n", r.c_str());
   line("  means over t = %.5g .. %.5g s:\n", e.num("window_start"), e.num("window_end"));
-  line("    speed ratio              %.5f   (geometric ratio %.5f, slip %+.2f %%)\n", e.num("speed_ratio"),
-       e.num("geometric_ratio"), 100 * e.num("slip"));
-  line("    input / output speed     %.3f / %.3f rad/s\n", e.num("input_speed"), e.num("output_speed"));
-  line("    input / output torque    %.3f / %.3f N m   (load %.3f N m)\n", e.num("input_torque"),
-       e.num("output_torque"), e.num("load_torque"));
-  line("    clamping forces          %.4g / %.4g kN   (sheaves at %.4f / %.4f mm)\n",
-       1e-3 * e.num("clamping_force_driving"), 1e-3 * e.num("clamping_force_driven"),
-       1e3 * e.num("sheave_position_driving"), 1e3 * e.num("sheave_position_driven"));
+  const auto pm = [&](std::string_view name, const char* f = "%.2g", double scale = 1) {
+    return e.pm(name, f, scale);
+  };
+  line("    speed ratio              %.5f%s   (geometric ratio %.5f%s, slip %+.2f%s %%)\n", e.num("speed_ratio"),
+       pm("speed_ratio").c_str(), e.num("geometric_ratio"), pm("geometric_ratio").c_str(), 100 * e.num("slip"),
+       pm("slip", "%.2g", 100).c_str());
+  line("    input / output speed     %.3f%s / %.3f%s rad/s\n", e.num("input_speed"), pm("input_speed").c_str(),
+       e.num("output_speed"), pm("output_speed").c_str());
+  line("    input / output torque    %.3f%s / %.3f%s N m   (load %.3f%s N m)\n", e.num("input_torque"),
+       pm("input_torque").c_str(), e.num("output_torque"), pm("output_torque").c_str(), e.num("load_torque"),
+       pm("load_torque").c_str());
+  line("    clamping forces          %.4g%s / %.4g%s kN   (sheaves at %.4f%s / %.4f%s mm)\n",
+       1e-3 * e.num("clamping_force_driving"), pm("clamping_force_driving", "%.2g", 1e-3).c_str(),
+       1e-3 * e.num("clamping_force_driven"), pm("clamping_force_driven", "%.2g", 1e-3).c_str(),
+       1e3 * e.num("sheave_position_driving"), pm("sheave_position_driving", "%.2g", 1e3).c_str(),
+       1e3 * e.num("sheave_position_driven"), pm("sheave_position_driven", "%.2g", 1e3).c_str());
   const double efficiency = e.num("efficiency"), loss_efficiency = e.num("loss_efficiency");
   const bool outside = !(efficiency >= 0 && efficiency <= 1);
   if (e.flag("efficiency_meaningful") && !outside)
-    line("    efficiency               %.4f   (mean output / input power; 1 - dissipated/input work %.4f)\n",
-         efficiency, loss_efficiency);
+    line("    efficiency               %.4f%s   (mean output / input power; 1 - dissipated/input work %.4f%s)\n",
+         efficiency, pm("efficiency").c_str(), loss_efficiency, pm("loss_efficiency").c_str());
   else
-    line("    efficiency               not meaningful (%s: the power ratio is %.4g%s; 1 - dissipated/input work "
-         "%.4f)\n",
-         status == "steady" ? "outside [0, 1]" : "the run is not steady", efficiency,
-         outside ? ", outside [0, 1]" : "", loss_efficiency);
+    line("    efficiency               not meaningful (%s: the power ratio is %.4g%s%s; 1 - dissipated/input work "
+         "%.4f%s)\n",
+         status == "steady" ? "outside [0, 1]" : "the run is not steady", efficiency, pm("efficiency").c_str(),
+         outside ? ", outside [0, 1]" : "", loss_efficiency, pm("loss_efficiency").c_str());
+  const double verify_step = e.num("verify_step"), verify_wall = e.num("verify_wall_s");
+  if (verify_step > 0)
+    line("    (+- numerical error: |mean - the same window's mean with the step %.4g s| (run.verify); %.3g s wall "
+         "time)\n",
+         verify_step, verify_wall);
   line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", e.num("energy_residual"),
        100 * e.num("residual_fraction"), e.num("energy_turnover"));
   line("  run: t = %.6g .. %.6g s, %ld steps (mean %.4g s, %ld rejected), stopped: %s%s; %.3g s wall time, %.1f us "
@@ -440,7 +504,9 @@ std::string format_summary(const RunSummary& s) {
 
 std::string summary_json(const RunSummary& s) {
   Json j = Json::object();
-  for (const SummaryField& f : summary_fields())
+  const auto& fields = summary_fields();
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    const SummaryField& f = fields[i];
     std::visit(
         [&](auto m) {
           const auto& x = s.*m;
@@ -448,6 +514,10 @@ std::string summary_json(const RunSummary& s) {
           else j[std::string(f.name)] = x;
         },
         f.member);
+    // A verified mean's numerical error beside it (run.verify).
+    if (f.verify.verified && i < s.numerical_error.size())
+      j[std::string(f.name) + "_numerical_error"] = json_number(s.numerical_error[i]);
+  }
   return json_text(j);
 }
 

@@ -76,6 +76,12 @@ struct RunSummary {
   double energy_residual = 0, work_input = 0, energy_turnover = 0, residual_fraction = 0;
   // What the run warned about (also printed when it happened).
   std::vector<std::string> warnings;
+  // run.verify: the step of the window's second integration (0: not verified), its wall
+  // time, and each mean's numerical error |mean with that step - mean|, one entry per
+  // summary_fields() entry (NaN for those that are not a verified mean; empty when not
+  // verified). numerical_error() reads it by name.
+  double verify_step = 0, verify_wall_s = 0;
+  std::vector<double> numerical_error;
 };
 
 // One entry of the summary: its key in /summary and in the JSON, its unit ("1": a ratio;
@@ -83,11 +89,22 @@ struct RunSummary {
 // /summary writes a double as a double attribute, a long or a bool as an integer, a string
 // or a list of strings as UTF-8 strings; the JSON as numbers (null when not finite),
 // integers, true/false, strings and arrays.
+// A mean over the window that run.verify checks, and the goal its numerical error is held
+// to: an absolute bound (in the entry's unit), a bound relative to the value of the tighter
+// integration, or none (reported, not judged).
+struct VerifiedMean {
+  enum Goal { no_goal, absolute, relative };
+  bool verified = false;
+  Goal goal = no_goal;
+  double bound = 0;
+};
+
 struct SummaryField {
   using Member = std::variant<double RunSummary::*, long RunSummary::*, bool RunSummary::*, std::string RunSummary::*,
                               std::vector<std::string> RunSummary::*>;
   std::string_view name, unit, meaning;
   Member member;
+  VerifiedMean verify = {};  // run.verify: this mean's numerical error, as <name>_numerical_error
 };
 
 // Every entry of the summary, in the order of the JSON: the text, /summary and the JSON are
@@ -99,6 +116,14 @@ const std::vector<SummaryField>& summary_fields();
 // >= 0; never before the ramps have ended.
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {},
                double window_start = -1);
+
+// run.verify: the numerical errors of s's means against tight, the same window's summary
+// from an integration with the step `tight_step`; a mean whose error passes its goal adds
+// a line to s.reasons (the status stays: docs/output.md, "Numerical error").
+void set_numerical_errors(RunSummary& s, const RunSummary& tight, double tight_step);
+// The numerical error of the entry `name` (NaN when s is not verified or the entry is not a
+// verified mean).
+double numerical_error(const RunSummary& s, std::string_view name);
 
 // The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json). The text
 // shows every entry of the table: those its lines do not place, on its last line as

@@ -165,6 +165,7 @@ struct RunArgs {
   std::string out;     // --out (empty: results.h5, or with --resume the run's own file)
   bool profile = false, quiet = false;
   bool until_steady = false;  // --until-steady: run.until_steady
+  bool verify = false;        // --verify: run.verify
 };
 
 // "1.4 min per model second" for a throughput in model seconds per wall hour.
@@ -187,6 +188,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!step.empty()) overrides.push_back("integrator.step=" + step);
   if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
   if (ra.until_steady) overrides.push_back("run.until_steady=true");
+  if (ra.verify) overrides.push_back("run.verify=true");
   // A resumed run takes its configuration from the checkpoint (overrides still apply:
   // --t-end to go further; changing the physics would break the continuation).
   std::optional<Checkpoint> ckpt;
@@ -201,6 +203,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!step.empty()) shortcuts["integrator.step"] = "--step";
   if (!ra.method.empty()) shortcuts["integrator.method"] = "--method";
   if (ra.until_steady) shortcuts["run.until_steady"] = "--until-steady";
+  if (ra.verify) shortcuts["run.verify"] = "--verify";
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
                           : load_config(config_path, overrides, shortcuts);
   const Model model = build_model(cfg);
@@ -396,6 +399,9 @@ Command add_run_command(CLI::App& app) {
   run->add_flag("--until-steady", run_args.until_steady,
                 "stop once the operating point is steady or grossly slips, t_end the upper bound (run.until_steady; "
                 "docs/output.md)");
+  run->add_flag("--verify", run_args.verify,
+                "after the run, integrate the summary's window again with the step halved and print each mean's "
+                "numerical error beside it (run.verify; docs/output.md, \"Numerical error\")");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
   run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
   run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "

@@ -183,6 +183,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(run, until_steady, boolean, "", Range{}),
       CVT_KEY(run, steady_window, real, "s", nonneg),
       CVT_KEY(run, steady_tolerance, real, "1", (Range{0, true, 1, false})),
+      CVT_KEY(run, verify, boolean, "", Range{}),
   };
   return defs;
 }

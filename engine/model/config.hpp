@@ -206,6 +206,10 @@ struct Config {
     bool until_steady = false;
     double steady_window = 0.0;      // [s]; 0: two periods of the lowest torsion mode (torsion_period)
     double steady_tolerance = 0.02;  // [1] of the load torque (torques) and of the speed ratio
+    // After the run, integrate the summary's window again from its start with the step
+    // halved and report each mean's change as its numerical error (docs/output.md,
+    // "Numerical error").
+    bool verify = false;
   } run;
 
   // The fully resolved configuration as TOML text (what /parameters/config stores).

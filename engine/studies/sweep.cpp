@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
@@ -86,6 +87,24 @@ const std::vector<Column>& result_columns() {
       {"model_time", &SweepRow::model_time},
   };
   return cols;
+}
+
+// The result columns that are verified means of the summary (run.verify, summary_fields()):
+// each has a column <name>_numerical_error after the results.
+const std::vector<std::string>& error_columns() {
+  static const std::vector<std::string> cols = [] {
+    std::vector<std::string> out;
+    for (const auto& c : result_columns())
+      for (const SummaryField& f : summary_fields())
+        if (f.name == c.name && f.verify.verified) out.emplace_back(c.name);
+    return out;
+  }();
+  return cols;
+}
+
+double row_error(const SweepRow& r, const std::string& name) {
+  const auto it = r.numerical_error.find(name);
+  return it == r.numerical_error.end() ? std::numeric_limits<double>::quiet_NaN() : it->second;
 }
 
 const std::vector<std::string>& statuses() {
@@ -220,6 +239,7 @@ std::string sweep_csv_header(const SweepPlan& plan) {
   for (const auto& k : plan.keys) s += csv_field(k) + ",";
   s += "status";
   for (const auto& c : result_columns()) s += std::string(",") + c.name;
+  for (const auto& e : error_columns()) s += "," + e + "_numerical_error";
   return s + ",point,reason,wall_s\n";
 }
 
@@ -228,12 +248,13 @@ std::string sweep_csv_row(const SweepRow& r) {
   for (const auto& v : r.values) s += csv_field(v) + ",";
   s += r.status;
   for (const auto& c : result_columns()) s += "," + exact_number(r.*c.field);
+  for (const auto& e : error_columns()) s += "," + exact_number(row_error(r, e));
   return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "\n";
 }
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   const std::vector<std::string> f = split_csv(line);
-  const std::size_t nk = plan.keys.size(), nr = result_columns().size();
+  const std::size_t nk = plan.keys.size(), nr = result_columns().size() + error_columns().size();
   if (f.size() != nk + 1 + nr + 3) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
   SweepRow r;
   r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
@@ -242,6 +263,8 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
     throw std::runtime_error("unknown status '" + r.status + "'");
   std::size_t at = nk + 1;
   for (const auto& c : result_columns()) r.*c.field = std::stod(f[at++]);
+  for (const auto& e : error_columns())
+    if (const double x = std::stod(f[at++]); !std::isnan(x)) r.numerical_error[e] = x;
   r.point = std::stol(f[at++]);
   r.reason = f[at++];
   r.wall_s = std::stod(f[at]);
@@ -280,6 +303,8 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
     r.model_time = s.model_time;
+    if (s.verify_step > 0)
+      for (const auto& e : error_columns()) r.numerical_error[e] = numerical_error(s, e);
   } catch (const SweepInterrupted&) {
     throw;
   } catch (const BlowUpError& e) {
@@ -389,6 +414,11 @@ void SweepLedger::finish(const std::string& config_text) const {
     std::vector<double> v;
     for (const auto& r : rows) v.push_back(r.*c.field);
     f.write_vector(std::string("/results/") + c.name, v);
+  }
+  for (const auto& e : error_columns()) {
+    std::vector<double> v;
+    for (const auto& r : rows) v.push_back(row_error(r, e));
+    f.write_vector("/results/" + e + "_numerical_error", v);
   }
   f.write_vector("/results/wall_s", wall);
   f.write_string("/config", config_text);

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <functional>
+#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -47,6 +48,9 @@ struct SweepRow {
   double speed_ratio = 0, geometric_ratio = 0, slip = 0, input_torque = 0, output_torque = 0, efficiency = 0,
          input_speed = 0, output_speed = 0, load_torque = 0, clamping_force_driving = 0, clamping_force_driven = 0,
          model_time = 0, wall_s = 0;
+  // run.verify: the numerical error of each verified mean among the columns, by column
+  // name (speed_ratio, efficiency, ...); empty when the point was not verified.
+  std::map<std::string, double> numerical_error;
 };
 
 // The CSV (docs/studies.md): the keys, then the results, then point, reason and wall_s.

@@ -122,6 +122,31 @@ TEST(SweepCsvTest, ARowReadsBackToTheSameBits) {
   EXPECT_THROW(parse_sweep_csv_row("150,smooth,weird,1", p), std::runtime_error);
 }
 
+// run.verify's errors: a column <mean>_numerical_error for each verified mean among the
+// results, read back to the same bits; a point not verified reads back without errors.
+TEST(SweepCsvTest, VerifiedMeansHaveErrorColumnsThatReadBack) {
+  const SweepPlan p = SweepPlan::grid({parse_axis("load.torque=150")});
+  const std::string h = sweep_csv_header(p);
+  for (const char* c : {"speed_ratio", "slip", "input_torque", "output_torque", "efficiency", "clamping_force_driving",
+                        "clamping_force_driven"})
+    EXPECT_NE(h.find(std::string(",") + c + "_numerical_error,"), std::string::npos) << c << " in " << h;
+  EXPECT_EQ(h.find("model_time_numerical_error"), std::string::npos) << h;
+  SweepRow r;
+  r.point = 0, r.values = p.points[0], r.status = "steady";
+  r.numerical_error["efficiency"] = 1.0 / 3.0 * 1e-4;
+  r.numerical_error["slip"] = 2.5e-17;
+  const std::string line = sweep_csv_row(r);
+  const SweepRow b = parse_sweep_csv_row(line.substr(0, line.size() - 1), p);
+  EXPECT_EQ(b.numerical_error.at("efficiency"), r.numerical_error.at("efficiency"));
+  EXPECT_EQ(b.numerical_error.at("slip"), r.numerical_error.at("slip"));
+  EXPECT_EQ(b.numerical_error.count("output_torque"), 0u);
+  EXPECT_EQ(sweep_csv_row(b), line);
+  SweepRow plain;
+  plain.point = 0, plain.values = p.points[0], plain.status = "steady";
+  const std::string pl = sweep_csv_row(plain);
+  EXPECT_TRUE(parse_sweep_csv_row(pl.substr(0, pl.size() - 1), p).numerical_error.empty());
+}
+
 // A restart keeps the whole rows, drops a torn last line, and refuses a CSV of another sweep.
 TEST_F(SweepDir, LedgerKeepsWholeRowsDropsATornLineRefusesAnotherSweep) {
   const SweepPlan p = SweepPlan::grid({parse_axis("load.torque=5,10,15")});
@@ -174,7 +199,9 @@ TEST_F(SweepDir, MiniSerialMpiAndKilledGiveTheSameCsv) {
   // Not yet settled at t_end = 8 ms: the row says so and why (tests/engine/until_steady_test.cpp
   // runs the same point to steady).
   EXPECT_NE(rows[1].find(",not_steady,"), std::string::npos) << rows[1];
-  EXPECT_NE(rows[1].find(",0.0080000000000000002,0,"), std::string::npos) << rows[1];
+  EXPECT_NE(rows[1].find(",0.0080000000000000002,"), std::string::npos) << rows[1];
+  // Not verified (run.verify off): its error columns nan, then the point's index.
+  EXPECT_NE(rows[1].find(",nan,0,"), std::string::npos) << rows[1];
   EXPECT_NE(rows[2].find(",error,"), std::string::npos) << rows[2];
   EXPECT_NE(rows[2].find("impossible ratio"), std::string::npos) << rows[2];
   EXPECT_NE(rows[3].find(",blow_up,"), std::string::npos) << rows[3];
