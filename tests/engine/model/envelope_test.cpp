@@ -7,10 +7,13 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "engine/model/envelope.hpp"
 #include "engine/model/model.hpp"
@@ -176,6 +179,59 @@ TEST(EnvelopeTest, ARunOutsideIsWarnedAboutNotRefused) {
   EXPECT_NE(err.str().find("cvt-engine: warning: drive.speed = 700 rad/s is outside the envelope"), std::string::npos)
       << err.str();
   EXPECT_TRUE(fs::exists(dir / "out.h5"));
+  fs::remove_all(dir);
+}
+
+// Three of the mini's envelope points (ratio 1, light and slow; the low end of the ratios,
+// heavy and fast; the high end, heavy and slow), through the sweep from rest: each ends
+// steady or in gross slip, none not steady, blown up or in error.
+TEST(EnvelopeTest, SlowMiniPointsAreSteadyOrSlip) {
+  const fs::path dir = fs::temp_directory_path() / ("cvt_envelope_slow_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  std::ifstream in(std::string(CVT_SOURCE_DIR) + "/configs/envelope-mini.csv");
+  std::vector<std::string> rows;
+  std::string header;
+  for (std::string l; std::getline(in, l);) {
+    if (l.empty() || l[0] == '#') continue;
+    if (header.empty()) header = l;
+    else rows.push_back(l);
+  }
+  ASSERT_EQ(rows.size(), 12u);
+  const auto starts = [](const std::string& row, const std::string& head) { return row.rfind(head, 0) == 0; };
+  std::vector<std::string> chosen;
+  for (const auto& r : rows)
+    if (starts(r, "1.0,1.0,60,1.5,") || starts(r, "0.65,0.65,550,10,") || starts(r, "1.55,1.55,60,10,")) chosen.push_back(r);
+  ASSERT_EQ(chosen.size(), 3u);
+  {
+    std::ofstream out(dir / "points.csv");
+    out << header << "\n";
+    for (const auto& r : chosen) out << r << "\n";
+  }
+  const std::string cmd = "cd " + test::shell_quote(dir.string()) + " && " + test::shell_quote(CVT_ENGINE_EXE) +
+                          " sweep " + test::shell_quote(test::config_path("mini")) +
+                          " --points points.csv --out sub --threads 2 >stdout.txt 2>stderr.txt";
+  const int status = std::system(cmd.c_str());
+  std::ifstream log(dir / "stdout.txt"), csv(dir / "sub.csv");
+  std::stringstream text;
+  text << log.rdbuf();
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << text.str();
+  std::string head;
+  std::getline(csv, head);
+  // The status column's index in the header.
+  int column = 0;
+  for (std::size_t at = 0, next; (next = head.find(',', at)) != std::string::npos && head.substr(at, next - at) != "status";
+       at = next + 1)
+    ++column;
+  int points = 0;
+  for (std::string l; std::getline(csv, l);) {
+    std::stringstream cells(l);
+    std::string cell;
+    for (int k = 0; k <= column; ++k) std::getline(cells, cell, ',');
+    EXPECT_TRUE(cell == "steady" || cell == "slip") << "point " << points + 1 << ": " << l;
+    ++points;
+  }
+  EXPECT_EQ(points, 3) << text.str();
+  std::printf("%s", text.str().c_str());
   fs::remove_all(dir);
 }
 
