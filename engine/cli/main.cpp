@@ -16,6 +16,7 @@
 #include "engine/base/timing.hpp"
 #include "engine/io/checkpoint.hpp"
 #include "engine/model/config.hpp"
+#include "engine/model/envelope.hpp"
 #include "engine/io/h5_writer.hpp"
 #include "engine/model/model.hpp"
 #include "engine/studies/modes.hpp"
@@ -40,6 +41,13 @@ std::string fmt_g(double x) {
   char b[32];
   std::snprintf(b, sizeof b, "%g", x);
   return b;
+}
+
+// A configuration outside the envelope (docs/envelope.md) runs, warned about on stderr
+// first; `where` names the sweep's point ("" for a run).
+void warn_outside_envelope(const cvt::Config& c, const std::string& where = "") {
+  for (const auto& w : cvt::envelope_warnings(c)) std::fprintf(stderr, "cvt-engine: warning: %s%s\n", where.c_str(), w.c_str());
+  std::fflush(stderr);
 }
 
 struct ScheduleArgs {
@@ -206,6 +214,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (ra.verify) shortcuts["run.verify"] = "--verify";
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
                           : load_config(config_path, overrides, shortcuts);
+  warn_outside_envelope(cfg);
   const Model model = build_model(cfg);
   // Without --out a resumed run appends to its own file (GROMACS's mdrun -cpi): the one
   // the checkpoint names, else the checkpoint's name without ".ckpt".
@@ -634,6 +643,14 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   const SweepPlan plan = sweep_plan(o, axes, points);
   const MpiWorld world;
   if (world.rank() == 0) {
+    const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
+    for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
+      std::vector<std::string> ov = o.overrides;
+      const auto own = plan.overrides(i);
+      ov.insert(ov.end(), own.begin(), own.end());
+      warn_outside_envelope(ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov),
+                            "point " + std::to_string(i + 1) + " (" + plan.label(i) + "): ");
+    }
     std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady\n", CVT_VERSION,
                 o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(), [&] {
                   std::string k;

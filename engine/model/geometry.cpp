@@ -139,6 +139,37 @@ std::string fmt(double v) { std::ostringstream s; s.precision(6); s << v; return
 
 }  // namespace
 
+ChainPathParams chain_path_params(const Config& cfg) {
+  ChainPathParams gp;
+  gp.centre_distance = cfg.geometry.centre_distance;
+  gp.ratio = cfg.geometry.ratio;
+  gp.links = cfg.chain.links;
+  gp.plate_rest = cfg.chain.pitch + cfg.rocker.half_distance;
+  gp.kappa = 0.5 * cfg.rocker.half_distance - cfg.rocker.radius;
+  gp.rocker_radius = cfg.rocker.radius;
+  gp.r_min = cfg.sheave.hub_radius + 0.5 * cfg.chain.pitch;
+  gp.r_max = cfg.sheave.outer_radius - 0.5 * cfg.chain.pitch;
+  return gp;
+}
+
+bool chain_fits(const ChainPathParams& p) {
+  const double a = p.centre_distance, i = p.ratio;
+  if (!(i > 0)) return false;
+  const double R1_lo = std::max(p.r_min, p.r_min / i);
+  const double R1_hi = std::min(p.r_max, p.r_max / i);
+  if (R1_lo >= R1_hi || std::abs(i * R1_lo - R1_lo) >= a) return false;
+  // The closure of place_chain at both ends of the admissible radii: the chain must turn
+  // at least 2 pi at the smallest and at most 2 pi at the largest.
+  const std::vector<double> lift(p.links + 1, 0.0);
+  const auto closure = [&](double R1) {
+    BeltPath path(a, R1, i * R1);
+    Walk w = walk(path, regular_alpha(path, p), p, p.links, &lift);
+    return w.ok ? w.psi[p.links] - w.psi[0] - 2 * M_PI : std::nan("");
+  };
+  const double f_lo = closure(R1_lo), f_hi = closure(R1_hi * (1 - 1e-9));
+  return f_lo >= 0 && f_hi <= 0;  // false for NaN
+}
+
 ChainPlacement place_chain(const ChainPathParams& p) {
   const double a = p.centre_distance;
   const int N = p.links;

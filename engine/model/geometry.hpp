@@ -31,7 +31,16 @@ struct ChainPlacement {
   int iterations = 0;
 };
 
+struct Config;
+
+// The path parameters of a configuration at its geometry.ratio: the joints' admissible
+// radii r_hub + p/2 .. r_out - p/2 (docs/model.md 5.1).
+ChainPathParams chain_path_params(const Config& cfg);
+
 // Places the chain; throws ConfigError when the chain cannot wrap the pulleys.
 ChainPlacement place_chain(const ChainPathParams& p);
+
+// Whether place_chain places the chain at p.ratio (the same tests, without placing it).
+bool chain_fits(const ChainPathParams& p);
 
 }  // namespace cvt

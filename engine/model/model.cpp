@@ -160,15 +160,7 @@ Model build_model(const Config& cfg) {
   m.bend_inv_s = m.bend_inv_w[0] + m.bend_inv_w[2];
 
   // 5: geometry.
-  ChainPathParams gp;
-  gp.centre_distance = cfg.geometry.centre_distance;
-  gp.ratio = cfg.geometry.ratio;
-  gp.links = m.links;
-  gp.plate_rest = m.plate_rest;
-  gp.kappa = m.kappa;
-  gp.rocker_radius = cfg.rocker.radius;
-  gp.r_min = cfg.sheave.hub_radius + 0.5 * cfg.chain.pitch;
-  gp.r_max = cfg.sheave.outer_radius - 0.5 * cfg.chain.pitch;
+  const ChainPathParams gp = chain_path_params(cfg);
   ChainPlacement pl = place_chain(gp);
   m.closure_residual = pl.closure_residual;
   m.geometry_iterations = pl.iterations;
