@@ -124,7 +124,9 @@ TEST_F(VerifyTest, HalvedStepGivesSmallErrorsAndLeavesTheRunsNumbers) {
   // The run's means: the same bits as the unverified run's; so is its file.
   for (const auto& [name, x] : means(r)) {
     for (const auto& [name0, x0] : means(plain_->r))
-      if (name == name0) EXPECT_EQ(x, x0) << name;
+      if (name == name0) {
+        EXPECT_EQ(x, x0) << name;
+      }
   }
   EXPECT_EQ(halved_->output_torque, plain_->output_torque);
   EXPECT_EQ(plain_->r.verify_step, 0);
@@ -144,7 +146,9 @@ TEST_F(VerifyTest, JsonAndSummaryGroupCarryTheErrors) {
   // Beside its mean: the next key.
   std::string before;
   for (auto it = j.begin(); it != j.end(); ++it) {
-    if (it.key() == "efficiency_numerical_error") EXPECT_EQ(before, "efficiency");
+    if (it.key() == "efficiency_numerical_error") {
+      EXPECT_EQ(before, "efficiency");
+    }
     before = it.key();
   }
   EXPECT_EQ(j["verify_step"].get<double>(), halved_->r.verify_step);
