@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "engine/base/timing.hpp"
+#include "engine/model/envelope.hpp"
 #include "engine/output.hpp"
 #include "graph/side_job.hpp"
 
@@ -205,6 +206,9 @@ Run::Run(const Model& m, const RunOptions& opt)
     first_check_ = std::max(ramps_end(c_), append_ ? 0.0 : sim_.time()) + 2 * window_;
     check_every_ = std::lcm(every_sample_, rebuild_every_);
   }
+  // Outside the envelope (docs/envelope.md): in the summary's warnings; `cvt-engine` prints
+  // them before the model is built.
+  for (const std::string& w : envelope_warnings(c_)) r_.warnings.push_back(w);
 }
 
 void Run::warn(const std::string& w) {

@@ -97,6 +97,14 @@ class Judge {
     const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
     t_mesh_ = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0;
     k_ = t_mesh_ > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh_ / dt)) : 1;
+    // The span that averages out both the lowest torsion mode and the meshing ripple: half
+    // the until-steady window, a torsion period in whole meshing periods (steady_window).
+    t_torsion_ = 0.5 * steady_window(m);
+    k_torsion_ = t_torsion_ > 0 && dt > 0 ? static_cast<std::size_t>(std::lround(t_torsion_ / dt)) : 0;
+    // Halves of whole spans where the window holds two or more (the until-steady run's two
+    // windows): a mode ringing on then moves neither half's mean.
+    if (const std::size_t half = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ / 2 : 0; half > 0)
+      a_ = b_ - 2 * half * k_torsion_, mid_ = b_ - half * k_torsion_;
   }
   void all(bool ramping, double ramp_end) {
     if (ramping)
@@ -157,7 +165,7 @@ class Judge {
     drift("input torque", "N m", ch_.input_torque, torque_scale_);
     drift("speed ratio", "", ch_.speed_ratio, std::abs(s_.speed_ratio));
     if (held)
-      this->held.push_back(fmt("means over t = %.5g .. %.5g s and %.5g .. %.5g s agree within ", s_.window_start,
+      this->held.push_back(fmt("means over t = %.5g .. %.5g s and %.5g .. %.5g s agree within ", ch_.t[a_],
                                ch_.t[mid_], ch_.t[mid_], s_.window_end) +
                            fmt("%.2g %%: ", 100 * c_.drift) + agree);
   }
@@ -175,9 +183,14 @@ class Judge {
     else
       held.push_back(fmt("ratio held: the geometric ratio moves %+.2g %% per 10 ms (limit %.2g)", rate, c_.shift));
   }
-  // The slow swing of the output torque: a moving average over one meshing period (the time
-  // a link takes to pass, pitch / (omega_in R1)) removes the polygon ripple and leaves the
-  // torsion modes of shafts and load.
+  // The torsion modes of shafts and load: the output torque's mean over each whole span of
+  // the lowest mode's period (t_torsion_) in the window, and how far those means scatter: the
+  // window's mean is uncertain by their standard error, which the criterion bounds. A mode
+  // that rings on at a steady amplitude (a light load whose meshing keeps it going) leaves
+  // the period means alone; one that is still decaying, or a drive line still winding up,
+  // scatters them. The swing (a moving average over one meshing period, the time a link takes
+  // to pass, pitch / (omega_in R1), removes the polygon ripple) is reported beside it. A
+  // window of fewer than two spans judges the swing against the load instead.
   void ringing() {
     double lo = 1e300, hi = -1e300, run = 0;
     for (std::size_t i = a_; i < b_; ++i) {
@@ -186,13 +199,37 @@ class Judge {
       if (i + 1 >= a_ + k_) lo = std::min(lo, run / k_), hi = std::max(hi, run / k_);
     }
     const double swing = 0.5 * (hi - lo);
-    if (swing > c_.ringing * torque_scale_)
-      unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
-                             "load) with the meshing ripple removed",
-                             swing, 100 * swing / torque_scale_));
+    const std::size_t periods = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
+    if (periods < 2) {
+      if (swing > c_.ringing * torque_scale_)
+        unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
+                               "load) with the meshing ripple removed",
+                               swing, 100 * swing / torque_scale_));
+      else
+        held.push_back(fmt("torsion settled: the output torque swings +-%.3g N m (%.1f %% of the load; limit %.3g %%)",
+                           swing, 100 * swing / torque_scale_, 100 * c_.ringing));
+      return;
+    }
+    // The last `periods` whole periods of the window.
+    const std::size_t first = b_ - periods * k_torsion_;
+    double sum = 0, sum2 = 0;
+    for (std::size_t p = 0; p < periods; ++p) {
+      const double x = mean(ch_.output_torque, first + p * k_torsion_, first + (p + 1) * k_torsion_);
+      sum += x, sum2 += x * x;
+    }
+    const double n = static_cast<double>(periods), avg = sum / n;
+    const double sd = std::sqrt(std::max(0.0, (sum2 - n * avg * avg) / (n - 1))), se = sd / std::sqrt(n);
+    char text[512];
+    std::snprintf(text, sizeof text,
+                  "the output torque's means over %zu spans of %.3g s (a torsion period in whole meshing periods) "
+                  "scatter by %.3g N m: the mean is "
+                  "uncertain by +-%.3g N m (%.2f %% of the load; limit %.3g %%); it swings +-%.3g N m with the "
+                  "meshing ripple removed",
+                  periods, t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
+    if (se > c_.torsion_uncertainty * torque_scale_)
+      unsteady.push_back(std::string("torsion mode not settled: ") + text);
     else
-      held.push_back(fmt("torsion settled: the output torque swings +-%.3g N m (%.1f %% of the load; limit %.3g %%)",
-                         swing, 100 * swing / torque_scale_, 100 * c_.ringing));
+      held.push_back(std::string("torsion settled: ") + text);
   }
   void balance() {
     if (!(std::abs(s_.load_torque) > 0)) return;
@@ -204,10 +241,12 @@ class Judge {
   }
 
   const SummaryChannels& ch_;
-  const std::size_t a_, b_, mid_;
+  std::size_t a_, b_, mid_;  // the judged samples [a_, b_), their halves split at mid_
   RunSummary& s_;
   const SteadyCriteria& c_;
   const double torque_scale_;
+  double t_torsion_ = 0;        // the span of the torsion judgement [s]
+  std::size_t k_torsion_ = 0;  // its samples (0: none)
   double t_mesh_ = 0;
   std::size_t k_ = 1;
 };

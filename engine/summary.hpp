@@ -35,6 +35,9 @@ struct SteadyCriteria {
   double window_fraction = 0.2;  // the window: the last 20 % of the run, after the ramp
   double drift = 0.02;           // means of the window's halves agree within 2 % (torques: of the load)
   double ringing = 0.03;         // slow swing of the output torque, meshing ripple removed: 3 % of the load
+                                 // (windows of fewer than two torsion periods)
+  double torsion_uncertainty = 0.005;  // the output torque's mean over whole torsion periods: its standard
+                                       // error within 0.5 % of the load
   double balance = 0.02;         // mean output torque against the mean load torque: 2 %
   double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip

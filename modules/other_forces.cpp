@@ -19,8 +19,10 @@ void slip_safe_control(const Model& m, Workspace& ws, const double F[2], double 
   const double err = target_ratio(c, ws.t) - R2 / R1;
   const double B = std::max(std::min(F[0], F[1]), slip_safe_gain(m) * transmitted_torque(c, ws.t) / R2);
   // Larger ratio wanted -> smaller driving radius -> a smaller thrust ratio.
+  // The gains at the input speed they are given for (gain_speed): the shift rate grows with it.
+  const double g = c.controller.gain_speed > 0 ? c.controller.gain_speed / c.drive.speed : 1.0;
   const double u = std::log(c.clamping.driving / c.clamping.driven) -
-                   (c.controller.shift_kp * err + c.controller.shift_ki * ws.aux[kCtrlIntegral]);
+                   (g * c.controller.shift_kp * err + g * c.controller.shift_ki * ws.aux[kCtrlIntegral]);
   const double lim = std::log(c.controller.thrust_limit);
   const double lk = std::clamp(u, -lim, lim);
   // The integral stops while the thrust ratio sits at its limit and the error pushes on.

@@ -151,6 +151,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(controller, shift_kp, real, "1", nonneg),
       CVT_KEY(controller, shift_ki, real, "1/s", nonneg),
       CVT_KEY(controller, thrust_limit, real, "1", above_one),
+      CVT_KEY(controller, gain_speed, real, "rad/s", nonneg),
 
       CVT_KEY(ramp, time, real, "s", nonneg),
       CVT_KEY(ramp, load_time, real, "s", nonneg),

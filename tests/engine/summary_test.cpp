@@ -129,6 +129,27 @@ TEST(SummaryTest, RingingTorsionModeIsNamed) {
   EXPECT_FALSE(s.efficiency_meaningful);
 }
 
+// Over whole periods of the lowest torsion mode the summary judges the output torque's
+// mean, not its swing: a mode ringing on at a steady amplitude (+-10 N m, 6.7 % of the load)
+// leaves the mean over each period alone (steady); a second, faster mode that whole periods
+// of the first do not average out scatters those means (not steady).
+TEST(SummaryTest, TorsionModeIsJudgedByItsMeanOverWholePeriods) {
+  const double T = torsion_period(test::model("reference"));
+  const double t_end = 15 * T;  // the window, the last 20 %: about three periods
+  const RunSummary ringing =
+      Synthetic([T](double t, Sample& x) { x.output_torque += 10 * std::sin(2 * M_PI * t / T); }, t_end).summary();
+  std::printf("torsion period %.4g s: %s\n", T, ringing.criteria.empty() ? "" : ringing.criteria.back().c_str());
+  EXPECT_EQ(ringing.status, "steady") << reasons(ringing);
+  bool settled = false;
+  for (const auto& c : ringing.criteria) settled |= c.rfind("torsion settled: the output torque's means over ", 0) == 0;
+  EXPECT_TRUE(settled);
+  const RunSummary beat =
+      Synthetic([T](double t, Sample& x) { x.output_torque += 20 * std::sin(2 * M_PI * t * 1.37 / T); }, t_end)
+          .summary();
+  EXPECT_EQ(beat.status, "not_steady");
+  EXPECT_TRUE(has_reason(beat, "torsion mode not settled")) << reasons(beat);
+}
+
 TEST(SummaryTest, ShiftingRatioIsNamedWithItsRate) {
   const RunSummary s = Synthetic([](double t, Sample& x) {
                          x.geometric_ratio *= 1 + 0.4 * t;  // +0.4 % per 10 ms
