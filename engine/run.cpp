@@ -255,14 +255,6 @@ void Run::open_output() {
     warn("the checkpoint is at step " + std::to_string(start_) + ", not a multiple of integrator.w_k_every = " +
          std::to_string(rebuild_every_) + ": " + to_string(c_.integrator.method) +
          "'s matrix is rebuilt here, so the continuation is close to, not bit-identical with, an uninterrupted run");
-  // The slip-safe clamping changes the forces with the state: a W-method's stiffness
-  // rebuilt seldom falls behind them (docs/studies.md, "The ratio controller").
-  if (c_.controller.enabled && c_.controller.clamping_safety > 0 && c_.integrator.method != IntegratorMethod::rk4 &&
-      c_.integrator.w_k_every > 16)
-    warn("the slip-safe clamping changes the clamping forces with the state; with the stiffness rebuilt every "
-         "integrator.w_k_every = " + std::to_string(c_.integrator.w_k_every) + " steps " + to_string(c_.integrator.method) +
-         "'s matrix falls behind them (on the reference model the chain creeps 4.5 % instead of 1 % and the run blows "
-         "up): set integrator.w_k_every = 16 or less");
   t0_ = last_progress_ = last_flush_ = WallClock::now();
   sim_.check_finite();
   if (append_) {

@@ -788,6 +788,13 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
   if (cfg.ramp.load_time < 0) cfg.ramp.load_time = cfg.ramp.time;  // not given: the clamping's ramp
   if (cfg.integrator.settle_time < 0)  // not given: until both ramps have ended (ramps_end)
     cfg.integrator.settle_time = std::max(cfg.ramp.time, cfg.ramp.load_start + cfg.ramp.load_time);
+  // The slip-safe clamping changes the clamping forces with the state: a W-method's
+  // stiffness rebuilt seldom falls behind them (docs/studies.md, "The ratio controller"), so
+  // with it the stiffness is rebuilt every 16 steps at most (a multiple of w_every).
+  if (cfg.controller.enabled && cfg.controller.clamping_safety > 0 && cfg.integrator.w_every > 0 &&
+      cfg.integrator.w_k_every > kSlipSafeStiffnessEvery)
+    cfg.integrator.w_k_every =
+        std::max(cfg.integrator.w_every, kSlipSafeStiffnessEvery / cfg.integrator.w_every * cfg.integrator.w_every);
   val.check_relations(root, cfg);
 
   cfg.resolved_toml = resolved_toml(cfg);

@@ -220,6 +220,10 @@ struct Config {
   std::string resolved_toml;
 };
 
+// With the slip-safe controller the W matrix's stiffness is rebuilt at least every this many
+// steps (parse_config lowers integrator.w_k_every to it).
+inline constexpr int kSlipSafeStiffnessEvery = 16;
+
 // Parses TOML text, applies the overrides ("section.key=value") and validates every key.
 // Throws ConfigError. `origin` names the source in messages.
 // Every problem in the text is reported (one line each), not only the first. `shortcuts`

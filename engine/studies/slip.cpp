@@ -1,6 +1,7 @@
 #include "engine/studies/slip.hpp"
 
 #include <cmath>
+#include <stdexcept>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -14,8 +15,14 @@ namespace cvt {
 
 namespace {
 
-// One load torque at one clamping force and ratio, run until steady: held (no gross slip,
-// no blow-up) or not.
+struct SlipProbeFailed : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// One load torque at one clamping force and ratio, run until steady: held (no gross slip)
+// or not. A blow-up that followed gross slip (the run names it: the chain thrown off the
+// sheaves by a load the clamping does not hold) is a slip; any other blow-up or error says
+// nothing about the slip limit and stops the row (SlipProbeFailed).
 struct Probe {
   const SlipStudyOptions& o;
   double f1, f2;
@@ -29,11 +36,15 @@ struct Probe {
     const SweepRow r = run_sweep_point(o.sweep, p, 0);
     ++row.runs;
     const bool held = r.status == "steady" || r.status == "not_steady";
-    if (r.status == "blow_up" || r.status == "error") row.note = r.status + " at " + exact_number(torque) + " N m: taken as slip";
     char b[200];
     std::snprintf(b, sizeof b, "    F1 = %.4g N, load %.5g N m: %s (slip %+.2f %%, t = %.4g s, %.1f s)", f1, torque,
                   r.status.c_str(), 100 * r.slip, r.model_time, r.wall_s);
     sweep_log(o.sweep)(b);
+    if (r.status == "blow_up" && r.reason.find("It followed gross slip") != std::string::npos) {
+      row.note = "blow_up after gross slip at " + exact_number(torque) + " N m: a slip";
+    } else if (r.status == "blow_up" || r.status == "error") {
+      throw SlipProbeFailed(r.status + " at " + exact_number(torque) + " N m, not after gross slip: " + r.reason);
+    }
     return held;
   }
 };
@@ -83,19 +94,28 @@ std::vector<SlipRow> run_slip_study(const SlipStudyOptions& o) {
       row.theory_torque = slip_theory_torque(o.sweep.config_path, ov);
       Probe probe{o, f1, row.clamping_driven, ratio, row};
       double lo = 0.7 * row.theory_torque, hi = 1.3 * row.theory_torque;
-      bool lo_holds = probe.holds(lo), hi_slips = false;
-      for (int k = 0; k < 4 && !lo_holds; ++k) hi = lo, hi_slips = true, lo *= 0.6, lo_holds = probe.holds(lo);
-      for (int k = 0; k < 4 && lo_holds && !hi_slips; ++k) {
-        hi_slips = !probe.holds(hi);
-        if (!hi_slips) lo = hi, hi *= 1.4;
-      }
-      if (!lo_holds || !hi_slips) {
-        row.note = !lo_holds ? "slips at every load tried" : "holds every load tried";
-        lo = lo_holds ? lo : 0, hi = lo_holds ? 0 : hi;
-      }
-      while (lo_holds && hi_slips && hi - lo > o.tolerance * lo) {
-        const double mid = 0.5 * (lo + hi);
-        (probe.holds(mid) ? lo : hi) = mid;
+      bool lo_holds = false, hi_slips = false;
+      try {
+        lo_holds = probe.holds(lo);
+        for (int k = 0; k < 4 && !lo_holds; ++k) hi = lo, hi_slips = true, lo *= 0.6, lo_holds = probe.holds(lo);
+        for (int k = 0; k < 4 && lo_holds && !hi_slips; ++k) {
+          hi_slips = !probe.holds(hi);
+          if (!hi_slips) lo = hi, hi *= 1.4;
+        }
+        if (!lo_holds || !hi_slips) {
+          row.note = !lo_holds ? "slips at every load tried" : "holds every load tried";
+          lo = lo_holds ? lo : 0, hi = lo_holds ? 0 : hi;
+        }
+        while (lo_holds && hi_slips && hi - lo > o.tolerance * lo) {
+          const double mid = 0.5 * (lo + hi);
+          (probe.holds(mid) ? lo : hi) = mid;
+        }
+      } catch (const SlipProbeFailed& e) {
+        // The bracket so far (0 where an end is not known yet), and why it stopped.
+        row.note = std::string("stopped: ") + e.what();
+        for (char& ch : row.note)
+          if (ch == ',' || ch == '\n' || ch == '"') ch = ';';  // one CSV cell
+        lo = lo_holds ? lo : 0, hi = hi_slips ? hi : 0;
       }
       row.slip_torque = lo, row.slips_at = hi;
       row.wall_s = seconds_since(t0);
