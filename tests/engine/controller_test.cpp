@@ -5,10 +5,12 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 
 #include "engine/io/h5_writer.hpp"
+#include "engine/rhs/rhs.hpp"
 #include "engine/run.hpp"
 #include "tests/test_util.hpp"
 
@@ -96,6 +98,34 @@ TEST(ControllerTest, SlowReferenceShiftsUnderLoadWithoutSlip) {
   EXPECT_NEAR(mean(c, c.geometric, 0.04, 0.06), 1.0, 0.01) << "the ratio must hold 1.0";
   EXPECT_NEAR(mean(c, c.geometric, 0.22, 0.24), 1.2, 0.03 * 1.2) << "the ratio must reach 1.2";
   EXPECT_NEAR(mean(c, c.geometric, 0.53, 0.55), 0.8, 0.03 * 0.8) << "the ratio must reach 0.8";
+}
+
+// The shift gains act at controller.gain_speed: the same ratio error and integral give the
+// same clamping forces at twice the input speed with twice the gains, and other forces at
+// the speed they are given for; gain_speed = 0 leaves them unscaled.
+TEST(ControllerTest, ShiftGainsAreScaledByTheInputSpeed) {
+  const auto clamp = [](double speed, double kp, double ki, double gain_speed) {
+    char b[4][64];
+    std::snprintf(b[0], sizeof b[0], "drive.speed=%.17g", speed);
+    std::snprintf(b[1], sizeof b[1], "controller.shift_kp=%.17g", kp);
+    std::snprintf(b[2], sizeof b[2], "controller.shift_ki=%.17g", ki);
+    std::snprintf(b[3], sizeof b[3], "controller.gain_speed=%.17g", gain_speed);
+    const Model m = build_model(load_config(test::config_path("mini"),
+                                            {"controller.enabled=true", "controller.clamping_safety=3",
+                                             "controller.target_ratio=1.01", b[0], b[1], b[2], b[3]}));
+    Workspace ws(m);
+    Eigen::VectorXd y = m.y0, dy(m.nstate);
+    y[2 * m.ndof + kCtrlIntegral] = 1e-4;  // an integral of the ratio error (below the thrust limit)
+    rhs_serial(m, ws, 5e-3, y.data(), dy.data());
+    return std::array<double, 2>{ws.other.clamp[0], ws.other.clamp[1]};
+  };
+  const auto base = clamp(209.4, 20, 400, 209.4), doubled = clamp(418.8, 40, 800, 209.4);
+  const auto plain = clamp(418.8, 20, 400, 209.4), unscaled = clamp(418.8, 20, 400, 0);
+  for (int k = 0; k < 2; ++k) EXPECT_NEAR(doubled[k], base[k], 1e-9 * base[k]) << k;
+  EXPECT_NE(base, plain) << "the error does not reach the forces: the case tests nothing";
+  EXPECT_NE(plain, unscaled);
+  const auto at_gain_speed = clamp(418.8, 20, 400, 418.8);
+  for (int k = 0; k < 2; ++k) EXPECT_EQ(at_gain_speed[k], unscaled[k]) << k;
 }
 
 // The slip-safe clamping rebuilds a W-method's stiffness at least every 16 steps: a longer
