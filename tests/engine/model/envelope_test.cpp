@@ -209,7 +209,7 @@ TEST(EnvelopeTest, SlowMiniPointsAreSteadyOrSlip) {
   }
   const std::string cmd = "cd " + test::shell_quote(dir.string()) + " && " + test::shell_quote(CVT_ENGINE_EXE) +
                           " sweep " + test::shell_quote(test::config_path("mini")) +
-                          " --points points.csv --out sub --threads 2 >stdout.txt 2>stderr.txt";
+                          " --points points.csv --set run.t_end=0.08 --out sub --threads 2 >stdout.txt 2>stderr.txt";
   const int status = std::system(cmd.c_str());
   std::ifstream log(dir / "stdout.txt"), csv(dir / "sub.csv");
   std::stringstream text;
