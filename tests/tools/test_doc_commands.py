@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 
 ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 DOCS = ["README.md"] + sorted(glob.glob(os.path.join(ROOT, "docs", "*.md"))) + \
@@ -317,6 +318,19 @@ def option_value(command, *names):
     return None
 
 
+def config_t_end(command):
+    """run.t_end of the configuration file a run command names (its --set first), or None."""
+    words = shlex.split(command)
+    for i, w in enumerate(words):
+        if w == "--set" and i + 1 < len(words) and words[i + 1].startswith("run.t_end="):
+            return float(words[i + 1].split("=", 1)[1])
+    config = next((w for w in words if w.endswith(".toml")), None)
+    if config is None or not os.path.exists(os.path.join(ROOT, config)):
+        return None
+    with open(os.path.join(ROOT, config), "rb") as f:
+        return tomllib.load(f).get("run", {}).get("t_end")
+
+
 class Folder:
     """A folder that looks like the repository's root; the model end time of each run file."""
 
@@ -332,9 +346,14 @@ class Folder:
         self.shell = ""     # variables set by earlier lines of the document
 
     def record(self, command, kind):
-        """The end time of a run that is not shortened, where the command gives it."""
+        """The end time of a run that is not shortened: the command's --t-end, else its
+        configuration's run.t_end."""
+        if kind != "run" or "--resume" in command:
+            return
         end = option_value(command, "--t-end")
-        if kind == "run" and end is not None and "--resume" not in command:
+        if end is None:
+            end = config_t_end(command)
+        if end is not None:
             self.ends[option_value(command, "-o", "--out") or "results.h5"] = float(end)
 
     def shorten(self, command, kind):
