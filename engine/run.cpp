@@ -135,6 +135,7 @@ class Run {
   bool warned_stability_ = false;
   // Gross slip (SteadyCriteria::gross_slip) at every sample since slip_from_ (< 0: not
   // slipping); warned once it has lasted run.efficiency_window, and named by a blow-up.
+  const double gross_slip_ = SteadyCriteria::of(c_).gross_slip;
   double slip_from_ = -1;
   bool warned_slip_ = false;
   double slipped_from_ = -1, slipped_most_ = 0;  // the warned gross slip's start and largest slip
@@ -329,8 +330,8 @@ void Run::record() {
 // stability limit.
 void Run::watch(const Sample& s) {
   if (std::string w = energy_.check(s); !w.empty()) warn(w);
-  const double slip = slip_of(s.speed_ratio, s.geometric_ratio), gross = SteadyCriteria::of(c_).gross_slip;
-  if (!(std::abs(slip) > gross) || s.t < ramps_end(c_)) {
+  const double slip = slip_of(s.speed_ratio, s.geometric_ratio);
+  if (!(std::abs(slip) > gross_slip_) || s.t < ramps_end(c_)) {
     slip_from_ = -1;
   } else {
     if (slip_from_ < 0) slip_from_ = s.t;
@@ -338,7 +339,7 @@ void Run::watch(const Sample& s) {
     if (!warned_slip_ && s.t - slip_from_ >= c_.run.efficiency_window) {
       warned_slip_ = true;
       slipped_from_ = slip_from_, slipped_most_ = slip;
-      warn(fmt_slip("gross slip", slip_from_, slip, gross) +
+      warn(fmt_slip("gross slip", slip_from_, slip, gross_slip_) +
            ": the load exceeds what the clamping holds; the chain slides over the sheaves and the model is not "
            "meant to run on there (raise the clamping, turn on the ratio controller, or lower the load)");
     }
@@ -465,7 +466,7 @@ void Run::steps() {
     std::filesystem::rename(tmp_, opt_.out_path);
     std::string slip;
     if (warned_slip_)
-      slip = ". It followed " + fmt_slip("gross slip", slipped_from_, slipped_most_, SteadyCriteria::of(c_).gross_slip) +
+      slip = ". It followed " + fmt_slip("gross slip", slipped_from_, slipped_most_, gross_slip_) +
              ": the load exceeds what the clamping holds (a physical limit, not the integrator's): raise the clamping, "
              "turn on the ratio controller, or lower the load";
     throw BlowUpError(std::string(e.what()) + slip + ". Every sample before the blow-up is in " + opt_.out_path);
