@@ -51,7 +51,33 @@ double beam(const Model& m, const double* q, const double* v, double* f) {
   return p;
 }
 
+// 4.1: the plate holes' hold on the tilt of one half, E = K / (2 L0^2) |c|^2 with c the
+// lateral offset of end 1 from end 0, damped like the beam (beta); returns the dissipated power.
+double tilt(const Model& m, const double* q, const double* v, double* f) {
+  const double K = m.cfg.pin.tilt_stiffness / (m.L0 * m.L0), beta = m.beam_beta;
+  double p = 0;
+  for (int c = 0; c < 2; ++c) {
+    const double d = q[half::kEnd + half::kX + c] - q[half::kX + c];
+    const double dd = v[half::kEnd + half::kX + c] - v[half::kX + c];
+    const double F = K * (d + beta * dd);
+    f[half::kEnd + half::kX + c] -= F;
+    f[half::kX + c] += F;
+    p += beta * K * dd * dd;
+  }
+  return p;
+}
+
 namespace {
+
+double tilt_energy(const Model& m, const double* q) {
+  const double K = m.cfg.pin.tilt_stiffness / (m.L0 * m.L0);
+  double E = 0;
+  for (int c = 0; c < 2; ++c) {
+    const double d = q[half::kEnd + half::kX + c] - q[half::kX + c];
+    E += 0.5 * K * d * d;
+  }
+  return E;
+}
 
 double beam_energy(const Model& m, const double* q) {
   const double L = m.L0, EA = m.cfg.pin.ea, k_b = m.cfg.pin.ei / (L * L * L);
@@ -472,6 +498,10 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, const Frict
     const JointHalves h(m, ws, j, s);
     s.p_diss += beam(m, h.qa, h.va, h.fa);
     s.p_diss += beam(m, h.qb, h.vb, h.fb);
+    if (m.cfg.pin.tilt_stiffness > 0) {
+      s.p_diss += tilt(m, h.qa, h.va, h.fa);
+      s.p_diss += tilt(m, h.qb, h.vb, h.fb);
+    }
     rocker_stations(m, k, ws, x, j, h, s);
     keeper(m, k, ws.kin, j, h, s);
     plates(m, k, h, s);
@@ -497,6 +527,7 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
     const double* qb = q + m.half_b(j);
     const double* qn = q + m.half_a(j + 1);
     E += beam_energy(m, qa) + beam_energy(m, qb);
+    if (c.pin.tilt_stiffness > 0) E += tilt_energy(m, qa) + tilt_energy(m, qb);
     const int lp = m.wrap(j - 1);
     for (int st = 0; st < c.rocker.stations; ++st) {
       if (status && !status->rocker[j * c.rocker.stations + st]) continue;

@@ -96,6 +96,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(pin, ei, real, "N m^2", positive),
       CVT_KEY(pin, mass, real, "kg", positive),
       CVT_KEY(pin, damping_time, real, "s", nonneg),
+      CVT_KEY(pin, tilt_stiffness, real, "N m/rad", nonneg),
 
       CVT_KEY(rocker, stations, integer, "", (Range{1, false, 16, false})),
       CVT_KEY(rocker, radius, real, "m", positive),

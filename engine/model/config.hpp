@@ -73,6 +73,9 @@ struct Config {
     double ei = 2.9;         // [N m^2]
     double mass = 3.7e-3;    // per half [kg]
     double damping_time = 5.0e-7;  // stiffness-proportional damping coefficient beta [s]
+    // The plate holes' hold on a half's tilt against the pack's normal (the shaft axis):
+    // a spring on the offset of its two ends' lateral positions (docs/model.md 4.1). 0 turns it off.
+    double tilt_stiffness = 1.0e3;  // [N m/rad]
   } pin;
   struct Rocker {
     int stations = 4;

@@ -95,14 +95,14 @@ double plate_stretch(const Model& m, const double* q, int i, int k) {
 }
 
 struct ChainEnergy {
-  double beam = 0, rocker = 0, keeper = 0, plates = 0, pack = 0;
+  double beam = 0, tilt = 0, rocker = 0, keeper = 0, plates = 0, pack = 0;
   double beam_abs_terms = 0;  // sum of |terms| of U_beam written in absolute coordinates
   double min_abs_delta = std::numeric_limits<double>::infinity();    // over rocker stations
   double min_abs_stretch = std::numeric_limits<double>::infinity();  // over plates
-  double total() const { return beam + rocker + keeper + plates + pack; }
+  double total() const { return beam + tilt + rocker + keeper + plates + pack; }
 };
 
-// Section 6's chain terms: sum of U_beam, (2/5) c_r delta_+^(5/2), the keeper's
+// Section 6's chain terms: sum of U_beam, U_tilt = K / (2 L^2) |c|^2, (2/5) c_r delta_+^(5/2), the keeper's
 // (1/2) k s^2, (1/2) k_pl (d - l0)_+^2 and (1/2) k_s (s - zbar)^2.
 ChainEnergy documented_energy(const Model& m, const double* q) {
   const Config& c = m.cfg;
@@ -127,6 +127,8 @@ ChainEnergy documented_energy(const Model& m, const double* q) {
             E.beam_abs_terms += std::abs(0.5 * kb * abs_u[r] * K[r][s] * abs_u[s]);
           }
       }
+      const double cx = h[5] - h[0], cy = h[6] - h[1];
+      E.tilt += 0.5 * c.pin.tilt_stiffness / (L * L) * (cx * cx + cy * cy);
     }
     for (int st = 0; st < c.rocker.stations; ++st) {
       const double d = rocker_delta(m, q, j, st);
@@ -250,10 +252,11 @@ Eigen::VectorXd fd_gradient(const Model& m, const Eigen::VectorXd& y,
   return g;
 }
 
-enum class Part { beam, rocker, keeper, plates, pack, all };
+enum class Part { beam, tilt, rocker, keeper, plates, pack, all };
 const char* name(Part p) {
   switch (p) {
     case Part::beam: return "beam";
+    case Part::tilt: return "tilt";
     case Part::rocker: return "rocker";
     case Part::keeper: return "keeper";
     case Part::plates: return "plates";
@@ -269,6 +272,7 @@ Model elastic_model(Part p) {
   Model m = test::model("mini", {"damping.scale=0", "friction.law=none"});
   Config& c = m.cfg;
   if (p != Part::beam && p != Part::all) c.pin.ea = 0, c.pin.ei = 0;
+  if (p != Part::tilt && p != Part::all) c.pin.tilt_stiffness = 0;
   if (p != Part::rocker && p != Part::all) c.rocker.stiffness = 0;
   if (p != Part::keeper && p != Part::all) c.rocker.keeper_stiffness = 0;
   if (p != Part::plates && p != Part::all) c.chain.plate_stiffness = 0;
@@ -279,6 +283,7 @@ Model elastic_model(Part p) {
 double part_energy(const ChainEnergy& E, Part p) {
   switch (p) {
     case Part::beam: return E.beam;
+    case Part::tilt: return E.tilt;
     case Part::rocker: return E.rocker;
     case Part::keeper: return E.keeper;
     case Part::plates: return E.plates;
@@ -305,6 +310,7 @@ TEST(ChainForcesTest, ChainEnergyIsTheDocumentedSumOfItsParts) {
     EXPECT_GT(E.rocker, 0.0);
     EXPECT_GT(E.plates, 0.0);
     EXPECT_GT(E.keeper, 0.0);
+    EXPECT_GT(E.tilt, 0.0);
     // The kernel sums U_beam in absolute lateral coordinates (~2e-2 m, terms of ~1e2 J that
     // cancel): round-off ~1e-16 of those terms, besides 1e-16 per term of the rest.
     EXPECT_NEAR(chain_energy(m, y.data()), E.total(), 1e-15 * E.beam_abs_terms + 1e-13 * E.total())
@@ -347,7 +353,7 @@ TEST_P(ChainPartGradientTest, ElasticForcesAreMinusTheEnergyGradient) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Parts, ChainPartGradientTest,
-                         ::testing::Values(Part::beam, Part::rocker, Part::keeper, Part::plates, Part::pack,
+                         ::testing::Values(Part::beam, Part::tilt, Part::rocker, Part::keeper, Part::plates, Part::pack,
                                            Part::all),
                          [](const ::testing::TestParamInfo<Part>& i) { return std::string(name(i.param)); });
 

@@ -45,7 +45,7 @@ void expect_same(const Config& a, const Config& b) {
   SAME(chain.links); SAME(chain.pitch); SAME(chain.plates_per_link); SAME(chain.plate_mass);
   SAME(chain.plate_stiffness); SAME(chain.plate_damping); SAME(chain.plate_spread);
   SAME(chain.link_inertia); SAME(chain.pack_stiffness); SAME(chain.pack_damping);
-  SAME(pin.length); SAME(pin.ea); SAME(pin.ei); SAME(pin.mass); SAME(pin.damping_time);
+  SAME(pin.length); SAME(pin.ea); SAME(pin.ei); SAME(pin.mass); SAME(pin.damping_time); SAME(pin.tilt_stiffness);
   SAME(rocker.stations); SAME(rocker.radius); SAME(rocker.half_distance); SAME(rocker.stiffness);
   SAME(rocker.damping);
   SAME(pulley_contact.end_radius); SAME(pulley_contact.stiffness); SAME(pulley_contact.damping);
