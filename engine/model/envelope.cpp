@@ -1,8 +1,11 @@
 // docs/envelope.md: the envelope and its warnings.
 #include "engine/model/envelope.hpp"
 
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <mutex>
+#include <vector>
 
 #include "engine/model/geometry.hpp"
 
@@ -25,6 +28,28 @@ double ratio_end(ChainPathParams gp, double inside, double outside) {
   return inside;
 }
 
+// Both ends of the ratios from the placeable ratio `inside`, remembered for the last few
+// chains: a run asks once for its warnings and once for its summary, and every point of a
+// sweep over anything but the chain's geometry asks for the same ends (each bisection
+// places the chain some thirty times).
+std::array<double, 2> ratio_ends(const ChainPathParams& gp, double inside, double lo, double hi) {
+  using Key = std::array<double, 8>;
+  const Key key = {gp.centre_distance, static_cast<double>(gp.links), gp.plate_rest, gp.kappa,
+                   gp.rocker_radius, gp.r_min, gp.r_max, inside};
+  static std::mutex mutex;
+  static std::vector<std::pair<Key, std::array<double, 2>>> known;  // the newest last
+  {
+    const std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& [k, ends] : known)
+      if (k == key) return ends;
+  }
+  const std::array<double, 2> ends = {ratio_end(gp, inside, lo), ratio_end(gp, inside, hi)};
+  const std::lock_guard<std::mutex> lock(mutex);
+  if (known.size() == 8) known.erase(known.begin());
+  known.emplace_back(key, ends);
+  return ends;
+}
+
 std::string range(double lo, double hi, const char* unit) {
   return num(lo) + " to " + num(hi) + (*unit ? " " : "") + unit;
 }
@@ -42,8 +67,12 @@ Envelope envelope(const Config& c) {
     gp.ratio = r;
     if (std::isnan(inside) && chain_fits(gp)) inside = r;
   }
-  e.ratio_min = std::isnan(inside) ? inside : ratio_end(gp, inside, widest_lo);
-  e.ratio_max = std::isnan(inside) ? inside : ratio_end(gp, inside, widest_hi);
+  if (std::isnan(inside)) {
+    e.ratio_min = e.ratio_max = inside;
+  } else {
+    const std::array<double, 2> ends = ratio_ends(gp, inside, widest_lo, widest_hi);
+    e.ratio_min = ends[0], e.ratio_max = ends[1];
+  }
 
   const double cos_beta = std::cos(c.sheave.cone_angle * M_PI / 180.0);
   gp.ratio = c.geometry.ratio;

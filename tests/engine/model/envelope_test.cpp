@@ -107,6 +107,23 @@ TEST(EnvelopeTest, TheRatioRangeIsWhereTheChainCanBePlaced) {
   }
 }
 
+// The ratio ends are remembered per chain: asked in turn for two chains and for a chain
+// whose centre distance differs, each gets its own ends, the same as when asked first.
+TEST(EnvelopeTest, EachChainKeepsItsOwnRatioRange) {
+  const Envelope ref = envelope(config("reference")), mini = envelope(config("mini"));
+  const Envelope wide = envelope(config("reference", {"geometry.centre_distance=0.165"}));
+  EXPECT_NE(ref.ratio_min, mini.ratio_min);
+  EXPECT_NE(ref.ratio_min, wide.ratio_min);
+  for (int round = 0; round < 2; ++round) {
+    EXPECT_EQ(envelope(config("reference")).ratio_min, ref.ratio_min);
+    EXPECT_EQ(envelope(config("reference")).ratio_max, ref.ratio_max);
+    EXPECT_EQ(envelope(config("mini")).ratio_max, mini.ratio_max);
+    EXPECT_EQ(envelope(config("reference", {"geometry.centre_distance=0.165"})).ratio_max, wide.ratio_max);
+    // The load, the speed and the ratio itself do not change the chain's range.
+    EXPECT_EQ(envelope(config("reference", {"load.torque=20", "geometry.ratio=1.2"})).ratio_min, ref.ratio_min);
+  }
+}
+
 // The slip limit estimate is the Coulomb capacity 2 f0 F R2 / cos(beta): it grows with f0
 // and with the smaller clamping force; with the slip-safe controller it is S times the
 // load wherever that exceeds what the least force holds.
