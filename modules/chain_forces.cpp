@@ -51,22 +51,6 @@ double beam(const Model& m, const double* q, const double* v, double* f) {
   return p;
 }
 
-// 4.1: the plate holes' hold on the tilt of one half, E = K / (2 L0^2) |c|^2 with c the
-// lateral offset of end 1 from end 0, damped like the beam (beta); returns the dissipated power.
-double tilt(const Model& m, const double* q, const double* v, double* f) {
-  const double K = m.cfg.pin.tilt_stiffness / (m.L0 * m.L0), beta = m.beam_beta;
-  double p = 0;
-  for (int c = 0; c < 2; ++c) {
-    const double d = q[half::kEnd + half::kX + c] - q[half::kX + c];
-    const double dd = v[half::kEnd + half::kX + c] - v[half::kX + c];
-    const double F = K * (d + beta * dd);
-    f[half::kEnd + half::kX + c] -= F;
-    f[half::kX + c] += F;
-    p += beta * K * dd * dd;
-  }
-  return p;
-}
-
 namespace {
 
 double tilt_energy(const Model& m, const double* q) {
@@ -241,6 +225,7 @@ void rocker_slip_columns(const LinkKinematics& kin, const RockerEval& r, int lp,
 struct ChainConstants {
   using A4 = Eigen::Array4d;
   double kpl, cpl, crk, brk, ks, cs, kkeep;
+  double ktilt, beta;  // the tilt hold per unit lateral offset, K / L0^2, and its damping time
   FrictionLaw law;
   double f0, v0;
   int nst, groups;
@@ -255,6 +240,7 @@ struct ChainConstants {
     crk = c.rocker.stiffness, brk = d.rocker;
     ks = c.chain.pack_stiffness, cs = d.pack;
     kkeep = c.rocker.keeper_stiffness;
+    ktilt = c.pin.tilt_stiffness / (m.L0 * m.L0), beta = m.beam_beta;
     law = c.friction.law;
     f0 = c.friction.f0, v0 = c.friction.v0;
     nst = c.rocker.stations;
@@ -269,6 +255,21 @@ struct ChainConstants {
       }
   }
 };
+
+// 4.1: the plate holes' hold on the tilt of one half, E = K / (2 L0^2) |c|^2 with c the
+// lateral offset of end 1 from end 0, damped like the beam (beta); returns the dissipated power.
+double tilt(const ChainConstants& k, const double* q, const double* v, double* f) {
+  double p = 0;
+  for (int c = 0; c < 2; ++c) {
+    const double d = q[half::kEnd + half::kX + c] - q[half::kX + c];
+    const double dd = v[half::kEnd + half::kX + c] - v[half::kX + c];
+    const double F = k.ktilt * (d + k.beta * dd);
+    f[half::kEnd + half::kX + c] -= F;
+    f[half::kX + c] += F;
+    p += k.beta * k.ktilt * dd * dd;
+  }
+  return p;
+}
 
 // What joint j's parts read and write: the halves a_j and b_j, a_{j+1} (the other end of
 // link j's plates), the pack s_j, and the slot's force entries.
@@ -498,9 +499,9 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, const Frict
     const JointHalves h(m, ws, j, s);
     s.p_diss += beam(m, h.qa, h.va, h.fa);
     s.p_diss += beam(m, h.qb, h.vb, h.fb);
-    if (m.cfg.pin.tilt_stiffness > 0) {
-      s.p_diss += tilt(m, h.qa, h.va, h.fa);
-      s.p_diss += tilt(m, h.qb, h.vb, h.fb);
+    if (k.ktilt > 0) {
+      s.p_diss += tilt(k, h.qa, h.va, h.fa);
+      s.p_diss += tilt(k, h.qb, h.vb, h.fb);
     }
     rocker_stations(m, k, ws, x, j, h, s);
     keeper(m, k, ws.kin, j, h, s);

@@ -15,8 +15,6 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, const Frict
 // coordinates) to f; returns the dissipated power. Public for the modal tests, which take
 // a single half's stiffness from it.
 double beam(const Model& m, const double* q, const double* v, double* f);
-// 4.1: the plate holes' hold on the tilt of one half (pin.tilt_stiffness); returns the dissipated power.
-double tilt(const Model& m, const double* q, const double* v, double* f);
 
 // Potential energy of the chain's elastic elements (beams, plates, packs, rocker Hertz;
 // with `status`, only the active rocker pairs count).
