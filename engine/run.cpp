@@ -150,6 +150,7 @@ class Run {
   // repeats bit for bit).
   const bool until_ = c_.run.until_steady;
   double window_ = 0, first_check_ = 0;
+  double judged_ = 0;  // the windows' length that decided (until_steady_verdict), else window_
   long check_every_ = 1;
   std::string stopped_ = "t_end";
   // run.verify: the states the summary's window may start from, kept in memory: at step
@@ -202,7 +203,7 @@ Run::Run(const Model& m, const RunOptions& opt)
   // mini model, whose estimate at t = 0 is 6.4e-9), then every millisecond.
   next_stability_check_ = std::max(sim_.time(), ramps_end(c_));
   if (until_) {
-    window_ = steady_window(m);
+    window_ = judged_ = steady_window(m);
     // A continuation into a new file has only its own samples: two windows of them.
     first_check_ = std::max(ramps_end(c_), append_ ? 0.0 : sim_.time()) + 2 * window_;
     check_every_ = std::lcm(every_sample_, rebuild_every_);
@@ -293,7 +294,8 @@ void Run::plan_verify() {
 void Run::keep_for_verify(long n) {
   if (!verify_ || !(n == verify_at_ || (verify_every_ > 0 && n % verify_every_ == 0))) return;
   verify_states_.push_back(sim_.checkpoint());
-  while (verify_states_.size() > 1 && verify_states_[1].t <= sim_.time() - 2 * window_) verify_states_.pop_front();
+  const double reach = 2 * window_ * (1 << kSteadyWindowDoublings);  // the longest pair of windows
+  while (verify_states_.size() > 1 && verify_states_[1].t <= sim_.time() - reach) verify_states_.pop_front();
 }
 
 // "gross slip since t = 0.1 s (slip +8.1 %, over 5 %)": the slip at its start, or the largest
@@ -402,13 +404,15 @@ void Run::progress(long n, WallClock::time_point now) {
   last_progress_ = now;
 }
 
-// run.until_steady: the summary's verdicts over the last two windows; true when they say
-// steady (every criterion held) or gross slip.
+// run.until_steady: the summary's verdicts over the last two windows, of the steady window's
+// length or longer (until_steady_verdict); true when they say steady (every criterion held)
+// or gross slip.
 bool Run::steady_now() {
   if (sim_.time() < first_check_ * (1 - 1e-12)) return false;
   RunSummary probe;
-  summarize(m_, channels_, probe, SteadyCriteria::of(c_), sim_.time() - 2 * window_);
-  if (probe.status != "steady" && probe.status != "slip") return false;
+  const double w = until_steady_verdict(m_, channels_, SteadyCriteria::of(c_), probe);
+  if (!(w > 0)) return false;
+  judged_ = w;
   stopped_ = probe.status;
   return true;
 }
@@ -498,8 +502,8 @@ RunResult Run::finish() {
   r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
   r_.model_s_per_hour = static_cast<double>(done_ - start_) * h_ / step_wall_ * 3600.0;
   r_.stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : stopped_;
-  r_.steady_window = window_;
-  summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * window_ : -1.0);
+  r_.steady_window = judged_;
+  summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);
   const Sample& last = samples_.back();
   r_.energy_residual = last.energy_residual;
   r_.work_input = last.work_input;
@@ -561,7 +565,7 @@ void Run::verify() {
   }
   if (ch.size() < 2) return skip("the window holds fewer than two samples");
   RunSummary tight;
-  summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from));
+  summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from), 0.5 * judged_);
   if (std::abs(tight.window_start - r_.window_start) > 0.5 * h_ || std::abs(tight.window_end - r_.window_end) > 0.5 * h_)
     return skip("its window " + std::to_string(tight.window_start) + " .. " + std::to_string(tight.window_end) +
                 " s is not the run's");

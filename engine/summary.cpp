@@ -89,7 +89,8 @@ void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSumm
 // (a line in slip or unsteady).
 class Judge {
  public:
-  Judge(const Model& m, const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s, const SteadyCriteria& c)
+  Judge(const Model& m, const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s, const SteadyCriteria& c,
+        double span)
       : ch_(ch), a_(a), b_(b), mid_((a + b) / 2), s_(s), c_(c),
         torque_scale_(std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6})) {
     const std::size_t n = ch.size();
@@ -98,9 +99,11 @@ class Judge {
     t_mesh_ = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0;
     k_ = t_mesh_ > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh_ / dt)) : 1;
     // The span that averages out both the lowest torsion mode and the meshing ripple: half
-    // the until-steady window, a torsion period in whole meshing periods (steady_window).
-    t_torsion_ = 0.5 * steady_window(m);
-    k_torsion_ = t_torsion_ > 0 && dt > 0 ? static_cast<std::size_t>(std::lround(t_torsion_ / dt)) : 0;
+    // the until-steady window, a torsion period in whole meshing periods (steady_window),
+    // or the span given (a longer until-steady window's half).
+    t_torsion_ = span > 0 ? span : 0.5 * steady_window(m);
+    // Whole samples, rounded down: a pair of windows, 2 W long, then holds four spans of W / 2.
+    k_torsion_ = t_torsion_ > 0 && dt > 0 ? static_cast<std::size_t>(std::floor(t_torsion_ / dt * (1 + 1e-9))) : 0;
     // Halves of whole spans where the window holds two or more (the until-steady run's two
     // windows): a mode ringing on then moves neither half's mean.
     if (const std::size_t half = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ / 2 : 0; half > 0)
@@ -280,7 +283,7 @@ std::string controller_text(const Config& cfg) {
 }  // namespace
 
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
-               double window_start) {
+               double window_start, double span) {
   const Config& cfg = m.cfg;
   s.drive_speed = cfg.drive.speed;
   s.load_torque_nominal = cfg.load.torque;
@@ -304,13 +307,33 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
   if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
   fill_means(ch, a, n, s);
-  Judge judge(m, ch, a, n, s, c);
+  Judge judge(m, ch, a, n, s, c, span);
   judge.all(ramping, ramp_end);
   s.status = !judge.slip.empty() ? "slip" : judge.unsteady.empty() ? "steady" : "not_steady";
   s.reasons = judge.slip;
   s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
   s.criteria = judge.held;
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
+}
+
+double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s) {
+  const double W = steady_window(m);
+  if (ch.size() < 2 || !(W > 0)) return 0;
+  const double t1 = ch.t.back(), earliest = std::max(ramps_end(m.cfg), ch.t.front());
+  const double slack = 1e-9 * std::max(1.0, t1);
+  double w = W;
+  for (int d = 0; d <= kSteadyWindowDoublings; ++d, w *= 2) {
+    // A longer pair must fit where the data are; W's is judged regardless (its ramp verdict).
+    if (d > 0 && t1 - 2 * w < earliest - slack) break;
+    RunSummary probe;
+    summarize(m, ch, probe, c, t1 - 2 * w, 0.5 * w);
+    if (probe.status == "steady" || probe.status == "slip") {
+      s = std::move(probe);
+      return w;
+    }
+    if (d == 0) s = std::move(probe);
+  }
+  return 0;
 }
 
 const std::vector<SummaryField>& summary_fields() {

@@ -116,9 +116,20 @@ const std::vector<SummaryField>& summary_fields();
 
 // Fills the window, the means and the verdicts of s from the channels (the whole run).
 // The window is the last c.window_fraction of the run, or from window_start when that is
-// >= 0; never before the ramps have ended.
+// >= 0; never before the ramps have ended. span: the torsion span whose whole multiples the
+// torsion verdict averages over [s]; 0: half the steady window (steady_window(m)).
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {},
-               double window_start = -1);
+               double window_start = -1, double span = 0);
+
+// The longest steady window run.until_steady compares: the steady window W times 2^this.
+inline constexpr int kSteadyWindowDoublings = 4;
+
+// run.until_steady's verdict at the channels' end (docs/output.md, "Until steady"): the last
+// two windows of length w, for w = W, 2W, 4W, ... up to 2^kSteadyWindowDoublings W (W =
+// steady_window(m)), as long as both fit after the ramps' end and the first sample, each
+// judged with torsion spans of w / 2; the first that is steady or slips decides. Returns
+// that w with s its summary, or 0 when none does (s then holds W's).
+double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s);
 
 // run.verify: the numerical errors of s's means against tight, the same window's summary
 // from an integration with the step `tight_step`; a mean whose error passes its goal adds

@@ -148,10 +148,11 @@ struct Config {
     double shift_kp = 0.0;         // ln(F1/F2) per unit ratio error [1]
     double shift_ki = 0.0;         // [1/s]
     double thrust_limit = 3.0;     // F1/F2 kept within [1/limit, limit] [1]
-    // The input speed shift_kp and shift_ki are given for: they act scaled by
-    // gain_speed / drive.speed, since the shift rate a thrust ratio gives grows with the input
-    // speed (docs/studies.md, "The ratio controller"); 0: unscaled.
-    double gain_speed = 209.4;  // [rad/s]
+    // > 0: shift_kp and shift_ki act scaled by gain_speed / drive.speed (the loop's bandwidth
+    // in seconds kept as at gain_speed); 0 (default): as given at every speed, the loop's
+    // bandwidth growing with the speed like the shift rate and the chain's passes
+    // (docs/studies.md, "The ratio controller").
+    double gain_speed = 0.0;  // [rad/s]
   } controller;
   struct Ramp {
     double time = 2.0e-3;  // t_ramp [s] of the clamping forces (and of the load unless load_time); 0: at once

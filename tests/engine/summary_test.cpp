@@ -150,6 +150,42 @@ TEST(SummaryTest, TorsionModeIsJudgedByItsMeanOverWholePeriods) {
   EXPECT_TRUE(has_reason(beat, "torsion mode not settled")) << reasons(beat);
 }
 
+// run.until_steady judges the last two steady windows, and longer pairs (2, 4, ... times)
+// where those do not settle: a swing whose period whole torsion spans miss (a mode at 1.37
+// times the estimated frequency, +-20 N m) moves the means of spans of W / 2 by more than
+// 0.5 % of the load, and those of longer spans by less, in proportion to their length. A
+// steady point is decided by W itself; a trend no window passes.
+TEST(SummaryTest, UntilSteadyJudgesLongerWindowsWhereTheSteadyWindowDoesNotSettle) {
+  const Model m = test::model("reference");
+  const double W = steady_window(m), T = torsion_period(m);
+  const double t_end = ramps_end(m.cfg) + 2 * W * (1 << kSteadyWindowDoublings) + 1e-3;
+  const auto beat = [T](double t, Sample& x) { x.output_torque += 20 * std::sin(2 * M_PI * t * 1.37 / T); };
+  const Synthetic swinging(beat, t_end);
+  RunSummary s;
+  const double w = until_steady_verdict(m, swinging.ch, SteadyCriteria{}, s);
+  EXPECT_GT(w, 1.5 * W) << "the steady window's pair does not settle this swing";
+  EXPECT_LE(w, W * (1 << kSteadyWindowDoublings) * (1 + 1e-9));
+  EXPECT_EQ(s.status, "steady") << reasons(s);
+  EXPECT_NEAR(s.window_end - s.window_start, 2 * w, 2e-5);
+  RunSummary at_w;
+  summarize(m, swinging.ch, at_w, SteadyCriteria{}, t_end - 2 * W);
+  EXPECT_TRUE(has_reason(at_w, "torsion mode not settled")) << reasons(at_w);
+
+  RunSummary plain;
+  EXPECT_DOUBLE_EQ(until_steady_verdict(m, Synthetic({}, t_end).ch, SteadyCriteria{}, plain), W);
+  EXPECT_EQ(plain.status, "steady") << reasons(plain);
+  bool four = false;  // the pair of steady windows holds four whole spans, two per window
+  for (const auto& c : plain.criteria) four |= c.rfind("torsion settled: the output torque's means over 4 spans", 0) == 0;
+  EXPECT_TRUE(four);
+
+  RunSummary trend;
+  const Synthetic drifting([&](double t, Sample& x) { beat(t, x), x.output_torque *= std::exp(2 * t); }, t_end);
+  EXPECT_EQ(until_steady_verdict(m, drifting.ch, SteadyCriteria{}, trend), 0.0);
+  EXPECT_EQ(trend.status, "not_steady");
+  EXPECT_TRUE(has_reason(trend, "drift of the means: output torque")) << reasons(trend);
+  EXPECT_NEAR(trend.window_end - trend.window_start, 2 * W, 2e-5) << "the reasons are the steady window's";
+}
+
 TEST(SummaryTest, ShiftingRatioIsNamedWithItsRate) {
   const RunSummary s = Synthetic([](double t, Sample& x) {
                          x.geometric_ratio *= 1 + 0.4 * t;  // +0.4 % per 10 ms
