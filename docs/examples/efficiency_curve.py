@@ -30,7 +30,7 @@ loads = [float(x) for x in args.loads.split(",")]
 rows = cvt.sweep(args.config, axes={"load.torque": loads},
                  overrides={"run.t_end": args.t_end, "clamping.driving": 3e3, "clamping.driven": 3e3,
                             "controller.enabled": True, "controller.clamping_safety": 2.3,
-                            "controller.shift_kp": 20, "controller.shift_ki": 400},
+                            "controller.shift_kp": 100, "controller.shift_ki": 1000},
                  out=args.out, threads=os.cpu_count(), log=print)
 
 for r in rows:

@@ -85,6 +85,7 @@ const std::vector<Column>& result_columns() {
       {"clamping_force_driving", &SweepRow::clamping_force_driving},
       {"clamping_force_driven", &SweepRow::clamping_force_driven},
       {"model_time", &SweepRow::model_time},
+      {"steady_window", &SweepRow::steady_window},
   };
   return cols;
 }
@@ -302,7 +303,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.input_torque = s.input_torque, r.output_torque = s.output_torque, r.efficiency = s.efficiency;
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
-    r.model_time = s.model_time;
+    r.model_time = s.model_time, r.steady_window = s.steady_window;
     if (s.verify_step > 0)
       for (const auto& e : error_columns()) r.numerical_error[e] = numerical_error(s, e);
   } catch (const SweepInterrupted&) {
