@@ -179,7 +179,7 @@ TEST(SummaryTest, UntilSteadyJudgesLongerWindowsWhereTheSteadyWindowDoesNotSettl
   EXPECT_TRUE(four);
 
   RunSummary trend;
-  const Synthetic drifting([&](double t, Sample& x) { beat(t, x), x.output_torque *= std::exp(2 * t); }, t_end);
+  const Synthetic drifting([&](double t, Sample& x) { beat(t, x); x.output_torque *= std::exp(2 * t); }, t_end);
   EXPECT_EQ(until_steady_verdict(m, drifting.ch, SteadyCriteria{}, trend), 0.0);
   EXPECT_EQ(trend.status, "not_steady");
   EXPECT_TRUE(has_reason(trend, "drift of the means: output torque")) << reasons(trend);
