@@ -409,6 +409,9 @@ void Run::progress(long n, WallClock::time_point now) {
 // or gross slip.
 bool Run::steady_now() {
   if (sim_.time() < first_check_ * (1 - 1e-12)) return false;
+  // Two windows of the step as it is now (the energy balance's control may halve it).
+  channels_.from = std::max(0.0, sim_.step_halved_at());
+  if (sim_.time() < (channels_.from + 2 * window_) * (1 - 1e-12)) return false;
   RunSummary probe;
   const double w = until_steady_verdict(m_, channels_, SteadyCriteria::of(c_), probe);
   if (!(w > 0)) return false;
@@ -503,7 +506,13 @@ RunResult Run::finish() {
   r_.model_s_per_hour = static_cast<double>(done_ - start_) * h_ / step_wall_ * 3600.0;
   r_.stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : stopped_;
   r_.steady_window = judged_;
+  channels_.from = std::max(0.0, sim_.step_halved_at());
   summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);
+  // The step the window was taken with, and the energy balance's control of it.
+  r_.step = h_ / (1 << sim_.step_halvings());
+  r_.step_halvings = sim_.step_halvings();
+  r_.step_halved_at = sim_.step_halved_at();
+  r_.energy_leak = sim_.energy_leak();
   const Sample& last = samples_.back();
   r_.energy_residual = last.energy_residual;
   r_.work_input = last.work_input;
@@ -540,9 +549,11 @@ void Run::verify() {
                 " s; a continuation keeps none before its own start)");
   const int k = std::max(1, opt_.verify_refine);
   const double hv = h_ / k, from = r_.window_start - 0.5 * h_;
+  const int halvings = sim_.step_halvings();  // the window's (it starts after the last halving)
+  const double sub = hv / (1 << halvings);       // its sub-steps, halved
   const long n_end = sim_.steps() * k, every = every_sample_ * k;
   if (opt_.progress) {
-    std::printf("  verifying: t = %.6g .. %.6g s again with the step %.4g s\n", ck->t, sim_.time(), hv);
+    std::printf("  verifying: t = %.6g .. %.6g s again with the step %.4g s\n", ck->t, sim_.time(), sub);
     std::fflush(stdout);
   }
   const auto t0 = WallClock::now();
@@ -550,6 +561,7 @@ void Run::verify() {
   SummaryChannels ch;
   try {
     sim_.restore(*ck);
+    sim_.hold_step(halvings);  // the window's own sub-steps, halved
     if (k > 1) sim_.set_clock(ck->t, ck->steps * k);
     if (sim_.time() >= from) ch.push(sim_.sample(hv));
     for (long n = ck->steps * k + 1; n <= n_end; ++n) {
@@ -569,7 +581,7 @@ void Run::verify() {
   if (std::abs(tight.window_start - r_.window_start) > 0.5 * h_ || std::abs(tight.window_end - r_.window_end) > 0.5 * h_)
     return skip("its window " + std::to_string(tight.window_start) + " .. " + std::to_string(tight.window_end) +
                 " s is not the run's");
-  set_numerical_errors(r_, tight, hv);
+  set_numerical_errors(r_, tight, sub);
   r_.verify_wall_s = seconds_since(t0);
 }
 

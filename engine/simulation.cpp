@@ -1,6 +1,7 @@
 #include "engine/simulation.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -16,6 +17,15 @@
 #include "modules/inertia.hpp"
 
 namespace cvt {
+
+namespace {
+// The energy that flowed between two states' work integrals a and b (in, out, dissipated,
+// clamping), each counted by its magnitude.
+double energy_flow(const double* a, const double* b) {
+  return std::abs(b[kWorkIn] - a[kWorkIn]) + std::abs(b[kWorkOut] - a[kWorkOut]) +
+         std::abs(b[kWorkDiss] - a[kWorkDiss]) + std::abs(b[kWorkClamp] - a[kWorkClamp]);
+}
+}  // namespace
 
 Simulation::Simulation(const Model& m, const ScheduleOptions& schedule)
     : m_(m), ws_(m), diag_(m), schedule_(make_schedule(m, ws_, schedule)), rk_(m.nstate), y_(m.y0), dy_(m.nstate) {
@@ -40,10 +50,12 @@ Simulation::~Simulation() = default;
 void Simulation::step(double h, bool update_status) {
   const std::uint64_t tick0 = prof_ ? Profiler::ticks() : 0;
   clock_.keep_origin(h);
-  if (update_status && m_.cfg.integrator.method != IntegratorMethod::rk4)
+  if (update_status && m_.cfg.integrator.method != IntegratorMethod::rk4) {
     w_step(h);
-  else
+    watch_leak(h);
+  } else {
     rk4_step(h, update_status);
+  }
   if (prof_) prof_->add_step(Profiler::ticks() - tick0);
 }
 
@@ -106,21 +118,28 @@ void Simulation::w_step(double h) {
 // One sub-step of the production W-step from (t, y) to t_end: its first evaluation (unless
 // a sample took it), the matrix if due and the stages. A sub-step that leaves the state bad
 // (not finite, an absurd penetration or stretch, or a matrix that turns out singular) or,
-// unless integrator.fixed_steps, whose error estimate is gross (WStep::gross()) is rejected
-// and taken again from its start with the whole matrix rebuilt, then, if need be, in 2, 4,
+// unless integrator.fixed_steps, whose error estimate is gross (WStep::gross()) or whose
+// energy balance jumps (energy_jump: the residual moves by more than the energy that flowed
+// and more than 10 mJ) is rejected and taken again from its start with the whole matrix rebuilt, then, if need be, in 2, 4,
 // ... kMaxPieces pieces, each from a matrix rebuilt at its start. The sub-steps after it
 // start with the pieces that held (pieces_), and halve them while the pieces' estimates stay
 // below a quarter of the gross bound, so that a stretch of fast dynamics (the start from
 // rest at a ratio whose pins land hard) costs one ladder, not one per sub-step. If none
 // holds, the bad state stays for check_finite() to report as a blow-up. A sound sub-step in
-// one piece runs exactly as it would without the checks (which cost about 10 us per
-// sub-step on the reference model: the contacts' depths and the estimate's norm).
+// one piece runs exactly as it would without the checks (which cost about 30 us per
+// sub-step on the reference model: the contacts' depths, the estimate's norm and the
+// energies at its end).
 void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool evaluate) {
   constexpr int kMaxPieces = 64;
   const bool judge_error = !m_.cfg.integrator.fixed_steps;
   y_start_ = y_;
   std::string error;  // the last attempt's error (a singular matrix), if it threw
+  std::array<double, kAuxSize> aux_piece{};  // the work integrals at the piece's start
   double worst = 0;   // the largest estimate of the pieces that held
+  // The energy balance's residual at the piece's start: the last sub-step's end, if it ended here.
+  double r0 = 0;
+  if (judge_error) r0 = balance_t_ == t ? balance_r_ : balance_residual(t, y_);
+  balance_t_ = -1;
   const auto attempt = [&](double a, double b) {
     try {
       s.finish(a, b - a, y_);
@@ -131,16 +150,25 @@ void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool ev
     error.clear();
     if (!y_.allFinite() || !state_problem(y_).empty()) return false;
     worst = std::max(worst, s.error());
-    return !judge_error || s.error() <= s.gross();
+    if (!judge_error) return true;
+    const double r1 = balance_residual(b, y_);
+    if (energy_jump(std::abs(r1 - r0), energy_flow(aux_piece.data(), y_.data() + 2 * m_.ndof))) {
+      ++energy_rejections_;
+      return false;
+    }
+    r0 = r1;
+    return s.error() <= s.gross();
   };
   const double span = t_end - t;
   // pieces from (t, y_start_), the first from a fresh matrix if `retake`
   const auto take = [&](int pieces, bool retake) {
     worst = 0;
+    if (judge_error && retake) r0 = balance_residual(t, y_);
     for (int k = 0; k < pieces; ++k) {
       const double a = t + span * k / pieces, b = k + 1 == pieces ? t_end : t + span * (k + 1) / pieces;
       if (retake) s.retake();
       if (k > 0 || retake || evaluate) s.evaluate(a, y_, index);
+      if (judge_error) std::copy_n(y_.data() + 2 * m_.ndof, kAuxSize, aux_piece.begin());
       if (!attempt(a, b)) return false;
     }
     return true;
@@ -156,11 +184,43 @@ void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool ev
   }
   if (ok) {
     pieces_ = pieces > 1 && worst < 0.25 * s.gross() ? pieces / 2 : pieces;
+    if (judge_error) balance_t_ = t_end, balance_r_ = r0;
     return;
   }
   pieces_ = 1;
   // No attempt held: a bad state is a blow-up (check_finite); an error at a sound state ends the run.
   if (!error.empty() && y_.allFinite() && state_problem(y_).empty()) throw std::runtime_error(error);
+}
+
+// The step's control by the energy balance (integrator.energy_leak; docs/integrators.md
+// 12.3): fixed W-steps after the settling phase. At every torsion span (half the steady
+// window, in whole grid steps) the balance's residual and the input work are taken, and the
+// leak is the residual's change per input work over the span; unless integrator.fixed_steps
+// (or energy_leak 0, or a held step), where it passes energy_leak the steps after it are
+// taken in twice as many sub-steps (w_phase), at most kMaxStepHalvings times. A W-method's numerical damping takes energy from the chain's
+// fast vibrations that the model's dampers would dissipate: the leak measures it, and the
+// efficiency's error follows it (about half the leak on the mini model at 550 rad/s).
+void Simulation::watch_leak(double h) {
+  const Config::Integrator& in = m_.cfg.integrator;
+  if (adaptive_steps(m_.cfg) || !y_.allFinite() || clock_.t < settle_end(m_.cfg) || clock_.t < in.startup_time) return;
+  const long span = std::max(1L, std::lround(0.5 * steady_window(m_) / h));
+  if (clock_.steps % span != 0) return;
+  const double r = balance_residual(clock_.t, y_), w = y_[2 * m_.ndof + kWorkIn];
+  if (leak_from_ >= 0 && clock_.steps - leak_from_ == span && w > leak_w_) {
+    leak_ = (r - leak_r_) / (w - leak_w_);
+    const bool control = in.energy_leak > 0 && !in.fixed_steps && !hold_step_;
+    if (control && std::abs(leak_) > in.energy_leak && halvings_ < kMaxStepHalvings) ++halvings_, halved_at_ = clock_.t;
+  }
+  leak_from_ = clock_.steps, leak_r_ = r, leak_w_ = w;
+}
+
+// The energy balance's residual at (t, y) with the statuses of the step (docs/model.md 6):
+// the energy less the work that entered, plus the work that left and was dissipated.
+double Simulation::balance_residual(double t, const Eigen::VectorXd& y) const {
+  const Energies e = energies(m_, t, y.data(), &ws_.status);
+  const double* aux = y.data() + 2 * m_.ndof;
+  return (e.kinetic + e.elastic) - energy0_ - aux[kWorkIn] - aux[kWorkClamp] - aux[kWorkSwitch] + aux[kWorkOut] +
+         aux[kWorkDiss];
 }
 
 // Adaptive W-steps (integrator.tolerance) after the start-up: the generic OdeSolver through
@@ -208,7 +268,7 @@ Simulation::WPhase Simulation::w_phase(double h) {
   const bool startup = clock_.t < in.startup_time && sub > 1;
   const bool adaptive = adaptive_steps(m_.cfg);
   if (adaptive && !startup) return {nullptr, 1, 0};
-  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg)) ? 1 : settle_substeps(in, h);
+  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg)) ? 1 << halvings_ : settle_substeps(in, h);
   const int n = startup ? sub : settle;
   const long first = adaptive ? steps_taken_ : clock_.steps * n;
   // The start-up's contacts load up from zero within microseconds: ROS2 (gamma = 1.71)
@@ -247,12 +307,17 @@ Checkpoint Simulation::checkpoint() const {
   c.pulley = ws_.status.pulley;
   c.t = clock_.t, c.t0 = clock_.t0, c.steps = clock_.steps, c.steps0 = clock_.steps0;
   c.energy0 = energy0_;
+  c.halvings = halvings_, c.halved_at = halved_at_, c.leak = leak_;
+  c.leak_from = leak_from_, c.leak_residual = leak_r_, c.leak_work = leak_w_;
   return c;
 }
 
 void Simulation::restore(const Checkpoint& c) {
   w_main_.reset(), w_startup_.reset(), w_adaptive_.reset();  // their matrices belong to the old state
   begun_ = false;
+  balance_t_ = -1;
+  halvings_ = c.halvings, halved_at_ = c.halved_at, leak_ = c.leak, hold_step_ = false;
+  leak_from_ = c.leak_from, leak_r_ = c.leak_residual, leak_w_ = c.leak_work;
   if (c.state.size() != m_.nstate || c.rocker.size() != ws_.status.rocker.size() ||
       c.pulley.size() != ws_.status.pulley.size())
     throw std::runtime_error("checkpoint does not fit the model (state of " + std::to_string(c.state.size()) +

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -67,11 +68,25 @@ class Simulation {
   const StepClock& clock() const { return clock_; }
   const Eigen::VectorXd& state() const { return y_; }
   Eigen::VectorXd& mutable_state() {
-    begun_ = false;  // a step begun for a sample starts from the state it evaluated
+    begun_ = false;       // a step begun for a sample starts from the state it evaluated
+    balance_t_ = -1;      // and the energy test from the state's own balance
     return y_;
   }
   // Continues from (t, steps): for restarts from a saved state.
-  void set_clock(double t, long steps) { clock_ = StepClock::at(t, steps), begun_ = false; }
+  void set_clock(double t, long steps) { clock_ = StepClock::at(t, steps), begun_ = false, balance_t_ = -1; }
+  // W sub-steps rejected because their energy balance jumped (energy_jump), counted in
+  // steps_rejected() too.
+  long energy_rejections() const { return energy_rejections_; }
+  // The step's control by the energy balance (integrator.energy_leak): the times it halved
+  // the step (each grid step then taken in 2^halvings sub-steps), the time of the last
+  // halving (-1: none), and the leak of the last torsion span measured (NaN: none yet;
+  // measured on fixed W-steps with the control off too).
+  int step_halvings() const { return halvings_; }
+  double step_halved_at() const { return halved_at_; }
+  double energy_leak() const { return leak_; }
+  // Takes every step from here on in 2^halvings sub-steps, unchanged (run.verify's second
+  // integration; restore() lets the control go on).
+  void hold_step(int halvings) { halvings_ = halvings, hold_step_ = true; }
   Workspace& workspace() { return ws_; }
   const Schedule& schedule() const { return *schedule_; }
   Schedule& schedule() { return *schedule_; }
@@ -129,6 +144,8 @@ class Simulation {
   };
   WPhase w_phase(double h);
   void w_substep(WStep& s, double t, double t_end, long index, bool evaluate);
+  double balance_residual(double t, const Eigen::VectorXd& y) const;
+  void watch_leak(double h);
   const Eigen::VectorXd* begin_w_step(const WPhase& p, double h);
 
   const Model& m_;
@@ -151,6 +168,18 @@ class Simulation {
   Eigen::VectorXd y_, dy_;
   Eigen::VectorXd y_start_;  // the state a W sub-step starts from (taken again if it fails)
   int pieces_ = 1;           // the pieces the next W sub-step starts with (w_substep)
+  // The energy balance's residual at the end of the last W sub-step that held, and its time
+  // (-1: none), so that the next sub-step's energy test starts from it.
+  double balance_t_ = -1, balance_r_ = 0;
+  long energy_rejections_ = 0;
+  // The energy balance's leak (watch_leak): the halvings so far, the last one's time, the
+  // last span's leak, and the span's start (its grid step, -1: none; its residual and
+  // input work).
+  int halvings_ = 0;
+  double halved_at_ = -1, leak_ = std::numeric_limits<double>::quiet_NaN();
+  long leak_from_ = -1;
+  double leak_r_ = 0, leak_w_ = 0;
+  bool hold_step_ = false;
   StepClock clock_;  // the run's clock (the only one)
   double energy0_ = 0;
   long steps_taken_ = 0, steps_rejected_ = 0;
@@ -162,6 +191,14 @@ class Simulation {
   double first_t_ = 0;
   ContactStatus first_status_;
 };
+
+// A W sub-step whose energy balance jumped (Simulation::w_substep, docs/integrators.md 12.3):
+// its residual moved by `jump` [J] while `flow` [J] passed through the work integrals (in,
+// out, dissipated, clamping). Gross when the jump passes both the flow and kEnergyJumpFloor:
+// sound steps of the envelope's points move it by at most 1.7 mJ, and by more than the flow
+// only where that is tiny.
+inline constexpr double kEnergyJumpFloor = 0.01;  // [J]
+inline bool energy_jump(double jump, double flow) { return jump > kEnergyJumpFloor && jump > flow; }
 
 // Names coordinate i of the first-order state (e.g. "velocity of joint 17, half b, end 1, x").
 std::string describe_state_index(const Model& m, int i);

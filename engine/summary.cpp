@@ -304,6 +304,7 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   double w0 = window_start >= 0 ? window_start : t1 - c.window_fraction * (t1 - t0);
   const bool ramping = w0 < ramp_end;
   if (ramping && ramp_end < t1) w0 = std::max(w0, ramp_end);
+  if (w0 < ch.from && ch.from < t1) w0 = ch.from;  // not across a change of the step
   std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
   if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
   fill_means(ch, a, n, s);
@@ -319,7 +320,7 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
 double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s) {
   const double W = steady_window(m);
   if (ch.size() < 2 || !(W > 0)) return 0;
-  const double t1 = ch.t.back(), earliest = std::max(ramps_end(m.cfg), ch.t.front());
+  const double t1 = ch.t.back(), earliest = std::max({ramps_end(m.cfg), ch.t.front(), ch.from});
   const double slack = 1e-9 * std::max(1.0, t1);
   double w = W;
   for (int d = 0; d <= kSteadyWindowDoublings; ++d, w *= 2) {
@@ -351,7 +352,13 @@ const std::vector<SummaryField>& summary_fields() {
       {"interrupted", "", "stopped by SIGINT, SIGTERM or a progress callback", &S::interrupted},
       {"method", "", "integrator.method", &S::method},
       {"controller", "", "off, or the ratio controller and its target", &S::controller},
-      {"step", "s", "integrator.step", &S::step},
+      {"step", "s", "the step the window was taken with: integrator.step / 2^step_halvings", &S::step},
+      {"step_halvings", "", "times the energy balance's leak halved the step (integrator.energy_leak)",
+       &S::step_halvings},
+      {"step_halved_at", "s", "the model time of the last halving; -1: none", &S::step_halved_at},
+      {"energy_leak", "1",
+       "the energy balance's residual change per input work over the last torsion span measured (null: none)",
+       &S::energy_leak},
       {"drive_speed", "rad/s", "drive.speed: the input speed as configured", &S::drive_speed},
       {"load_torque_nominal", "N m", "load.torque as configured", &S::load_torque_nominal},
       {"clamping_force_driving_nominal", "N", "clamping.driving as configured", &S::clamp_driving_nominal},
@@ -553,6 +560,14 @@ std::string format_summary(const RunSummary& s) {
          verify_step, verify_wall);
   line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", e.num("energy_residual"),
        100 * e.num("residual_fraction"), e.num("energy_turnover"));
+  const long halvings = e.count("step_halvings");
+  const double leak = e.num("energy_leak"), halved_at = e.num("step_halved_at");
+  if (halvings > 0)
+    line("  energy leak                %.3g %% of the input work per torsion span; the step halved %ld time%s, the "
+         "last at t = %.5g s (integrator.energy_leak)\n",
+         100 * leak, halvings, halvings > 1 ? "s" : "", halved_at);
+  else if (std::isfinite(leak))
+    line("  energy leak                %.3g %% of the input work per torsion span\n", 100 * leak);
   line("  run: t = %.6g .. %.6g s, %ld steps (mean %.4g s, %ld rejected), stopped: %s%s; %.3g s wall time, %.1f us "
        "per step, %.4g model s per hour\n",
        e.num("t_start"), e.num("model_time"), e.count("steps"), e.num("mean_step"), e.count("rejected_steps"),

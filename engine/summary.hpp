@@ -3,6 +3,7 @@
 // whether the efficiency means anything, and the warnings the run raised.
 #pragma once
 
+#include <limits>
 #include <string>
 #include <string_view>
 #include <variant>
@@ -28,6 +29,9 @@ struct SummaryChannels {
       work_dissipated;
   void push(const Sample& s);
   std::size_t size() const { return t.size(); }
+  // The earliest time a window may start besides the ramps' end: the run's last change of
+  // its step (Simulation::step_halved_at; 0: none).
+  double from = 0;
 };
 
 // The thresholds of the verdicts (docs/output.md, "The summary's verdicts").
@@ -55,7 +59,11 @@ struct RunSummary {
   bool interrupted = false;  // stopped by SIGINT, SIGTERM or a progress callback (the file holds the run so far)
   int signal = 0;
   std::string method, controller;
-  double step = 0;
+  double step = 0;  // the step the window was taken with: integrator.step / 2^step_halvings
+  // The step's control by the energy balance (integrator.energy_leak): the halvings, the
+  // last one's time (-1: none), and the last torsion span's leak (NaN: none measured).
+  long step_halvings = 0;
+  double step_halved_at = -1, energy_leak = std::numeric_limits<double>::quiet_NaN();
   // The operating point as configured.
   double drive_speed = 0, load_torque_nominal = 0, clamp_driving_nominal = 0, clamp_driven_nominal = 0,
          ratio_target = 0;

@@ -512,34 +512,37 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, const Frict
 
 double chain_energy(const Model& m, const double* q, const ContactStatus* status) {
   const Config& c = m.cfg;
-  // Link directions from positions only (velocity-free kinematics).
-  std::vector<double> ex(m.links), ey(m.links);
-  for (int i = 0; i < m.links; ++i) {
+  // Link directions from positions only (velocity-free kinematics): link j's and the one
+  // before it, carried along the chain (nothing allocated: a W-step's energy test calls it).
+  const auto direction = [&](int i, double& ex, double& ey) {
     const double* b = q + m.half_b(i);
     const double* a = q + m.half_a(i + 1);
     const double dx = mid(a, 0) - mid(b, 0), dy = mid(a, 1) - mid(b, 1);
     const double l = std::sqrt(dx * dx + dy * dy);
-    ex[i] = dx / l;
-    ey[i] = dy / l;
-  }
+    ex = dx / l;
+    ey = dy / l;
+  };
+  double exl = 0, eyl = 0, exj = 0, eyj = 0;
+  direction(m.wrap(-1), exj, eyj);
   double E = 0;
   for (int j = 0; j < m.links; ++j) {
     const double* qa = q + m.half_a(j);
     const double* qb = q + m.half_b(j);
     const double* qn = q + m.half_a(j + 1);
+    exl = exj, eyl = eyj;
+    direction(j, exj, eyj);
     E += beam_energy(m, qa) + beam_energy(m, qb);
     if (c.pin.tilt_stiffness > 0) E += tilt_energy(m, qa) + tilt_energy(m, qb);
-    const int lp = m.wrap(j - 1);
     for (int st = 0; st < c.rocker.stations; ++st) {
       if (status && !status->rocker[j * c.rocker.stations + st]) continue;
       const HermiteWeights h = hermite(m.station_xi[st], m.L0);
-      const double cax = lateral(qa, h, 0) - m.kappa * ex[lp], cay = lateral(qa, h, 1) - m.kappa * ey[lp];
-      const double cbx = lateral(qb, h, 0) + m.kappa * ex[j], cby = lateral(qb, h, 1) + m.kappa * ey[j];
+      const double cax = lateral(qa, h, 0) - m.kappa * exl, cay = lateral(qa, h, 1) - m.kappa * eyl;
+      const double cbx = lateral(qb, h, 0) + m.kappa * exj, cby = lateral(qb, h, 1) + m.kappa * eyj;
       const double pen = 2 * c.rocker.radius - std::hypot(cax - cbx, cay - cby);
       E += hertz_energy(c.rocker.stiffness, pen);
     }
     if (c.rocker.keeper_stiffness > 0) {
-      double bx = ex[lp] + ex[j], by = ey[lp] + ey[j];
+      double bx = exl + exj, by = eyl + eyj;
       const double bl = std::sqrt(bx * bx + by * by);
       const double shear = (-by * (mid(qa, 0) - mid(qb, 0)) + bx * (mid(qa, 1) - mid(qb, 1))) / bl;
       E += 0.5 * c.rocker.keeper_stiffness * shear * shear;

@@ -245,6 +245,9 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
       if (settle_sub > 1)
         w += ", " + std::to_string(settle_sub) + " sub-steps per step before t = " + fmt_g(cfg.integrator.settle_time) +
              " s";
+      if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && cfg.integrator.energy_leak > 0)
+        w += "; halved where the energy balance leaks more than " + fmt_g(100 * cfg.integrator.energy_leak) +
+             " % of the input work";
       w += ")";
     }
     const std::string step = cvt::adaptive_steps(cfg)

@@ -65,6 +65,8 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
     f.write_vector("/checkpoint/pulley_status", to_doubles(c.pulley));
     f.write_vector("/checkpoint/clock", {c.t, c.t0, static_cast<double>(c.steps), static_cast<double>(c.steps0)});
     f.write_vector("/checkpoint/energy0", {c.energy0});
+    f.write_vector("/checkpoint/step_control", {static_cast<double>(c.halvings), c.halved_at, c.leak,
+                                                static_cast<double>(c.leak_from), c.leak_residual, c.leak_work});
     if (!c.run_id.empty()) f.write_string("/checkpoint/run_id", c.run_id);
     if (!c.output.empty()) f.write_string("/checkpoint/output", c.output);
     f.close();
@@ -89,6 +91,12 @@ Checkpoint read_checkpoint(const std::string& path) {
   const std::vector<double> e0 = read_vector(f, path, "/checkpoint/energy0");
   if (e0.size() != 1) throw std::runtime_error("checkpoint " + path + ": energy0 must hold 1 number");
   c.energy0 = e0[0];
+  if (H5Lexists(f, "/checkpoint/step_control", H5P_DEFAULT) > 0) {
+    const std::vector<double> sc = read_vector(f, path, "/checkpoint/step_control");
+    if (sc.size() != 6) throw std::runtime_error("checkpoint " + path + ": step_control must hold 6 numbers");
+    c.halvings = static_cast<int>(sc[0]), c.halved_at = sc[1], c.leak = sc[2];
+    c.leak_from = static_cast<long>(sc[3]), c.leak_residual = sc[4], c.leak_work = sc[5];
+  }
   for (auto [name, to] : {std::pair{"/checkpoint/run_id", &c.run_id}, std::pair{"/checkpoint/output", &c.output}})
     if (H5Lexists(f, name, H5P_DEFAULT) > 0) *to = read_string(f, path, name);
   return c;

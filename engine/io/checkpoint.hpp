@@ -5,6 +5,7 @@
 // crash while writing never leaves a broken checkpoint.
 #pragma once
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,14 @@ struct Checkpoint {
   double t = 0, t0 = 0;                  // time, and the clock's origin
   long steps = 0, steps0 = 0;            // steps done, and the clock's origin
   double energy0 = 0;                    // E at the start of the first run (balance)
+  // The step's control by the energy balance (Simulation::watch_leak): its halvings, the
+  // last one's time (-1: none), the last span's leak (NaN: none), and the current span's
+  // start (grid step, -1: none; residual and input work there). Checkpoints without them
+  // continue from none.
+  int halvings = 0;
+  double halved_at = -1, leak = std::numeric_limits<double>::quiet_NaN();
+  long leak_from = -1;
+  double leak_residual = 0, leak_work = 0;
   // The run this checkpoint continues: its id (also in its output file's /parameters) and
   // the output file it writes. Empty in checkpoints that predate them.
   std::string run_id, output;

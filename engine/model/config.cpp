@@ -175,6 +175,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, settle_step, real, "s", positive),
       CVT_KEY(integrator, tolerance, real, "1", nonneg),
       CVT_KEY(integrator, fixed_steps, boolean, "", Range{}),
+      CVT_KEY(integrator, energy_leak, real, "1", nonneg),
 
       CVT_KEY(run, t_end, real, "s", positive),
       CVT_KEY(run, sample_interval, real, "s", positive),

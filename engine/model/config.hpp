@@ -200,6 +200,11 @@ struct Config {
     // went bad (the bits of the published comparisons); false (default) retakes a step whose
     // error estimate is gross too, with a fresh matrix and in pieces (docs/integrators.md 12.3).
     bool fixed_steps = false;
+    // Fixed W-steps without fixed_steps: after the settling phase the energy balance's
+    // leak over each torsion span (its residual's change per input work) is measured, and
+    // where it passes this bound every later step is taken in twice as many sub-steps, up to
+    // kMaxStepHalvings times (docs/integrators.md 12.3). 0: never.
+    double energy_leak = 1.0e-3;  // [1]
   } integrator;
   struct Run {
     double t_end = 2.0e-2;            // [s]
@@ -223,6 +228,9 @@ struct Config {
   // The fully resolved configuration as TOML text (what /parameters/config stores).
   std::string resolved_toml;
 };
+
+// The most times the energy balance's leak halves a run's step (integrator.energy_leak).
+inline constexpr int kMaxStepHalvings = 4;
 
 // With the slip-safe controller the W matrix's stiffness is rebuilt at least every this many
 // steps (parse_config lowers integrator.w_k_every to it).

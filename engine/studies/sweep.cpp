@@ -86,6 +86,8 @@ const std::vector<Column>& result_columns() {
       {"clamping_force_driven", &SweepRow::clamping_force_driven},
       {"model_time", &SweepRow::model_time},
       {"steady_window", &SweepRow::steady_window},
+      {"step", &SweepRow::step},
+      {"energy_leak", &SweepRow::energy_leak},
   };
   return cols;
 }
@@ -304,6 +306,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
     r.model_time = s.model_time, r.steady_window = s.steady_window;
+    r.step = s.step, r.energy_leak = s.energy_leak;
     if (s.verify_step > 0)
       for (const auto& e : error_columns()) r.numerical_error[e] = numerical_error(s, e);
   } catch (const SweepInterrupted&) {
