@@ -304,8 +304,8 @@ constexpr double kLeakGoal = 1e-3;
 // Why a leak past kLeakGoal remains, and what to change.
 std::string fmt_leak(double leak, int halvings, double halved_at, const Config::Integrator& in) {
   char buf[200];
-  std::snprintf(buf, sizeof buf, "energy leak %.3g %% of the input work over the last torsion span > %.3g %%", 100 * leak,
-                100 * kLeakGoal);
+  std::snprintf(buf, sizeof buf, "energy leak %.3g %% of the input work over the last torsion span > %.3g %%",
+                100 * leak, 100 * kLeakGoal);
   std::string why = buf;
   if (in.fixed_steps || !(in.energy_leak > 0))
     why += ": the step is kept (integrator.fixed_steps or integrator.energy_leak = 0); the efficiency may be off by "

@@ -120,8 +120,9 @@ void Simulation::w_step(double h) {
 // (not finite, an absurd penetration or stretch, or a matrix that turns out singular) or,
 // unless integrator.fixed_steps, whose error estimate is gross (WStep::gross()) or whose
 // energy balance jumps (energy_jump: the residual moves by more than the energy that flowed
-// and more than 10 mJ) is rejected and taken again from its start with the whole matrix rebuilt, then, if need be, in 2, 4,
-// ... kMaxPieces pieces, each from a matrix rebuilt at its start. The sub-steps after it
+// and more than 10 mJ) is rejected and taken again from its start with the whole matrix
+// rebuilt, then, if need be, in 2, 4, ... kMaxPieces pieces, each from a matrix rebuilt at
+// its start. The sub-steps after it
 // start with the pieces that held (pieces_), and halve them while the pieces' estimates stay
 // below a quarter of the gross bound, so that a stretch of fast dynamics (the start from
 // rest at a ratio whose pins land hard) costs one ladder, not one per sub-step. If none
@@ -197,12 +198,14 @@ void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool ev
 // window, in whole grid steps) the balance's residual and the input work are taken, and the
 // leak is the residual's change per input work over the span; unless integrator.fixed_steps
 // (or energy_leak 0, or a held step), where it passes energy_leak the steps after it are
-// taken in twice as many sub-steps (w_phase), at most kMaxStepHalvings times. A W-method's numerical damping takes energy from the chain's
-// fast vibrations that the model's dampers would dissipate: the leak measures it, and the
-// efficiency's error follows it (about half the leak on the mini model at 550 rad/s).
+// taken in twice as many sub-steps (w_phase), at most kMaxStepHalvings times. A W-method's
+// numerical damping takes energy from the chain's fast vibrations that the model's dampers
+// would dissipate: the leak measures it, and the efficiency's error follows it (about half
+// the leak on the mini model at 550 rad/s).
 void Simulation::watch_leak(double h) {
   const Config::Integrator& in = m_.cfg.integrator;
-  if (adaptive_steps(m_.cfg) || !y_.allFinite() || clock_.t < settle_end(m_.cfg) || clock_.t < in.startup_time) return;
+  if (adaptive_steps(m_.cfg) || !y_.allFinite() || clock_.t < settle_end(m_.cfg) || clock_.t < in.startup_time)
+    return;
   const long span = std::max(1L, std::lround(0.5 * steady_window(m_) / h));
   if (clock_.steps % span != 0) return;
   const double r = balance_residual(clock_.t, y_), w = y_[2 * m_.ndof + kWorkIn];
@@ -268,7 +271,8 @@ Simulation::WPhase Simulation::w_phase(double h) {
   const bool startup = clock_.t < in.startup_time && sub > 1;
   const bool adaptive = adaptive_steps(m_.cfg);
   if (adaptive && !startup) return {nullptr, 1, 0};
-  const int settle = startup || adaptive || !(clock_.t < settle_end(m_.cfg)) ? 1 << halvings_ : settle_substeps(in, h);
+  const int settle =
+      startup || adaptive || !(clock_.t < settle_end(m_.cfg)) ? 1 << halvings_ : settle_substeps(in, h);
   const int n = startup ? sub : settle;
   const long first = adaptive ? steps_taken_ : clock_.steps * n;
   // The start-up's contacts load up from zero within microseconds: ROS2 (gamma = 1.71)

@@ -55,7 +55,8 @@ TEST(EnergyLeakTest, NoBoundOrFixedStepsKeepTheStep) {
     const double h = m.cfg.integrator.step;
     while (sim.time() < 4e-3) sim.step(h);
     EXPECT_EQ(sim.step_halvings(), 0) << off;
-    EXPECT_GT(std::abs(sim.energy_leak()), m.cfg.integrator.energy_leak) << off << ": the leak is measured all the same";
+    EXPECT_GT(std::abs(sim.energy_leak()), m.cfg.integrator.energy_leak)
+        << off << ": the leak is measured all the same";
   }
 }
 
