@@ -220,8 +220,10 @@ void Simulation::watch_leak(double h) {
 // The energy balance's residual at (t, y) with the statuses of the step (docs/model.md 6):
 // the energy less the work that entered, plus the work that left and was dissipated.
 double Simulation::balance_residual(double t, const Eigen::VectorXd& y) const {
-  const Energies e = energies(m_, t, y.data(), &ws_.status);
-  const double* aux = y.data() + 2 * m_.ndof;
+  return balance_residual(energies(m_, t, y.data(), &ws_.status), y.data() + 2 * m_.ndof);
+}
+
+double Simulation::balance_residual(const Energies& e, const double* aux) const {
   return (e.kinetic + e.elastic) - energy0_ - aux[kWorkIn] - aux[kWorkClamp] - aux[kWorkSwitch] + aux[kWorkOut] +
          aux[kWorkDiss];
 }
@@ -626,8 +628,7 @@ Sample Simulation::sample(double next_step) {
   s.work_dissipated = aux[kWorkDiss];
   s.work_clamping = aux[kWorkClamp];
   s.work_contact_switching = aux[kWorkSwitch];
-  s.energy_residual = (e.kinetic + e.elastic) - energy0_ - s.work_input - s.work_clamping -
-                      s.work_contact_switching + s.work_output + s.work_dissipated;
+  s.energy_residual = balance_residual(e, aux);
   return s;
 }
 

@@ -145,6 +145,7 @@ class Simulation {
   WPhase w_phase(double h);
   void w_substep(WStep& s, double t, double t_end, long index, bool evaluate);
   double balance_residual(double t, const Eigen::VectorXd& y) const;
+  double balance_residual(const Energies& e, const double* aux) const;  // of energies e, work integrals aux
   void watch_leak(double h);
   const Eigen::VectorXd* begin_w_step(const WPhase& p, double h);
 
