@@ -284,7 +284,9 @@ Simulation::WPhase Simulation::w_phase(double h) {
   double& made_for = startup ? w_startup_h_ : w_main_h_;
   const double hs = h / n;
   if (!step || made_for != hs) {
-    const OdeRunOptions ro = w_run_options(m_.cfg, hs, startup);
+    OdeRunOptions ro = w_run_options(m_.cfg, hs, startup);
+    if (!startup && !m_.cfg.integrator.fixed_steps)
+      ro.jac.w_k_every = stiffness_every(m_, hs, ro.jac.w_every, ro.jac.w_k_every);
     step = std::make_unique<WStep>(m_, ws_, *schedule_, ro.method, ro.jac), made_for = hs;
   }
   if (!startup) w_startup_.reset();

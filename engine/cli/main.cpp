@@ -238,6 +238,9 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
     if (cfg.integrator.method != IntegratorMethod::rk4) {
       w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
           std::to_string(cfg.integrator.w_k_every);
+      const int k_every = cvt::stiffness_every(model, cfg.integrator.step, cfg.integrator.w_every, cfg.integrator.w_k_every);
+      if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && k_every < cfg.integrator.w_k_every)
+        w += " (" + std::to_string(k_every) + " at this chain speed: a quarter of a pitch)";
       if (startup_sub > 1)
         w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
              fmt_g(cfg.integrator.startup_time) + " s";

@@ -1,6 +1,7 @@
 #include "engine/wmethod/driver.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 namespace cvt {
@@ -23,6 +24,14 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   ro.jac.w_shafts = in.w_shafts;
   if (!startup && in.tolerance > 0) w_adaptive_options(ro, in.tolerance, c.run.sample_interval);
   return ro;
+}
+
+int stiffness_every(const Model& m, double hs, int w_every, int w_k_every) {
+  const double v = std::abs(m.cfg.drive.speed) * m.pulley[0].running_radius;
+  int k = w_k_every;
+  while (w_every > 0 && k % 2 == 0 && (k / 2) % w_every == 0 && k * hs * v > kStiffnessTravel * m.cfg.chain.pitch)
+    k /= 2;
+  return k;
 }
 
 void w_adaptive_options(OdeRunOptions& ro, double tol, double h_max) {

@@ -29,6 +29,15 @@ struct OdeRunOptions {
 // intervals and the friction settings; startup: ROS2 (its start-up sub-steps).
 OdeRunOptions w_run_options(const Config& c, double h, bool startup);
 
+// The sub-steps of size hs between two takes of the W matrix's stiffness K (docs/integrators.md
+// 12.3): w_k_every, halved while the chain runs more than kStiffnessTravel of a pitch over it
+// and the half stays a multiple of w_every. The contact set changes as the links pass the
+// wraps' four ends, one link per pitch of travel at each: with a quarter of a pitch between
+// takes, about one pin changes the set between two of them. Only shortens, to a divisor of
+// w_k_every, so that checkpoints at its multiples still fall on a take.
+inline constexpr double kStiffnessTravel = 0.25;
+int stiffness_every(const Model& m, double hs, int w_every, int w_k_every);
+
 // Turns a W-method's OdeRunOptions adaptive at tolerance tol (ModelOdeOptions::error_tol: the
 // largest error of any pin, shaft or the load per step, in units of tol x (1 um, 1 mm/s)),
 // steps no longer than h_max, the first one ro.ode.h0; the factorized W is kept while the
