@@ -25,7 +25,7 @@ std::string shortest(double x) {
 
 bool divides(double h, double x) {
   const double k = std::round(x / h);
-  return k >= 1 && std::abs(k * h - x) <= 1e-6 * h;
+  return k >= 1 && std::abs(k * h - x) <= 1e-12 * x;
 }
 
 void check_step_grid(const Config& c) {
@@ -54,10 +54,11 @@ void check_step_grid(const Config& c) {
     // The largest step below h that divides all three: x / n for the smallest n that fits.
     const double base = std::min(c.run.sample_interval > 0 ? c.run.sample_interval : c.run.t_end, c.run.t_end);
     double fit = 0;
-    for (double n = std::ceil(base / h * (1 - 1e-12)); n < 1e6 && fit == 0; ++n)
+    // (Not below h / 2: a step of 1e-11 s that happens to divide them is no advice.)
+    for (double n = std::ceil(base / h * (1 - 1e-12)); n < 1e6 && base / n >= 0.5 * h && fit == 0; ++n)
       if (all_divide(base / n)) fit = base / n;
     char steps[32];
-    std::snprintf(steps, sizeof steps, "%.4g", x / h);
+    std::snprintf(steps, sizeof steps, "%.10g", x / h);
     std::string reason = "does not divide " + std::string(key) + " = " + shortest(x) + " s (" + steps +
                          " steps): samples would not fall on multiples of the step and the run would not end at "
                          "run.t_end; choose a step that divides run.t_end, run.sample_interval and "

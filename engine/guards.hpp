@@ -29,8 +29,8 @@ struct EnergyGuard {
 // Jacobian's spectral radius at time t), or "" when h is within it.
 std::string rk4_stability_warning(double h, double rho, double t);
 
-// Whether the step h divides the interval x (x a whole number of steps, to within a
-// millionth of a step).
+// Whether the step h divides the interval x: x a whole number of steps, to rounding (1e-12
+// of x), so that the samples fall on the interval's multiples.
 bool divides(double h, double x);
 
 // A configuration whose step does not divide run.t_end, run.sample_interval or

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <thread>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -28,6 +29,7 @@
 #include "engine/studies/sweep_mpi.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
+#include "engine/guards.hpp"
 #include "engine/wmethod/driver.hpp"
 #include "engine/wmethod/w_step.hpp"
 #include "graph/schedule.hpp"
@@ -42,6 +44,17 @@ std::string fmt_g(double x) {
   std::snprintf(b, sizeof b, "%g", x);
   return b;
 }
+
+// Numbers of the command line: finite and > 0, or >= 0 (CLI11's PositiveNumber and
+// NonNegativeNumber let nan and inf through).
+std::string number_check(const std::string& text, bool zero) {
+  double v = 0;
+  if (!CLI::detail::lexical_cast(text, v) || !std::isfinite(v) || !(zero ? v >= 0 : v > 0))
+    return std::string("must be a finite number ") + (zero ? ">= 0" : "> 0") + ", not " + text.substr(0, 40);
+  return {};
+}
+const CLI::Validator kPositive([](std::string& t) { return number_check(t, false); }, "POSITIVE");
+const CLI::Validator kNonNegative([](std::string& t) { return number_check(t, true); }, "NONNEGATIVE");
 
 // A configuration outside the envelope (docs/envelope.md) runs, warned about on stderr
 // first; `where` names the sweep's point ("" for a run).
@@ -76,6 +89,14 @@ void add_schedule_options(CLI::App* cmd, ScheduleArgs& a) {
     if (a.scheduler == "serial" && a.threads > 1)
       throw CLI::ValidationError("--threads", "--scheduler serial runs on one thread; " + std::to_string(a.threads) +
                                                    " threads need --scheduler flowgraph or paper-omp (or no --scheduler)");
+    // More threads than the machine runs at once only wait on each other (and thousands of
+    // them never finish a step): capped, with the same bits (any thread count gives them).
+    const int hw = static_cast<int>(std::thread::hardware_concurrency());
+    if (hw > 0 && a.threads > hw) {
+      std::fprintf(stderr, "cvt-engine: warning: --threads %d is more than the %d hardware threads here: running on %d\n",
+                   a.threads, hw, hw);
+      a.threads = hw;
+    }
   });
   cmd->add_option("--grain", a.grain, "pins per task in the flow-graph module nodes")
       ->check(CLI::Range(1, 100000))
@@ -227,6 +248,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
       if (out.size() > 5 && out.compare(out.size() - 5, 5, ".ckpt") == 0) out.resize(out.size() - 5);
     }
   }
+  cvt::check_step_grid(cfg);  // refused (exit 78) before the header, not after it
   const bool talk = !ra.quiet;
   if (talk) {
     std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
@@ -404,11 +426,11 @@ Command add_run_command(CLI::App& app) {
                   "(unless --out)");
   run->add_option("--checkpoint-every", run_args.checkpoint_every,
                   "steps between checkpoints to OUT.ckpt (0: only at the end and on SIGINT/SIGTERM)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(kNonNegative)
       ->capture_default_str();
   run->add_option("--flush-every", run_args.flush_seconds,
                   "wall seconds between flushes of the output file (what a kill -9 cannot take away)")
-      ->check(CLI::PositiveNumber)
+      ->check(kPositive)
       ->capture_default_str();
   run->add_option("--t-end", t_end, "model time to simulate [s] (run.t_end)");
   run->add_flag("--until-steady", run_args.until_steady,
@@ -510,22 +532,22 @@ Command add_scale_command(CLI::App& app) {
 // The W-methods' options of cvt-engine study integrators (docs/integrators.md 12).
 void add_study_w_options(CLI::App* study_int, cvt::IntegratorStudyOptions& si, bool& si_exact_slope) {
   study_int->add_option("--w-every", si.w_every, "ROS2: rebuild its matrix every N steps (default: integrator.w_every)")
-      ->check(CLI::PositiveNumber);
+      ->check(kPositive);
   study_int->add_flag("--ros2-full-jacobian", si.ros2_full_jacobian,
                      "ROS2 with the full coloured Jacobian and a sparse LU per step instead of the friction blocks");
   study_int->add_flag("--w-exact-slope", si_exact_slope,
                       "ROS2: the exact friction slope along the sliding direction (default: the secant)");
   study_int->add_option("--w-k-every", si.w_k_every,
                         "ROS2: rebuild its stiffness blocks every N steps (default: integrator.w_k_every)")
-      ->check(CLI::PositiveNumber);
+      ->check(kPositive);
   study_int->add_flag("--w-no-stiffness", si.w_no_stiffness, "ROS2: leave the chain's stiffness out of its matrix");
   study_int->add_option("--w-fresh", si.w_fresh,
                         "W-methods: keep the matrix's friction current between rebuilds for the contacts whose "
                         "stiffness gamma h mu / m_pin moved by more than this; 0: off (default: integrator.w_fresh)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(kNonNegative);
   study_int->add_option("--w-fresh-max", si.w_fresh_max,
                         "W-methods: at most this many contacts in that correction (default: integrator.w_fresh_max)")
-      ->check(CLI::PositiveNumber);
+      ->check(kPositive);
   study_int->add_flag("--w-status-rebuild", si.w_status_rebuild,
                       "ROS2: rebuild its whole matrix when the contact statuses change");
 }
@@ -705,7 +727,7 @@ Command add_sweep_command(CLI::App& app) {
                                       "run.t_end then bounds each point's run beyond it");
   sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from: a changed load.torque ramps from the checkpoint's "
                                                 "over this time [s]")
-      ->check(CLI::NonNegativeNumber)->capture_default_str();
+      ->check(kNonNegative)->capture_default_str();
   sw->add_option("--set", a->o.overrides, "override a key for every point: section.key=value (repeatable)");
   add_schedule_options(sw, a->sched);
   return {sw, [a] {
@@ -730,9 +752,9 @@ Command add_slip_command(CLI::App& app) {
              "--threads 2");
   sl->add_option("CONFIG", a->o.sweep.config_path, "TOML configuration")->required();
   sl->add_option("--clamping", a->o.clamping, "clamping.driving values F1 [N], comma-separated")
-      ->delimiter(',')->required()->check(CLI::PositiveNumber);
+      ->delimiter(',')->required()->check(kPositive);
   sl->add_option("--thrust-ratio", a->o.thrust_ratio, "F1 / F2 of every point (default: the configuration's)")
-      ->check(CLI::PositiveNumber);
+      ->check(kPositive);
   sl->add_option("--ratios", a->o.ratios, "geometry.ratio values (default: the configuration's)")->delimiter(',');
   sl->add_option("--tol", a->o.tolerance, "bisection until (slips_at - slip_torque) / slip_torque <= TOL")
       ->check(CLI::Range(1e-4, 0.5))->capture_default_str();
@@ -772,14 +794,14 @@ Command add_shift_command(CLI::App& app) {
              "--speeds 104.7,209.4 --out shift.csv --threads 2");
   sh->add_option("CONFIG", a->o.sweep.config_path, "TOML configuration")->required();
   sh->add_option("--thrust-ratios", a->o.thrust_ratios, "F1/F2 after the step (F2 kept), comma-separated")
-      ->delimiter(',')->required()->check(CLI::PositiveNumber);
+      ->delimiter(',')->required()->check(kPositive);
   sh->add_option("--speeds", a->o.speeds, "drive.speed values [rad/s] (default: the configuration's)")
-      ->delimiter(',')->check(CLI::PositiveNumber);
-  sh->add_option("--settle", a->o.settle, "after the step, left out of the fit [s]")->check(CLI::NonNegativeNumber)
+      ->delimiter(',')->check(kPositive);
+  sh->add_option("--settle", a->o.settle, "after the step, left out of the fit [s]")->check(kNonNegative)
       ->capture_default_str();
-  sh->add_option("--window", a->o.window, "the fit's window [s]")->check(CLI::PositiveNumber)->capture_default_str();
+  sh->add_option("--window", a->o.window, "the fit's window [s]")->check(kPositive)->capture_default_str();
   sh->add_option("--steady-bound", a->o.steady_bound, "t_end of the runs to the steady state [s]")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+      ->check(kPositive)->capture_default_str();
   sh->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str();
   sh->add_option("--set", a->o.sweep.overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(sh, a->sched);
@@ -827,14 +849,14 @@ Command add_modes_command(CLI::App& app) {
   modes->footer("Example: cvt-engine modes configs/mini.toml --at 1e-3 --count 5");
   modes->add_option("CONFIG", modes_config, "TOML configuration")->required();
   modes->add_option("--at", modes_args.at, "linearize at model time T [s] (runs the model there first)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(kNonNegative)
       ->capture_default_str();
   modes->add_option("--set", modes_overrides, "override a key: section.key=value (repeatable)");
   modes->add_option("--count", modes_args.count, "lowest and highest modes to list")
       ->check(CLI::Range(1, 1000000))
       ->capture_default_str();
   modes->add_option("--rigid-hz", modes_args.rigid_hz, "|f| below this counts as a rigid-body or mechanism mode [Hz]")
-      ->check(CLI::NonNegativeNumber)
+      ->check(kNonNegative)
       ->capture_default_str();
   modes->add_flag("--no-jacobian", modes_args.no_jacobian, "skip the first-order Jacobian's spectrum");
   modes->add_option("--json", modes_args.json, "also write the report as JSON to FILE");

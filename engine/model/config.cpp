@@ -185,7 +185,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(run, efficiency_window, real, "s", positive),
       CVT_KEY(run, until_steady, boolean, "", Range{}),
       CVT_KEY(run, steady_window, real, "s", nonneg),
-      CVT_KEY(run, steady_tolerance, real, "1", (Range{0, true, 1, false})),
+      CVT_KEY(run, steady_tolerance, real, "1", (Range{0, true, 1, true})),
       CVT_KEY(run, verify, boolean, "", Range{}),
   };
   return defs;
@@ -629,6 +629,24 @@ class Validator {
     if (c.run.snapshot_interval != 0.0 && !(c.run.snapshot_interval >= c.integrator.step))
       fail_rel("run", "snapshot_interval", num(c.run.snapshot_interval),
                "must be 0 (off) or >= integrator.step = " + num(c.integrator.step));
+    // A run must be able to count its steps (docs/cli.md, "The run's contract"): at most 2^52
+    // (the clock's times stay exact), and sub-steps that a step can finish. (That the step
+    // divides the intervals, check_step_grid.)
+    const double grid = grid_step(c);
+    if (!(c.run.t_end / grid <= kMaxRunSteps))
+      fail_rel("run", "t_end", num(c.run.t_end),
+               "is " + num(c.run.t_end / grid) + " steps of " + num(grid) + " s, more than a run can count (2^52)");
+    if (c.integrator.method != IntegratorMethod::rk4) {
+      const auto subs = [&](const char* key, double sub, bool on) {
+        if (on && !(c.integrator.step / sub <= kMaxSubsteps))
+          fail_rel("integrator", key, num(sub),
+                   "gives " + std::to_string(std::llround(std::min(std::ceil(c.integrator.step / sub), 9e18))) + " sub-steps per step of integrator.step = " +
+                       num(c.integrator.step) + " s, more than " + std::to_string(kMaxSubsteps) +
+                       ": a step could not finish");
+      };
+      subs("startup_step", c.integrator.startup_step, c.integrator.startup_time > 0);
+      subs("settle_step", c.integrator.settle_step, c.integrator.settle_time != 0);
+    }
     if (c.integrator.w_k_every % c.integrator.w_every != 0)
       fail_rel("integrator", "w_k_every", std::to_string(c.integrator.w_k_every),
                "must be a multiple of integrator.w_every = " + std::to_string(c.integrator.w_every) +
@@ -808,12 +826,21 @@ Config load_config(const std::string& path, const std::vector<std::string>& over
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) throw ConfigError::unreadable(path, "it is a folder");
   if (!std::filesystem::exists(path, ec)) throw ConfigError::unreadable(path, "no such file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw ConfigError::unreadable(path, std::strerror(errno));
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  if (in.bad()) throw ConfigError::unreadable(path, "read error");
-  return parse_config(ss.str(), overrides, path, shortcuts);
+  // A FIFO or a device would block or never end: a configuration is a regular file, of a
+  // configuration's size; a read error is an error, never an empty (default) configuration.
+  if (!std::filesystem::is_regular_file(path, ec)) throw ConfigError::unreadable(path, "not a regular file");
+  constexpr std::size_t kMaxConfigBytes = 64u << 20;
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) throw ConfigError::unreadable(path, std::strerror(errno));
+  std::string text;
+  char buf[1 << 16];
+  std::size_t n = 0;
+  while (text.size() <= kMaxConfigBytes && (n = std::fread(buf, 1, sizeof buf, f)) > 0) text.append(buf, n);
+  const int err = std::ferror(f) ? errno : 0;
+  std::fclose(f);
+  if (err) throw ConfigError::unreadable(path, std::string("read error: ") + std::strerror(err));
+  if (text.size() > kMaxConfigBytes) throw ConfigError::unreadable(path, "larger than 64 MiB: not a configuration");
+  return parse_config(text, overrides, path, shortcuts);
 }
 
 }  // namespace cvt

@@ -36,9 +36,15 @@ class ConfigError : public std::runtime_error {
   const std::string& reason() const { return reason_; }
 
  private:
+  // A value as the message shows it: at most 200 characters (a value of megabytes is named, not echoed).
+  static std::string shown(const std::string& value) {
+    constexpr std::size_t kShown = 200;
+    if (value.size() <= kShown) return value;
+    return value.substr(0, kShown) + "... (" + std::to_string(value.size()) + " characters)";
+  }
   static std::string text(const std::string& key, const std::string& value, const std::string& reason,
                           const std::vector<std::string>& more) {
-    std::string t = "configuration error: " + key + (value.empty() ? "" : " = " + value) + ": " + reason;
+    std::string t = "configuration error: " + key + (value.empty() ? "" : " = " + shown(value)) + ": " + reason;
     for (const auto& m : more) t += "\nconfiguration error: " + m;
     return t;
   }
@@ -264,6 +270,10 @@ inline bool adaptive_steps(const Config& c) {
 }
 // The run's grid step: the clock's tick, between which the run samples, snapshots and checks:
 // the step itself, or with adaptive steps the sample interval (the driver's steps in between).
+// The most steps a run counts (its clock's times stay exact) and the most sub-steps of one
+// step (start-up, settling): beyond them a run is refused (exit 78), not started.
+inline constexpr double kMaxRunSteps = 4503599627370496.0;  // 2^52
+inline constexpr int kMaxSubsteps = 4096;
 inline double grid_step(const Config& c) { return adaptive_steps(c) ? c.run.sample_interval : c.integrator.step; }
 inline int startup_substeps(const Config::Integrator& in, double h) {
   if (!(in.startup_time > 0)) return 1;

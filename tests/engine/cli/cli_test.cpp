@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -347,6 +348,61 @@ TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
   EXPECT_TRUE(fs::exists(dir_ / out));
   EXPECT_GT(fs::file_size(dir_ / out), 0u);
   EXPECT_FALSE(fs::exists(dir_ / (out + ".partial")));
+}
+
+// The run's contract (docs/cli.md): a configuration that cannot be read is an error, never
+// an empty one (which would run the defaults); a FIFO is refused, not waited on.
+TEST_F(CliTest, AnUnreadableConfigurationIsAnErrorNotTheDefaults) {
+  const RunResult mem = run({"run", "/proc/self/mem", "-o", "m.h5"});
+  EXPECT_EQ(mem.exit_code, 78) << mem.err;
+  EXPECT_NE(mem.err.find("cannot read the configuration file"), std::string::npos) << mem.err;
+  EXPECT_FALSE(fs::exists(dir_ / "m.h5"));
+  ASSERT_EQ(::mkfifo((dir_ / "fifo.toml").c_str(), 0600), 0);
+  const RunResult fifo = run({"run", "fifo.toml", "-o", "f.h5"});
+  EXPECT_EQ(fifo.exit_code, 78) << fifo.err;
+  EXPECT_NE(fifo.err.find("not a regular file"), std::string::npos) << fifo.err;
+}
+
+// Ranges that make a run impossible are refused before its first line: more steps than a
+// run can count, sub-steps a step could not finish, a step that divides the sample interval
+// only to 1e-8, a tolerance at the end of its open range; a value of megabytes is named,
+// not echoed.
+TEST_F(CliTest, RangesThatMakeARunImpossibleAreRefused) {
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--set", "run.t_end=1e13"}, "run.t_end = 1e13: is 1.2e19 steps"},
+      {{"--set", "run.t_end=1e300"}, "more than a run can count"},
+      {{"--set", "integrator.startup_step=1e-15"}, "integrator.startup_step = 1e-15: gives 833333334 sub-steps"},
+      {{"--set", "integrator.settle_step=1e-15"}, "a step could not finish"},
+      {{"--step", "3.3333333e-6"}, "does not divide run.sample_interval = 1e-05 s (3.00000003 steps)"},
+      {{"--set", "run.steady_tolerance=1"}, "must be in (0, 1)"},
+      {{"--set", "run.out=\"" + std::string(100000, 'x') + "\""}, "... (100002 characters)"},
+  };
+  for (const auto& [args, what] : cases) {
+    std::vector<std::string> a = {"run", kMini, "-o", "r.h5"};
+    a.insert(a.end(), args.begin(), args.end());
+    const RunResult r = run(a);
+    EXPECT_EQ(r.exit_code, 78) << args[1].substr(0, 60) << ": " << r.err.substr(0, 400);
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err.substr(0, 400);
+    EXPECT_LT(r.err.size(), 2000u) << "the message echoes the value";
+    EXPECT_EQ(r.out.find("cvt-engine 0"), std::string::npos) << "refused after the run's header";
+    EXPECT_FALSE(fs::exists(dir_ / "r.h5"));
+    EXPECT_FALSE(fs::exists(dir_ / "r.h5.partial"));
+  }
+}
+
+// Command-line numbers are finite (CLI11's own checks let nan through), and a thread count
+// above the machine's is capped with a warning: the run ends, with the bits of any count.
+TEST_F(CliTest, NonFiniteNumbersAreRefusedAndThreadsAreCapped) {
+  for (const char* v : {"nan", "inf", "0", "-1"}) {
+    const RunResult r = run({"run", kMini, "--flush-every", v, "-o", "n.h5"});
+    EXPECT_EQ(r.exit_code, 64) << v << ": " << r.err;
+    EXPECT_NE(r.err.find("must be a finite number > 0"), std::string::npos) << r.err;
+    EXPECT_LT(r.err.size(), 400u) << r.err;
+  }
+  const RunResult many = run({"run", kMini, "--t-end", "2.5e-6", "--threads", "4096", "--quiet", "-o", "t.h5"});
+  EXPECT_EQ(many.exit_code, 0) << many.err;
+  EXPECT_NE(many.err.find("--threads 4096 is more than the"), std::string::npos) << many.err;
+  EXPECT_TRUE(fs::exists(dir_ / "t.h5"));
 }
 
 }  // namespace
