@@ -1,5 +1,7 @@
 #include "engine/guards.hpp"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -107,9 +109,50 @@ void check_writable(const std::string& path, const std::string& what) {
   if (!fs::is_directory(dir, ec))
     throw OutputError("cannot write the " + what + " '" + path + "': the folder '" + dir.string() +
                       "' does not exist (create it first, or choose another path)");
+  if (path.empty()) throw OutputError("cannot write the " + what + ": its path is empty");
   if (fs::is_directory(p, ec)) throw OutputError("cannot write the " + what + " '" + path + "': it is a folder");
+  // A device, a FIFO or a link would be replaced by a regular file (or written through).
+  const fs::file_status st = fs::symlink_status(p, ec);
+  if (!ec && fs::exists(st) && !fs::is_regular_file(st))
+    throw OutputError("cannot write the " + what + " '" + path + "': it exists and is not a regular file (" +
+                      (fs::is_symlink(st) ? "a link" : fs::is_fifo(st) ? "a FIFO" : "a device or socket") +
+                      "); choose another path");
   if (access(dir.c_str(), W_OK) != 0)
     throw OutputError("cannot write the " + what + " '" + path + "': no permission to write in '" + dir.string() + "'");
+}
+
+FileLock::FileLock(const std::string& path, const std::string& what, bool remove) {
+  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
+  if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+    if (fd_ >= 0) ::close(fd_);
+    throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+  }
+  if (remove) remove_ = path;
+}
+
+FileLock::~FileLock() {
+  if (!remove_.empty()) ::unlink(remove_.c_str());
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void check_distinct(const std::vector<PathRole>& inputs, const std::vector<PathRole>& outputs) {
+  namespace fs = std::filesystem;
+  const auto same = [](const std::string& a, const std::string& b) {
+    std::error_code ec;
+    if (fs::exists(a, ec) && fs::exists(b, ec)) return fs::equivalent(a, b, ec);
+    return fs::weakly_canonical(a, ec) == fs::weakly_canonical(b, ec);
+  };
+  for (std::size_t i = 0; i < outputs.size(); ++i) {
+    if (outputs[i].path.empty()) continue;
+    for (const PathRole& in : inputs)
+      if (!in.path.empty() && same(outputs[i].path, in.path))
+        throw OutputError("the " + outputs[i].role + " '" + outputs[i].path + "' is the " + in.role +
+                          ": it would be overwritten; choose another path");
+    for (std::size_t j = 0; j < i; ++j)
+      if (!outputs[j].path.empty() && same(outputs[i].path, outputs[j].path))
+        throw OutputError("the " + outputs[i].role + " '" + outputs[i].path + "' is also the " + outputs[j].role +
+                          ": one would overwrite the other; choose two paths");
+  }
 }
 
 }  // namespace cvt

@@ -5,6 +5,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "engine/model/config.hpp"
 #include "engine/simulation.hpp"
@@ -42,6 +43,30 @@ class OutputError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+// An exclusive lock on a file (made if missing) for the lifetime of this object, let go of
+// by the kernel when the process ends (kill -9 included); throws OutputError, naming
+// `what`, when another process holds it (exit 73).
+class FileLock {
+ public:
+  // remove: the lock file is removed when let go of (a run's FILE.lock; a sweep removes its
+  // own at its end).
+  FileLock(const std::string& path, const std::string& what, bool remove = false);
+  ~FileLock();
+  FileLock(const FileLock&) = delete;
+  FileLock& operator=(const FileLock&) = delete;
+
+ private:
+  int fd_ = -1;
+  std::string remove_;  // the path to remove at the end ("" none)
+};
+
+// The files a command writes must be none of those it reads, nor one another: OutputError
+// naming both roles where two paths are one file (the same path, a link to it, a hard link).
+struct PathRole {
+  std::string role, path;
+};
+void check_distinct(const std::vector<PathRole>& inputs, const std::vector<PathRole>& outputs);
+
 // Throws OutputError unless a file can be created at path (its folder exists and is writable).
 void check_writable(const std::string& path, const std::string& what);
 

@@ -56,15 +56,23 @@ struct StopSignals {
   }
 };
 
-// The checks before anything is built: the step grid (exit 78) and every output writable
-// (exit 73).
-const Model& checked(const Model& m, const RunOptions& opt, const std::string& ckpt_path) {
+// The checks before anything is built: the step grid (exit 78), every output writable, a
+// regular file or none, and no two of them one file (exit 73).
+void checked(const Model& m, const RunOptions& opt, const std::string& ckpt_path) {
   check_step_grid(m.cfg);
   check_writable(opt.out_path, "output file");
   check_writable(ckpt_path, "checkpoint");
+  check_writable(opt.out_path + ".partial", "output file");
   for (const std::string* p : {&opt.profile_json, &opt.summary_json})
     if (!p->empty()) check_writable(*p, "JSON file");
-  return m;
+  check_distinct({}, {{"output file", opt.out_path}, {"checkpoint", ckpt_path}, {"summary JSON", opt.summary_json},
+                      {"profile JSON", opt.profile_json}});
+}
+
+// The run's output held against a second writer (FILE.lock, exit 73), after the checks.
+FileLock output_lock(const Model& m, const RunOptions& opt, const std::string& ckpt_path) {
+  checked(m, opt, ckpt_path);
+  return FileLock(opt.out_path + ".lock", "'" + opt.out_path + "'", true);
 }
 
 void write_text(const std::string& path, const std::string& text) {
@@ -117,6 +125,7 @@ class Run {
   const long total_, every_sample_, every_snapshot_;
   const bool append_;
   const std::string ckpt_path_, tmp_;
+  FileLock lock_;  // one writer per output
   Simulation sim_;
   Profiler& prof_;
   long start_ = 0, rebuild_every_ = 1, checkpoint_every_ = 0, done_ = 0;
@@ -171,7 +180,7 @@ Run::Run(const Model& m, const RunOptions& opt)
       every_sample_(steps_for(c_.run.sample_interval, h_)), every_snapshot_(steps_for(c_.run.snapshot_interval, h_)),
       append_(opt.append && opt.resume),
       ckpt_path_(opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path),
-      tmp_(opt.out_path + ".partial"), sim_(checked(m, opt, ckpt_path_), opt.schedule),
+      tmp_(opt.out_path + ".partial"), lock_(output_lock(m, opt, ckpt_path_)), sim_(m, opt.schedule),
       prof_(sim_.enable_profiling()) {
   if (opt.resume) {
     sim_.restore(*opt.resume);

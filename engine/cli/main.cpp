@@ -55,6 +55,9 @@ std::string number_check(const std::string& text, bool zero) {
 }
 const CLI::Validator kPositive([](std::string& t) { return number_check(t, false); }, "POSITIVE");
 const CLI::Validator kNonNegative([](std::string& t) { return number_check(t, true); }, "NONNEGATIVE");
+// An output path: an empty one would write a hidden or default file.
+const CLI::Validator kPath([](std::string& t) { return t.empty() ? std::string("an empty path") : std::string(); },
+                           "PATH");
 
 // A configuration outside the envelope (docs/envelope.md) runs, warned about on stderr
 // first; `where` names the sweep's point ("" for a run).
@@ -208,6 +211,32 @@ std::string per_model_second(double model_s_per_hour) {
   return b;
 }
 
+// The run's output file: -o, results.h5, or without -o a resumed run's own file (GROMACS's
+// mdrun -cpi: the one the checkpoint names, else the checkpoint's name without ".ckpt").
+// What the run reads it never writes (exit 73): its configuration, the checkpoint it resumes
+// (which only its own next checkpoint replaces), and, for a continuation into a new file,
+// the run's own file, which -o would replace with the continuation alone.
+std::string run_output(const std::string& config_path, const cvt::Checkpoint* ckpt, const RunArgs& ra) {
+  using namespace cvt;
+  std::string own;
+  if (ckpt) {
+    own = ckpt->output;
+    if (own.empty()) {
+      own = ra.resume;
+      if (own.size() > 5 && own.compare(own.size() - 5, 5, ".ckpt") == 0) own.resize(own.size() - 5);
+    }
+  }
+  const bool append = ckpt && ra.out.empty();
+  const std::string out = append ? own : ra.out.empty() ? "results.h5" : ra.out;
+  const std::vector<PathRole> outputs = {
+      {"output file", out}, {"summary JSON", ra.summary_json}, {"profile JSON", ra.profile_json}};
+  std::vector<PathRole> inputs = {{"configuration", config_path}};
+  if (ckpt && !append) inputs.push_back({"resumed run's own file (leave -o out to append to it)", own});
+  check_distinct(inputs, outputs);
+  check_distinct({{"checkpoint resumed from", ra.resume}}, outputs);
+  return out;
+}
+
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
             const std::string& step, const ScheduleArgs& sa, const RunArgs& ra) {
   using namespace cvt;
@@ -237,17 +266,8 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
                           : load_config(config_path, overrides, shortcuts);
   warn_outside_envelope(cfg);
   const Model model = build_model(cfg);
-  // Without --out a resumed run appends to its own file (GROMACS's mdrun -cpi): the one
-  // the checkpoint names, else the checkpoint's name without ".ckpt".
   const bool append = ckpt && ra.out.empty();
-  std::string out = ra.out.empty() ? "results.h5" : ra.out;
-  if (append) {
-    out = ckpt->output;
-    if (out.empty()) {
-      out = ra.resume;
-      if (out.size() > 5 && out.compare(out.size() - 5, 5, ".ckpt") == 0) out.resize(out.size() - 5);
-    }
-  }
+  const std::string out = run_output(config_path, ckpt ? &*ckpt : nullptr, ra);
   cvt::check_step_grid(cfg);  // refused (exit 78) before the header, not after it
   const bool talk = !ra.quiet;
   if (talk) {
@@ -442,7 +462,7 @@ Command add_run_command(CLI::App& app) {
   run->add_option("--step", step, "integration step [s] (integrator.step)");
   run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
   run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
-                  "for the continuation only)");
+                  "for the continuation only)")->check(kPath);
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
   run->add_flag("-q,--quiet", run_args.quiet, "print nothing but warnings and errors");
   run->add_flag("--profile", run_args.profile, "print the per-module profile table (always stored in /profile)");
@@ -520,7 +540,7 @@ Command add_scale_command(CLI::App& app) {
   scale->add_option("--warmup", scale_warmup, "model time run first, serially [s]")->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   scale->add_option("--grain", scale_grain, "pins per task (flowgraph)")->check(CLI::Range(1, 1000000))->capture_default_str();
-  scale->add_option("-o,--out", scale_out, "CSV file");
+  scale->add_option("-o,--out", scale_out, "CSV file")->check(kPath);
   scale->add_option("--json", scale_json, "JSON file");
   scale->add_option("--set", scale_overrides, "override a key: section.key=value (repeatable)");
   return {scale, [a] {
@@ -640,7 +660,7 @@ Command add_study_command(CLI::App& app) {
                         "them")
       ->capture_default_str();
   study_int->add_flag("--no-cache", si_no_cache, "compute the running state and the reference anew, keep nothing");
-  study_int->add_option("-o,--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)");
+  study_int->add_option("-o,--out", si.out_csv, "CSV file (the curves go to OUT-curves.csv)")->check(kPath);
   study_int->add_option("--set", si_overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(study_int, si_sched);
   return {study_int, [a] {
@@ -720,7 +740,7 @@ Command add_sweep_command(CLI::App& app) {
   sw->add_option("--points", a->points, "CSV file: a header of keys, then a row of values per point");
   sw->add_option("-o,--out", a->o.out, "OUT.csv and OUT.h5; a sweep started again with the same OUT skips the "
                                        "points OUT.csv holds")
-      ->capture_default_str();
+      ->capture_default_str()->check(kPath);
   sw->add_flag("--keep-runs", a->o.keep_runs, "keep each point's run file, OUT.runs/point-NNNN.h5");
   sw->add_option("--from", a->o.from, "start every point from this checkpoint of a steady state of the same model "
                                       "(cvt-engine run CONFIG --until-steady -o base.h5 writes base.h5.ckpt); "
@@ -758,7 +778,7 @@ Command add_slip_command(CLI::App& app) {
   sl->add_option("--ratios", a->o.ratios, "geometry.ratio values (default: the configuration's)")->delimiter(',');
   sl->add_option("--tol", a->o.tolerance, "bisection until (slips_at - slip_torque) / slip_torque <= TOL")
       ->check(CLI::Range(1e-4, 0.5))->capture_default_str();
-  sl->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str();
+  sl->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str()->check(kPath);
   sl->add_option("--set", a->o.sweep.overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(sl, a->sched);
   return {sl, [a] {
@@ -802,7 +822,7 @@ Command add_shift_command(CLI::App& app) {
   sh->add_option("--window", a->o.window, "the fit's window [s]")->check(kPositive)->capture_default_str();
   sh->add_option("--steady-bound", a->o.steady_bound, "t_end of the runs to the steady state [s]")
       ->check(kPositive)->capture_default_str();
-  sh->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str();
+  sh->add_option("-o,--out", a->o.csv, "CSV file")->capture_default_str()->check(kPath);
   sh->add_option("--set", a->o.sweep.overrides, "override a key: section.key=value (repeatable)");
   add_schedule_options(sh, a->sched);
   return {sh, [a] {

@@ -370,18 +370,6 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
   std::filesystem::rename(tmp, csv_);
 }
 
-FileLock::FileLock(const std::string& path, const std::string& what) {
-  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
-  if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
-    if (fd_ >= 0) ::close(fd_);
-    throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
-  }
-}
-
-FileLock::~FileLock() {
-  if (fd_ >= 0) ::close(fd_);
-}
-
 void SweepLedger::add(const SweepRow& r) {
   if (done_[static_cast<std::size_t>(r.point)]) return;
   append_durably(csv_, sweep_csv_row(r));

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/guards.hpp"
 #include "graph/schedule.hpp"
 
 namespace cvt {
@@ -89,20 +90,6 @@ struct SweepInterrupted : std::runtime_error {
 // Runs point i until steady, its run file in OUT.runs/; never throws for the point's own
 // failure (a blow-up, a bad value): the row says it. Throws SweepInterrupted on a signal.
 SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i);
-
-// An exclusive lock on a file (made if missing) for the lifetime of this object, let go of
-// by the kernel when the process ends (kill -9 included); throws OutputError, naming
-// `what`, when another process holds it.
-class FileLock {
- public:
-  FileLock(const std::string& path, const std::string& what);
-  ~FileLock();
-  FileLock(const FileLock&) = delete;
-  FileLock& operator=(const FileLock&) = delete;
-
- private:
-  int fd_ = -1;
-};
 
 // The rows of a sweep on disk: OUT.csv grows a row per finished point (flushed to the
 // disk at once, so a kill loses no finished point); at the end it is rewritten in point

@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/guards.hpp"
 #include "engine/io/h5_writer.hpp"
 #include "tests/test_util.hpp"
 
@@ -348,6 +349,65 @@ TEST_F(CliTest, GoodRunWritesOutputAndSummary) {
   EXPECT_TRUE(fs::exists(dir_ / out));
   EXPECT_GT(fs::file_size(dir_ / out), 0u);
   EXPECT_FALSE(fs::exists(dir_ / (out + ".partial")));
+}
+
+// Nothing the run reads is written (exit 73, the file byte for byte as it was): its
+// configuration, the checkpoint it resumes, the resumed run's own file under -o; no two
+// outputs are one file; an output that exists as a FIFO or a link is refused, not replaced.
+TEST_F(CliTest, OutputsThatAreInputsOrNotRegularFilesAreRefused) {
+  fs::copy_file(kMini, dir_ / "self.toml");
+  const std::string config = read_text(dir_ / "self.toml");
+  ASSERT_EQ(::mkfifo((dir_ / "ff").c_str(), 0600), 0);
+  fs::create_symlink("x.h5", dir_ / "lnk.h5");
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"-o", "self.toml"}, "the output file 'self.toml' is the configuration"},
+      {{"-o", "a.h5", "--summary-json", "self.toml"}, "the summary JSON 'self.toml' is the configuration"},
+      {{"-o", "a.h5", "--profile-json", "a.h5"}, "is also the output file"},
+      {{"-o", "ff"}, "not a regular file (a FIFO)"},
+      {{"-o", "lnk.h5"}, "not a regular file (a link)"},
+  };
+  for (const auto& [args, what] : cases) {
+    std::vector<std::string> a = {"run", "self.toml", "--t-end", "1e-5", "--quiet"};
+    a.insert(a.end(), args.begin(), args.end());
+    const RunResult r = run(a);
+    EXPECT_EQ(r.exit_code, 73) << r.err;
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  }
+  EXPECT_EQ(read_text(dir_ / "self.toml"), config);
+  EXPECT_TRUE(fs::is_fifo(dir_ / "ff"));
+  EXPECT_TRUE(fs::is_symlink(dir_ / "lnk.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "a.h5"));
+  const RunResult usage = run({"run", "self.toml", "-o", ""});
+  EXPECT_EQ(usage.exit_code, 64) << usage.err;
+  EXPECT_FALSE(fs::exists(dir_ / "results.h5"));
+
+  ASSERT_EQ(run({"run", "self.toml", "--t-end", "2e-5", "--quiet", "-o", "p.h5", "--checkpoint-every", "0"}).exit_code, 0);
+  const std::string file = read_text(dir_ / "p.h5"), ckpt = read_text(dir_ / "p.h5.ckpt");
+  const RunResult own = run({"run", "--resume", "p.h5.ckpt", "-o", "p.h5", "--t-end", "4e-5", "--quiet"});
+  EXPECT_EQ(own.exit_code, 73) << own.err;
+  EXPECT_NE(own.err.find("leave -o out to append to it"), std::string::npos) << own.err;
+  const RunResult onto = run({"run", "--resume", "p.h5.ckpt", "--summary-json", "p.h5.ckpt", "--t-end", "4e-5"});
+  EXPECT_EQ(onto.exit_code, 73) << onto.err;
+  EXPECT_NE(onto.err.find("is the checkpoint resumed from"), std::string::npos) << onto.err;
+  EXPECT_EQ(read_text(dir_ / "p.h5"), file);
+  EXPECT_EQ(read_text(dir_ / "p.h5.ckpt"), ckpt);
+}
+
+// One writer per file: while another process holds FILE.lock, a run onto FILE is refused
+// (exit 73) before it writes anything; once it is let go of, the run goes and removes it.
+TEST_F(CliTest, ASecondWriterOfTheSameFileIsRefused) {
+  {
+    const FileLock held((dir_ / "same.h5.lock").string(), "same.h5");
+    const RunResult second = run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", "same.h5"});
+    EXPECT_EQ(second.exit_code, 73) << second.err;
+    EXPECT_NE(second.err.find("another cvt-engine is writing 'same.h5'"), std::string::npos) << second.err;
+    EXPECT_FALSE(fs::exists(dir_ / "same.h5.partial"));
+    EXPECT_FALSE(fs::exists(dir_ / "same.h5"));
+  }
+  const RunResult first = run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", "same.h5"});
+  EXPECT_EQ(first.exit_code, 0) << first.err;
+  EXPECT_TRUE(fs::exists(dir_ / "same.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "same.h5.lock"));
 }
 
 // The run's contract (docs/cli.md): a configuration that cannot be read is an error, never
