@@ -26,35 +26,41 @@ namespace {
 
 long steps_for(double interval, double h) { return interval > 0 ? std::max(1L, std::lround(interval / h)) : 0; }
 
-// SIGINT / SIGTERM during a run: the step in progress finishes, the state at that moment
-// is sampled, and the file is closed and kept (docs/cli.md, exit code 130).
+// SIGINT / SIGTERM / SIGHUP during a run: the step in progress finishes, the state at that
+// moment is sampled, and the file is closed and kept (docs/cli.md, exit code 130).
 volatile std::sig_atomic_t g_stop_signal = 0;
 extern "C" void on_stop_signal(int sig) { g_stop_signal = sig; }
 
-// Installs the handlers while runs are going on and restores the previous ones after the
+}  // namespace
+
+// The handlers are installed by the first guard and the previous ones restored after the
 // last: runs side by side in threads of one process (the Python module) share them, and a
-// signal stops them all.
-struct StopSignals {
-  static inline std::mutex mutex;
-  static inline int active = 0;
-  static inline struct sigaction old_int {}, old_term {};
-  StopSignals() {
-    const std::lock_guard lock(mutex);
-    if (active++ > 0) return;
-    g_stop_signal = 0;
-    struct sigaction sa {};
-    sa.sa_handler = on_stop_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGINT, &sa, &old_int);
-    sigaction(SIGTERM, &sa, &old_term);
-  }
-  ~StopSignals() {
-    const std::lock_guard lock(mutex);
-    if (--active > 0) return;
-    sigaction(SIGINT, &old_int, nullptr);
-    sigaction(SIGTERM, &old_term, nullptr);
-  }
-};
+// signal stops them all. A signal that arrives before a run starts (the command's guard
+// holds them from its first instruction) stops that run at its first stop point.
+std::mutex StopSignals::mutex_;
+int StopSignals::active_ = 0;
+static struct sigaction g_old_handlers[3];
+static constexpr int kStopSignals[3] = {SIGINT, SIGTERM, SIGHUP};
+
+StopSignals::StopSignals() {
+  const std::lock_guard lock(mutex_);
+  if (active_++ > 0) return;
+  g_stop_signal = 0;
+  struct sigaction sa {};
+  sa.sa_handler = on_stop_signal;
+  sigemptyset(&sa.sa_mask);
+  for (int k = 0; k < 3; ++k) sigaction(kStopSignals[k], &sa, &g_old_handlers[k]);
+}
+
+StopSignals::~StopSignals() {
+  const std::lock_guard lock(mutex_);
+  if (--active_ > 0) return;
+  for (int k = 0; k < 3; ++k) sigaction(kStopSignals[k], &g_old_handlers[k], nullptr);
+}
+
+int StopSignals::pending() { return g_stop_signal; }
+
+namespace {
 
 // The checks before anything is built: the step grid (exit 78), every output writable, a
 // regular file or none, and no two of them one file (exit 73).

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <functional>
+#include <mutex>
 #include <string>
 
 #include "engine/guards.hpp"
@@ -16,6 +17,24 @@
 namespace cvt {
 
 // Where a run stands, for RunOptions::on_progress.
+// SIGINT, SIGTERM and SIGHUP from this guard's construction to its end: a signal stops the
+// run (or sweep) under way at its next stop point, with its file and checkpoint kept
+// (docs/cli.md, exit 130); a run holds one, and a command holds one from its first
+// instruction so that a signal before the run starts is not lost. Nested guards share the
+// handlers.
+class StopSignals {
+ public:
+  StopSignals();
+  ~StopSignals();
+  StopSignals(const StopSignals&) = delete;
+  StopSignals& operator=(const StopSignals&) = delete;
+  static int pending();  // the signal caught (0: none)
+
+ private:
+  static std::mutex mutex_;
+  static int active_;
+};
+
 struct RunProgress {
   long step = 0, steps = 0;  // steps done and the steps to run.t_end (the bound with run.until_steady)
   double t = 0, t_end = 0;   // model time now and at the end [s]

@@ -1,5 +1,6 @@
 // The cvt-engine command line (docs/cli.md).
 #include <CLI/CLI.hpp>
+#include <signal.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -240,6 +241,7 @@ std::string run_output(const std::string& config_path, const cvt::Checkpoint* ck
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
             const std::string& step, const ScheduleArgs& sa, const RunArgs& ra) {
   using namespace cvt;
+  const StopSignals stop_signals;  // from the first instruction: a signal before the run stops it at once
   // Command-line shortcuts are overrides too, passed as typed: validated like any key and
   // recorded in the resolved TOML.
   if (!t_end.empty()) overrides.push_back("run.t_end=" + t_end);
@@ -688,6 +690,7 @@ Command add_study_command(CLI::App& app) {
 // (engine/studies/sweep.cpp); under mpirun or srun the points go out to the ranks.
 int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points) {
   using namespace cvt;
+  const StopSignals stop_signals;  // from the first instruction, as for a run
   const SweepPlan plan = sweep_plan(o, axes, points);
   const MpiWorld world;
   if (world.rank() == 0) {
@@ -886,6 +889,25 @@ Command add_modes_command(CLI::App& app) {
 }
 
 }  // namespace
+
+// SIGINT, SIGTERM or SIGHUP before a command takes them over (a run, a sweep: StopSignals)
+// or in a command that does not: it says so and ends with 128 + the signal (async-signal-
+// safe: write and _exit only). A run or sweep has written nothing then.
+extern "C" void on_early_signal(int sig) {
+  static const char msg[] = "cvt-engine: stopped by a signal before a run or sweep began (nothing of it written)\n";
+  if (::write(2, msg, sizeof msg - 1) < 0) {
+  }
+  ::_exit(128 + sig);
+}
+
+// Installed before main, as the program's own static initialization begins (the shared
+// libraries' loading before it is the one moment left to the default action).
+__attribute__((constructor)) void install_early_signals() {
+  struct sigaction sa {};
+  sa.sa_handler = on_early_signal;
+  sigemptyset(&sa.sa_mask);
+  for (const int sig : {SIGINT, SIGTERM, SIGHUP}) sigaction(sig, &sa, nullptr);
+}
 
 int main(int argc, char** argv) {
   CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};

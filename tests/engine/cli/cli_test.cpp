@@ -563,7 +563,37 @@ TEST_P(CliSignalTest, StopsCleanlyAndKeepsTheFile) {
   EXPECT_GT(n, 1) << "the kept file does not open, or holds no samples";
 }
 
-INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTERM));
+INSTANTIATE_TEST_SUITE_P(Signals, CliSignalTest, ::testing::Values(SIGINT, SIGTERM, SIGHUP));
+
+// A signal at any moment from the start leaves a readable file or none, never a torn
+// FILE.partial: before the run begins the process ends with 128 + the signal and a message
+// (or, while the shared libraries load, by the signal itself); once it has begun, the run
+// stops at its next stop point with exit 130 and keeps its file.
+TEST_P(CliSignalTest, AtAnyMomentLeavesAReadableFileOrNone) {
+  const int sig = GetParam();
+  for (const int ms : {0, 5, 15, 30, 45, 60, 90, 150}) {
+    SCOPED_TRACE("signal " + std::to_string(sig) + " after " + std::to_string(ms) + " ms");
+    for (const char* f : {"e.h5", "e.h5.partial", "e.h5.ckpt"}) fs::remove(dir_ / f);
+    const pid_t pid = start({"run", kMini, "--t-end", "0.01", "--out", "e.h5", "--quiet"});
+    ASSERT_NE(pid, -1);
+    std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+    ASSERT_EQ(kill(pid, sig), 0);
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    EXPECT_FALSE(fs::exists(dir_ / "e.h5.partial")) << "a torn file left behind";
+    if (fs::exists(dir_ / "e.h5")) {
+      ASSERT_TRUE(WIFEXITED(status));
+      EXPECT_TRUE(WEXITSTATUS(status) == 130 || WEXITSTATUS(status) == 0) << WEXITSTATUS(status);
+      EXPECT_GT(h5_rows(dir_ / "e.h5", "/observables/input_speed/time"), 0) << "the kept file does not open";
+    } else if (WIFEXITED(status)) {
+      EXPECT_EQ(WEXITSTATUS(status), 128 + sig);
+      EXPECT_NE(read_text(dir_ / "stderr.txt").find("stopped by a signal before a run or sweep began"),
+                std::string::npos);
+    } else {
+      EXPECT_EQ(WTERMSIG(status), sig);
+    }
+  }
+}
 
 // The output file can be read while the run writes it (SWMR), and after kill -9 it still
 // opens and holds every sample up to the last flush.
