@@ -245,8 +245,19 @@ void Run::open_output() {
     if (!fs::exists(opt_.out_path) && !fs::exists(tmp_))
       throw std::runtime_error("cannot continue " + opt_.out_path +
                                ": the file does not exist; give --out NEW to write the continuation to a new file");
-    if (fs::exists(opt_.out_path)) fs::rename(opt_.out_path, tmp_);
-    return H5File::open(tmp_);
+    // A file that is no HDF5 file, or a damaged one, is refused before it is touched: the
+    // refusal leaves it byte for byte as it was (and under its name).
+    if (fs::exists(opt_.out_path)) {
+      check_readable_h5(opt_.out_path);
+      fs::rename(opt_.out_path, tmp_);
+    }
+    try {
+      return H5File::open(tmp_);
+    } catch (...) {
+      std::error_code ec;
+      if (!fs::exists(opt_.out_path, ec)) fs::rename(tmp_, opt_.out_path, ec);
+      throw;
+    }
   }());
   if (append_) {
     try {

@@ -254,6 +254,16 @@ H5File H5File::create(const std::string& path) {
   return H5File(std::move(file), path);
 }
 
+void check_readable_h5(const std::string& path) {
+  h5_silence_error_printing();
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0)
+    throw std::runtime_error("cannot continue " + path +
+                             ": it does not open as an HDF5 file (not one, truncated, or left open for writing by a "
+                             "killed run: h5clear -s " + path + " clears that); the file is left as it was");
+  H5Fclose(f);
+}
+
 H5File H5File::open(const std::string& path) {
   h5_silence_error_printing();
   H5Handle fapl(H5Pcreate(H5P_FILE_ACCESS), "H5Pcreate(H5P_FILE_ACCESS)", path);

@@ -29,6 +29,9 @@ class H5Error : public std::runtime_error {
 // Switches off HDF5's automatic printing of its error stack (once per process; the errors are
 // reported through H5Error instead). Called by H5File::create(); idempotent.
 void h5_silence_error_printing();
+// Throws std::runtime_error naming path unless it opens read-only as an HDF5 file (a run's own
+// file to continue): checked before the file is touched.
+void check_readable_h5(const std::string& path);
 
 // Owns an hid_t and closes it with the matching H5*close (chosen by H5Iget_type) on destruction.
 // Movable, not copyable. Never wrap a library-owned id such as H5T_NATIVE_DOUBLE.

@@ -410,6 +410,30 @@ TEST_F(CliTest, ASecondWriterOfTheSameFileIsRefused) {
   EXPECT_FALSE(fs::exists(dir_ / "same.h5.lock"));
 }
 
+// A refused continuation leaves every file byte for byte as it was, under its name: the
+// run's own file when it is empty, not HDF5, truncated, or another run's; the checkpoint.
+TEST_F(CliTest, ARefusedResumeLeavesTheFilesAsTheyWere) {
+  ASSERT_EQ(run({"run", kMini, "--t-end", "2e-5", "--quiet", "-o", "p.h5", "--checkpoint-every", "0"}).exit_code, 0);
+  ASSERT_EQ(run({"run", kMini, "--t-end", "2e-5", "--quiet", "-o", "other.h5"}).exit_code, 0);
+  const std::string good = read_text(dir_ / "p.h5"), ckpt = read_text(dir_ / "p.h5.ckpt");
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"empty", ""}, {"not HDF5", std::string(5000, 'x')}, {"truncated", good.substr(0, 3000)},
+      {"another run's", read_text(dir_ / "other.h5")}};
+  for (const auto& [what, bytes] : cases) {
+    SCOPED_TRACE(what);
+    {
+      std::ofstream f(dir_ / "p.h5", std::ios::binary | std::ios::trunc);
+      f << bytes;
+    }
+    const RunResult r = run({"run", "--resume", "p.h5.ckpt", "--t-end", "4e-5", "--quiet"});
+    EXPECT_EQ(r.exit_code, 1) << r.err;
+    EXPECT_NE(r.err.find("cannot continue"), std::string::npos) << r.err;
+    EXPECT_EQ(read_text(dir_ / "p.h5"), bytes) << "the refused file was changed";
+    EXPECT_EQ(read_text(dir_ / "p.h5.ckpt"), ckpt) << "the checkpoint was changed";
+    EXPECT_FALSE(fs::exists(dir_ / "p.h5.partial"));
+  }
+}
+
 // The run's contract (docs/cli.md): a configuration that cannot be read is an error, never
 // an empty one (which would run the defaults); a FIFO is refused, not waited on.
 TEST_F(CliTest, AnUnreadableConfigurationIsAnErrorNotTheDefaults) {
