@@ -17,6 +17,7 @@
 
 #include "engine/base/timing.hpp"
 #include "engine/model/envelope.hpp"
+#include "engine/ode/ode.hpp"
 #include "engine/output.hpp"
 #include "graph/side_job.hpp"
 
@@ -98,6 +99,7 @@ class Run {
   Run(const Model& m, const RunOptions& opt);
   void open_output();
   void steps();
+  [[noreturn]] void blown_up(const std::string& what);
   RunResult finish();
 
  private:
@@ -512,22 +514,32 @@ void Run::steps() {
       }
     }
   } catch (const BlowUpError& e) {
-    if (opt_.progress && tty_) std::fprintf(stderr, "\n");
-    try {
-      sync_writes();  // every good sample; a write error here must not hide the blow-up
-    } catch (const std::exception&) {
-    }
-    file_->close();
-    std::filesystem::rename(tmp_, opt_.out_path);
-    std::string slip;
-    if (warned_slip_)
-      slip = ". It followed " + fmt_slip("gross slip", slipped_from_, slipped_most_, gross_slip_) +
-             ": the load exceeds what the clamping holds (a physical limit, not the integrator's): raise the clamping, "
-             "turn on the ratio controller, or lower the load";
-    throw BlowUpError(std::string(e.what()) + slip + ". Every sample before the blow-up is in " + opt_.out_path);
+    blown_up(e.what());
+  } catch (const NumericalFailure& e) {
+    blown_up(std::string("numerical failure: ") + e.what());
+  } catch (const OdeError& e) {
+    blown_up(std::string("numerical failure: ") + e.what());
   }
   step_wall_ = seconds_since(t0_);
   if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+}
+
+// A blow-up or a numerical failure: every good sample kept, the file closed under its final
+// name (exit 70), the slip that came before it named.
+void Run::blown_up(const std::string& what) {
+  if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+  try {
+    sync_writes();  // every good sample; a write error here must not hide the blow-up
+  } catch (const std::exception&) {
+  }
+  file_->close();
+  std::filesystem::rename(tmp_, opt_.out_path);
+  std::string slip;
+  if (warned_slip_)
+    slip = ". It followed " + fmt_slip("gross slip", slipped_from_, slipped_most_, gross_slip_) +
+           ": the load exceeds what the clamping holds (a physical limit, not the integrator's): raise the clamping, "
+           "turn on the ratio controller, or lower the load";
+  throw BlowUpError(what + slip + ". Every sample before the blow-up is in " + opt_.out_path);
 }
 
 // The last checkpoint, the summary and the profile. SWMR allows no new objects: the

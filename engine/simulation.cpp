@@ -190,7 +190,7 @@ void Simulation::w_substep(WStep& s, double t, double t_end, long index, bool ev
   }
   pieces_ = 1;
   // No attempt held: a bad state is a blow-up (check_finite); an error at a sound state ends the run.
-  if (!error.empty() && y_.allFinite() && state_problem(y_).empty()) throw std::runtime_error(error);
+  if (!error.empty() && y_.allFinite() && state_problem(y_).empty()) throw NumericalFailure(error);
 }
 
 // The step's control by the energy balance (integrator.energy_leak; docs/integrators.md

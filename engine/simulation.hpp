@@ -25,6 +25,14 @@ class BlowUpError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A step that no retake could take from a sound state (a singular matrix every time): a
+// numerical failure, reported like a blow-up (the run keeps its samples and says what to
+// change).
+class NumericalFailure : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 // One sample of the channels (docs/model.md 6).
 struct Sample {
   double t = 0;

@@ -434,6 +434,17 @@ TEST_F(CliTest, ARefusedResumeLeavesTheFilesAsTheyWere) {
   }
 }
 
+// A numerical failure (a matrix singular at every retake from a sound state) is reported like
+// a blow-up: exit 70, the time and what to change, every good sample kept under FILE.
+TEST_F(CliTest, ANumericalFailureIsReportedLikeABlowUp) {
+  const RunResult r = run({"run", kMini, "--set", "drive.speed=1e30", "--t-end", "1e-4", "--quiet", "-o", "n.h5"});
+  EXPECT_EQ(r.exit_code, 70) << r.err;
+  for (const char* what : {"numerical failure", "singular at t = 0 s", "Every sample before the blow-up is in n.h5"})
+    EXPECT_NE(r.err.find(what), std::string::npos) << what << " missing: " << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "n.h5.partial"));
+  EXPECT_GE(h5_rows(dir_ / "n.h5", "/observables/input_speed/time"), 1) << "the kept file does not open";
+}
+
 // The run's contract (docs/cli.md): a configuration that cannot be read is an error, never
 // an empty one (which would run the defaults); a FIFO is refused, not waited on.
 TEST_F(CliTest, AnUnreadableConfigurationIsAnErrorNotTheDefaults) {
