@@ -231,10 +231,9 @@ std::string run_output(const std::string& config_path, const cvt::Checkpoint* ck
   const std::string out = append ? own : ra.out.empty() ? "results.h5" : ra.out;
   const std::vector<PathRole> outputs = {
       {"output file", out}, {"summary JSON", ra.summary_json}, {"profile JSON", ra.profile_json}};
-  std::vector<PathRole> inputs = {{"configuration", config_path}};
+  std::vector<PathRole> inputs = {{"configuration", config_path}, {"checkpoint resumed from", ra.resume}};
   if (ckpt && !append) inputs.push_back({"resumed run's own file (leave -o out to append to it)", own});
   check_distinct(inputs, outputs);
-  check_distinct({{"checkpoint resumed from", ra.resume}}, outputs);
   return out;
 }
 

@@ -638,11 +638,12 @@ class Validator {
                "is " + num(c.run.t_end / grid) + " steps of " + num(grid) + " s, more than a run can count (2^52)");
     if (c.integrator.method != IntegratorMethod::rk4) {
       const auto subs = [&](const char* key, double sub, bool on) {
-        if (on && !(c.integrator.step / sub <= kMaxSubsteps))
-          fail_rel("integrator", key, num(sub),
-                   "gives " + std::to_string(std::llround(std::min(std::ceil(c.integrator.step / sub), 9e18))) + " sub-steps per step of integrator.step = " +
-                       num(c.integrator.step) + " s, more than " + std::to_string(kMaxSubsteps) +
-                       ": a step could not finish");
+        if (!on || c.integrator.step / sub <= kMaxSubsteps) return;
+        char n[32];
+        std::snprintf(n, sizeof n, "%.0f", std::ceil(c.integrator.step / sub));
+        fail_rel("integrator", key, num(sub),
+                 std::string("gives ") + n + " sub-steps per step of integrator.step = " + num(c.integrator.step) +
+                     " s, more than " + std::to_string(kMaxSubsteps) + ": a step could not finish");
       };
       subs("startup_step", c.integrator.startup_step, c.integrator.startup_time > 0);
       subs("settle_step", c.integrator.settle_step, c.integrator.settle_time != 0);
