@@ -43,6 +43,16 @@ class OutputError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+// A write that failed during a run (a full disk, an I/O error): what failed, then the way on
+// from the run's last checkpoint (exit 73).
+class WriteFailed : public OutputError {
+ public:
+  WriteFailed(const std::string& cause, const std::string& way_on) : OutputError(cause + "; " + way_on), cause_(cause) {}
+  const std::string& cause() const { return cause_; }
+
+ private:
+  std::string cause_;
+};
 // An exclusive lock on a file (made if missing) for the lifetime of this object, let go of
 // by the kernel when the process ends (kill -9 included); throws OutputError, naming
 // `what`, when another process holds it (exit 73).
@@ -69,6 +79,11 @@ void check_distinct(const std::vector<PathRole>& inputs, const std::vector<PathR
 
 // Throws OutputError unless a file can be created at path (its folder exists and is writable).
 void check_writable(const std::string& path, const std::string& what);
+
+// Replaces path with the bytes, all or nothing: written to PATH.tmp, synced to the disk and
+// renamed over path. A write error (a full disk) removes PATH.tmp, leaves path as it was
+// and throws OutputError naming the path and the system's reason (exit 73).
+void replace_file(const std::string& path, const void* bytes, std::size_t size);
 
 
 }  // namespace cvt

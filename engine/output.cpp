@@ -121,7 +121,8 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
   };
   const auto kept = [&](const std::vector<double>& t, long every) {
     hsize_t n = 0;
-    while (n < t.size() && t[n] <= ck.t + 1e-6 * h) ++n;
+    // Rows past a write that failed (a full disk) may read as zeros: the kept rows rise.
+    while (n < t.size() && t[n] <= ck.t + 1e-6 * h && (n == 0 || t[n] > t[n - 1])) ++n;
     if (n > 0 && !on_grid(t[n - 1], every) && n > 1) --n;  // an off-grid last sample (an interrupt, t_end)
     return n;
   };

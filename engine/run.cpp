@@ -82,12 +82,7 @@ FileLock output_lock(const Model& m, const RunOptions& opt, const std::string& c
   return FileLock(opt.out_path + ".lock", "'" + opt.out_path + "'", true);
 }
 
-void write_text(const std::string& path, const std::string& text) {
-  std::ofstream js(path);
-  js << text;
-  js.close();
-  if (!js) throw OutputError("cannot write '" + path + "'");
-}
+void write_text(const std::string& path, const std::string& text) { replace_file(path, text.data(), text.size()); }
 
 // One run, in the order it happens: the checks and the simulation at its start
 // (constructor), the output file opened and its series declared (open_output), the steps
@@ -104,13 +99,19 @@ class Run {
 
  private:
   void warn(const std::string& w);
-  // Times f as the profile's output row (sampling, snapshots, flushes, checkpoints).
+  // Times f as the profile's output row (sampling, snapshots, flushes, checkpoints); a write
+  // that fails (a full disk, an I/O error) ends the run (write_failed).
   template <class F>
   void output(F&& f) {
     const std::uint64_t k0 = Profiler::ticks();
-    f();
+    try {
+      f();
+    } catch (const std::exception& e) {
+      write_failed(e.what());
+    }
     prof_.add_output(Profiler::ticks() - k0);
   }
+  [[noreturn]] void write_failed(const std::string& what);
   void record();
   void watch(const Sample& s);
   void snapshot();
@@ -241,32 +242,38 @@ void Run::warn(const std::string& w) {
 // writes, and drops its rows after the checkpoint. Every series is created here, after
 // which the file is only appended to and readers can follow the run (SWMR).
 void Run::open_output() {
-  file_.emplace([&] {
-    if (!append_) return H5File::create(tmp_);
+  if (!append_) {
+    file_.emplace(H5File::create(tmp_));
+  } else {
     namespace fs = std::filesystem;
     if (!fs::exists(opt_.out_path) && !fs::exists(tmp_))
       throw std::runtime_error("cannot continue " + opt_.out_path +
                                ": the file does not exist; give --out NEW to write the continuation to a new file");
-    // A file that is no HDF5 file, or a damaged one, is refused before it is touched: the
-    // refusal leaves it byte for byte as it was (and under its name).
-    if (fs::exists(opt_.out_path)) {
-      check_readable_h5(opt_.out_path);
-      fs::rename(opt_.out_path, tmp_);
-    }
+    // The run's own file (FILE, or FILE.partial after kill -9 or a full disk) is checked
+    // read-only, with everything the continuation needs read from it, before it is touched:
+    // a refusal leaves it byte for byte as it was, under its name. One that a full disk cut
+    // short is extended to the end its superblock records (undone on a refusal); one that a
+    // killed run left marked as open for writing has that mark cleared (FILE.lock, held
+    // here, shows that no writer is left).
+    const std::string own = fs::exists(opt_.out_path) ? opt_.out_path : tmp_;
+    const long long cut = extend_to_recorded_end(own);
+    bool left_open;
     try {
-      return H5File::open(tmp_);
+      left_open = check_readable_h5(own);
+      H5File probe = H5File::open_for_reading(own, left_open);
+      hist_ = continue_file(probe, m_, *opt_.resume, every_sample_, every_snapshot_);
+      probe.close();
     } catch (...) {
       std::error_code ec;
-      if (!fs::exists(opt_.out_path, ec)) fs::rename(tmp_, opt_.out_path, ec);
+      if (cut >= 0) fs::resize_file(own, static_cast<std::uintmax_t>(cut), ec);
       throw;
     }
-  }());
-  if (append_) {
+    fs::rename(own, tmp_);
     try {
-      hist_ = continue_file(*file_, m_, *opt_.resume, every_sample_, every_snapshot_);
+      file_.emplace(H5File::open(tmp_, left_open));
     } catch (...) {
-      file_->close();
-      std::filesystem::rename(tmp_, opt_.out_path);
+      std::error_code ec;
+      fs::rename(tmp_, own, ec);
       throw;
     }
     file_->remove("/profile");
@@ -540,6 +547,33 @@ void Run::blown_up(const std::string& what) {
            ": the load exceeds what the clamping holds (a physical limit, not the integrator's): raise the clamping, "
            "turn on the ratio controller, or lower the load";
   throw BlowUpError(what + slip + ". Every sample before the blow-up is in " + opt_.out_path);
+}
+
+// A write that failed: the file closed as far as the library can (its errors ignored), the
+// run ended with exit 73 (OutputError), and the way on named: the last checkpoint, written
+// whole or not at all, continues the run once there is room.
+void Run::write_failed(const std::string& what) {
+  if (opt_.progress && tty_) std::fprintf(stderr, "\n");
+  try {
+    file_->close();
+  } catch (const std::exception&) {
+  }
+  const auto g = [](double x) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.9g", x);
+    return std::string(buf);
+  };
+  std::string next = "nothing to continue from yet: free space and run again";
+  if (std::filesystem::exists(ckpt_path_)) {
+    try {
+      const Checkpoint last = read_checkpoint(ckpt_path_);
+      if (last.run_id == run_id_)
+        next = "the checkpoint " + ckpt_path_ + " (t = " + g(last.t) +
+               " s) is whole: free space and continue with: cvt-engine run --resume " + ckpt_path_;
+    } catch (const std::exception&) {
+    }
+  }
+  throw WriteFailed("writing the run's output failed at t = " + g(sim_.time()) + " s: " + what, next);
 }
 
 // The last checkpoint, the summary and the profile. SWMR allows no new objects: the

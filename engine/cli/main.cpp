@@ -909,6 +909,9 @@ __attribute__((constructor)) void install_early_signals() {
 }
 
 int main(int argc, char** argv) {
+  // Every HDF5 file is closed by the code that opened it, in order; the library's own pass at
+  // exit would close again a file whose close failed (a full disk) and crash in it.
+  H5dont_atexit();
   CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string(CVT_VERSION));

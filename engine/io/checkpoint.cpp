@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "engine/guards.hpp"
 #include "engine/io/h5_writer.hpp"
 
 namespace cvt {
@@ -56,9 +57,11 @@ std::string read_string(hid_t file, const std::string& path, const std::string& 
 }  // namespace
 
 void write_checkpoint(const std::string& path, const Checkpoint& c) {
-  const std::string tmp = path + ".tmp";
+  // Made in memory and written in one durable replace: a full disk or a crash leaves the
+  // previous checkpoint as it was.
+  std::vector<unsigned char> bytes;
   {
-    H5File f = H5File::create(tmp);
+    H5File f = H5File::create_in_memory(path);
     f.write_string("/parameters/config", c.config_toml);
     f.write_vector("/checkpoint/state", std::vector<double>(c.state.data(), c.state.data() + c.state.size()));
     f.write_vector("/checkpoint/rocker_status", to_doubles(c.rocker));
@@ -69,9 +72,10 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
                                                 static_cast<double>(c.leak_from), c.leak_residual, c.leak_work});
     if (!c.run_id.empty()) f.write_string("/checkpoint/run_id", c.run_id);
     if (!c.output.empty()) f.write_string("/checkpoint/output", c.output);
+    bytes = f.image();
     f.close();
   }
-  std::filesystem::rename(tmp, path);
+  replace_file(path, bytes.data(), bytes.size());
 }
 
 Checkpoint read_checkpoint(const std::string& path) {

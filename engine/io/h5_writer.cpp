@@ -1,6 +1,10 @@
 #include "engine/io/h5_writer.hpp"
 
 #include <algorithm>
+#include <cstdint>
+#include <filesystem>
+#include <cstdio>
+#include <cstring>
 #include <exception>
 #include <limits>
 #include <mutex>
@@ -17,6 +21,13 @@ std::string hdf5_error_detail() {
     auto* out = static_cast<std::string*>(client);
     if (n != 0 || err == nullptr) return 0;
     if (err->desc != nullptr && err->desc[0] != '\0') *out = err->desc;
+    // A failed write or read: "file write failed: time = ..., error message = 'No space
+    // left on device', ..." said as "file write failed: No space left on device".
+    const std::size_t says = out->find("error message = '");
+    if (says != std::string::npos) {
+      const std::size_t from = says + 17, to = out->find('\'', from);
+      *out = out->substr(0, out->find(':')) + ": " + out->substr(from, to == std::string::npos ? to : to - from);
+    }
     char minor[256];
     if (H5Eget_msg(err->min_num, nullptr, minor, sizeof minor) > 0) {
       *out += out->empty() ? minor : std::string(" (") + minor + ")";
@@ -254,22 +265,83 @@ H5File H5File::create(const std::string& path) {
   return H5File(std::move(file), path);
 }
 
-void check_readable_h5(const std::string& path) {
+H5File H5File::create_in_memory(const std::string& name) {
   h5_silence_error_printing();
-  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (f < 0)
-    throw std::runtime_error("cannot continue " + path +
-                             ": it does not open as an HDF5 file (not one, truncated, or left open for writing by a "
-                             "killed run: h5clear -s " + path + " clears that); the file is left as it was");
-  H5Fclose(f);
+  H5Handle fapl(H5Pcreate(H5P_FILE_ACCESS), "H5Pcreate(H5P_FILE_ACCESS)", name);
+  check(H5Pset_fapl_core(fapl.get(), 64 * 1024, 0), "H5Pset_fapl_core", name);
+  // The default (earliest) format: HDF5 1.10's image of a file in the latest format carries a
+  // superblock whose checksum does not match its cleared open-for-writing mark.
+  H5Handle file(H5Fcreate(name.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get()), "H5Fcreate", name);
+  return H5File(std::move(file), name);
 }
 
-H5File H5File::open(const std::string& path) {
+std::vector<unsigned char> H5File::image() {
+  flush();
+  const ssize_t n = H5Fget_file_image(file_.get(), nullptr, 0);
+  if (n < 0) fail("H5Fget_file_image", path_);
+  std::vector<unsigned char> bytes(static_cast<std::size_t>(n));
+  if (H5Fget_file_image(file_.get(), bytes.data(), bytes.size()) != n) fail("H5Fget_file_image", path_);
+  return bytes;
+}
+
+long long extend_to_recorded_end(const std::string& path) {
+  // Superblock version 2 or 3: signature (8 bytes), version, size of offsets, size of
+  // lengths, flags, then four addresses (base, extension, end of file, root group).
+  unsigned char sb[48] = {};
+  std::FILE* in = std::fopen(path.c_str(), "rb");
+  if (!in) return -1;
+  const std::size_t got = std::fread(sb, 1, sizeof sb, in);
+  std::fclose(in);
+  static const unsigned char kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
+  if (got < 36 || std::memcmp(sb, kSignature, 8) != 0 || sb[8] < 2 || sb[9] != 8) return -1;
+  std::uint64_t base = 0, end = 0;
+  for (int i = 7; i >= 0; --i) base = base << 8 | sb[12 + i], end = end << 8 | sb[28 + i];
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(path, ec);
+  if (ec || base != 0 || end <= size || end - size > (std::uint64_t{1} << 32)) return -1;
+  std::filesystem::resize_file(path, end, ec);
+  return ec ? -1 : static_cast<long long>(size);
+}
+
+bool check_readable_h5(const std::string& path) {
+  h5_silence_error_printing();
+  bool left_open = false;
+  hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) {
+    H5Eclear2(H5E_DEFAULT);
+    f = H5Fopen(path.c_str(), H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, H5P_DEFAULT);
+    left_open = f >= 0;
+  }
+  H5Eclear2(H5E_DEFAULT);
+  if (f < 0)
+    throw std::runtime_error("cannot continue " + path +
+                             ": it does not open as an HDF5 file (not one, or truncated); the file is left as it was");
+  H5Fclose(f);
+  return left_open;
+}
+
+H5File H5File::open(const std::string& path, bool clear_status) {
   h5_silence_error_printing();
   H5Handle fapl(H5Pcreate(H5P_FILE_ACCESS), "H5Pcreate(H5P_FILE_ACCESS)", path);
   check(H5Pset_libver_bounds(fapl.get(), H5F_LIBVER_LATEST, H5F_LIBVER_LATEST),
         "H5Pset_libver_bounds", path);
+  // The library's own switch for h5clear -s (a file-access property it registers but does
+  // not declare in its public headers).
+  static const char* const kClearStatus = "clear_status_flags";
+  if (clear_status) {
+    hbool_t clear = true;
+    if (H5Pexist(fapl.get(), kClearStatus) <= 0)
+      throw H5Error("HDF5: this library cannot clear the open-for-writing mark of '" + path + "': h5clear -s " + path);
+    check(H5Pset(fapl.get(), kClearStatus, &clear), "H5Pset(clear_status_flags)", path);
+  }
   H5Handle file(H5Fopen(path.c_str(), H5F_ACC_RDWR, fapl.get()), "H5Fopen", path);
+  return H5File(std::move(file), path);
+}
+
+H5File H5File::open_for_reading(const std::string& path, bool swmr) {
+  h5_silence_error_printing();
+  const unsigned mode = H5F_ACC_RDONLY | (swmr ? H5F_ACC_SWMR_READ : 0u);
+  H5Handle file(H5Fopen(path.c_str(), mode, H5P_DEFAULT), "H5Fopen", path);
   return H5File(std::move(file), path);
 }
 

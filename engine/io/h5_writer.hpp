@@ -30,8 +30,15 @@ class H5Error : public std::runtime_error {
 // reported through H5Error instead). Called by H5File::create(); idempotent.
 void h5_silence_error_printing();
 // Throws std::runtime_error naming path unless it opens read-only as an HDF5 file (a run's own
-// file to continue): checked before the file is touched.
-void check_readable_h5(const std::string& path);
+// file to continue): checked before the file is touched. Returns true where it opens only as
+// a SWMR reader: a writer still has it open, or one was killed (kill -9) and left its
+// superblock marked as open for writing (what h5clear -s clears).
+bool check_readable_h5(const std::string& path);
+// A file in the latest format that ends before the end its superblock records (a write that
+// failed on a full disk after the superblock was written): extended with zeros to that end,
+// so that it opens and its rows up to the last flush can be kept. Returns the size it had
+// (to undo with std::filesystem::resize_file), or -1 where nothing was done.
+long long extend_to_recorded_end(const std::string& path);
 
 // Owns an hid_t and closes it with the matching H5*close (chosen by H5Iget_type) on destruction.
 // Movable, not copyable. Never wrap a library-owned id such as H5T_NATIVE_DOUBLE.
@@ -115,9 +122,20 @@ class H5File {
   // Creates (truncates) the file, with the latest file format (libver bounds LATEST..LATEST)
   // so that SWMR writing can be enabled later.
   static H5File create(const std::string& path);
+  // A file kept in memory only (the core driver without a backing store), named `name` in
+  // messages, in the library's default format; image() gives its bytes, to be written by the
+  // caller (a checkpoint: a disk that fills fails the caller's write, not the library's).
+  static H5File create_in_memory(const std::string& name);
+  std::vector<unsigned char> image();
   // Opens an existing file for reading and writing (not in SWMR mode): to add objects
   // after a SWMR run has closed it (the end-of-run /profile group).
-  static H5File open(const std::string& path);
+  // clear_status: a file left marked as open for writing by a killed writer has that mark
+  // cleared first, as h5clear -s does; only for a file whose writer is known to be gone (its
+  // FileLock held by the caller).
+  static H5File open(const std::string& path, bool clear_status = false);
+  // Opens an existing file read-only (as a SWMR reader where swmr: a file marked as open for
+  // writing); nothing in it changes.
+  static H5File open_for_reading(const std::string& path, bool swmr = false);
 
   H5File(H5File&& other) noexcept = default;
   H5File& operator=(H5File&& other) noexcept;

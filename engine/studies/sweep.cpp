@@ -311,6 +311,15 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
       for (const auto& e : error_columns()) r.numerical_error[e] = numerical_error(s, e);
   } catch (const SweepInterrupted&) {
     throw;
+  } catch (const OutputError& e) {
+    // A full disk or a held file ends the sweep (exit 73): every later point would fail
+    // alike. The finished points are in its table, from which it continues.
+    std::error_code ec;
+    for (const std::string& f : {path, path + ".ckpt", path + ".partial"}) std::filesystem::remove(f, ec);
+    const auto* w = dynamic_cast<const WriteFailed*>(&e);
+    if (!w) throw;
+    throw OutputError("point " + std::to_string(i + 1) + ": " + w->cause() + "; the finished points are in " + o.out +
+                      ".csv: free space and give the same sweep command again to continue");
   } catch (const BlowUpError& e) {
     r.status = "blow_up", r.reason = e.what();
     // The run file goes unless kept: so does the sentence that points to it.

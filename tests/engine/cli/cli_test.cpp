@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -109,12 +110,18 @@ class CliTest : public ::testing::Test {
 
   // Starts `cvt-engine ARGS` in the temp directory without waiting (stdout and stderr to
   // files there); returns its pid.
-  pid_t start(const std::vector<std::string>& args) {
+  // max_file_bytes > 0: files it writes may not grow past it (RLIMIT_FSIZE, SIGXFSZ ignored),
+  // so that a write fails as on a full disk.
+  pid_t start(const std::vector<std::string>& args, rlim_t max_file_bytes = 0) {
     const pid_t pid = fork();
     if (pid != 0) return pid;
     std::vector<char*> argv = {const_cast<char*>(CVT_ENGINE_EXE)};
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
+    if (max_file_bytes > 0) {
+      const rlimit limit{max_file_bytes, max_file_bytes};
+      if (setrlimit(RLIMIT_FSIZE, &limit) != 0 || signal(SIGXFSZ, SIG_IGN) == SIG_ERR) _exit(127);
+    }
     if (chdir(dir_.c_str()) != 0) _exit(127);
     if (!freopen("stdout.txt", "w", stdout) || !freopen("stderr.txt", "w", stderr)) _exit(127);
     execv(CVT_ENGINE_EXE, argv.data());
@@ -432,6 +439,100 @@ TEST_F(CliTest, ARefusedResumeLeavesTheFilesAsTheyWere) {
     EXPECT_EQ(read_text(dir_ / "p.h5.ckpt"), ckpt) << "the checkpoint was changed";
     EXPECT_FALSE(fs::exists(dir_ / "p.h5.partial"));
   }
+}
+
+// Every dataset under group of two files, read as doubles (the observables and the chain's
+// particles: what a continuation must reproduce bit for bit).
+std::vector<std::vector<double>> h5_group_doubles(const fs::path& file, const std::string& group) {
+  std::vector<std::vector<double>> out;
+  H5File f = H5File::open(file.string());
+  struct Walk {
+    static herr_t visit(hid_t g, const char* name, const H5O_info_t* info, void* data) {
+      if (info->type != H5O_TYPE_DATASET) return 0;
+      auto* out = static_cast<std::vector<std::vector<double>>*>(data);
+      const hid_t d = H5Dopen2(g, name, H5P_DEFAULT);
+      const hid_t sp = H5Dget_space(d);
+      std::vector<double> v(static_cast<std::size_t>(H5Sget_simple_extent_npoints(sp)));
+      if (!v.empty()) H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data());
+      out->push_back(std::move(v));
+      H5Sclose(sp);
+      H5Dclose(d);
+      return 0;
+    }
+  };
+  f.close();
+  const hid_t fid = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (fid < 0) return out;
+  const hid_t g = H5Gopen2(fid, group.c_str(), H5P_DEFAULT);
+  H5Ovisit(g, H5_INDEX_NAME, H5_ITER_INC, &Walk::visit, &out);
+  H5Gclose(g);
+  H5Fclose(fid);
+  return out;
+}
+
+// The continuation's observables and particles are those of the uninterrupted run.
+void expect_same_run(const fs::path& a, const fs::path& b) {
+  for (const char* group : {"/observables", "/particles"}) {
+    const auto x = h5_group_doubles(a, group), y = h5_group_doubles(b, group);
+    ASSERT_FALSE(x.empty()) << group;
+    ASSERT_EQ(x.size(), y.size()) << group;
+    for (std::size_t i = 0; i < x.size(); ++i) EXPECT_TRUE(x[i] == y[i]) << group << ": dataset " << i << " differs";
+  }
+}
+
+// A run killed with kill -9 leaves its file marked as open for writing; its continuation
+// clears that mark itself (no h5clear) and gives the uninterrupted run's bits.
+TEST_F(CliTest, AContinuationAfterKill9NeedsNoH5clear) {
+  const std::vector<std::string> args = {"run", kMini, "--t-end", "0.006", "--checkpoint-every", "128",
+                                         "--flush-every", "0.1", "--quiet"};
+  auto killed = args;
+  for (const char* a : {"-o", "k.h5"}) killed.push_back(a);
+  const pid_t pid = start(killed);
+  ASSERT_NE(pid, -1);
+  for (int i = 0; i < 400 && !fs::exists(dir_ / "k.h5.ckpt"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  ASSERT_EQ(kill(pid, SIGKILL), 0);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  ASSERT_TRUE(fs::exists(dir_ / "k.h5.partial"));
+  ASSERT_TRUE(fs::exists(dir_ / "k.h5.ckpt")) << "killed before its first checkpoint";
+  EXPECT_EQ(h5_rows(dir_ / "k.h5.partial", "/observables/input_speed/time"), -1)
+      << "the killed run's file opens without clearing: the case is not tested";
+  const RunResult resumed = run({"run", "--resume", "k.h5.ckpt", "--quiet"});
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+  EXPECT_FALSE(fs::exists(dir_ / "k.h5.partial"));
+  auto whole = args;
+  for (const char* a : {"-o", "whole.h5"}) whole.push_back(a);
+  ASSERT_EQ(run(whole).exit_code, 0);
+  expect_same_run(dir_ / "k.h5", dir_ / "whole.h5");
+}
+
+// A write that fails as on a full disk (the file size limit of the process) ends the run with
+// exit 73, no crash, a message naming the reason and the way on, and a whole checkpoint,
+// from which the run, once there is room, continues to the uninterrupted run's bits.
+TEST_F(CliTest, AFullDiskEndsWithExit73AndAWholeCheckpoint) {
+  const std::vector<std::string> args = {"run", kMini, "--t-end", "0.004", "--checkpoint-every", "128",
+                                         "--flush-every", "0.1", "--quiet"};
+  auto limited = args;
+  for (const char* a : {"-o", "full.h5"}) limited.push_back(a);
+  const pid_t pid = start(limited, 1500 * 1024);
+  ASSERT_NE(pid, -1);
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  const std::string err = read_text(dir_ / "stderr.txt");
+  ASSERT_TRUE(WIFEXITED(status)) << "ended by signal " << WTERMSIG(status) << ": " << err;
+  EXPECT_EQ(WEXITSTATUS(status), 73) << err;
+  for (const char* what : {"writing the run's output failed at t = ", "File too large", "is whole",
+                           "cvt-engine run --resume full.h5.ckpt"})
+    EXPECT_NE(err.find(what), std::string::npos) << what << " missing: " << err;
+  EXPECT_FALSE(fs::exists(dir_ / "full.h5.ckpt.tmp"));
+  const RunResult resumed = run({"run", "--resume", "full.h5.ckpt", "--quiet"});
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+  auto whole = args;
+  for (const char* a : {"-o", "whole.h5"}) whole.push_back(a);
+  ASSERT_EQ(run(whole).exit_code, 0);
+  expect_same_run(dir_ / "full.h5", dir_ / "whole.h5");
 }
 
 // A numerical failure (a matrix singular at every retake from a sound state) is reported like
