@@ -696,6 +696,24 @@ std::optional<toml::table> parse_value(const std::string& text, std::string* err
   }
 }
 
+// Whether a '#' outside TOML's strings would make the rest of `text` a comment (which TOML
+// drops silently: --set geometry.ratio=0.9#x would read 0.9).
+bool has_comment(const std::string& text) {
+  char in = 0;  // the quote of the string we are in
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char ch = text[i];
+    if (in) {
+      if (ch == '\\' && in == '"') ++i;
+      else if (ch == in) in = 0;
+    } else if (ch == '"' || ch == '\'') {
+      in = ch;
+    } else if (ch == '#') {
+      return true;
+    }
+  }
+  return false;
+}
+
 void apply_override(toml::table& root, const std::string& raw, std::map<std::string, std::string>& override_text) {
   // A malformed override is named as the option and its text, quoted (it may be empty).
   if (raw.find('=') == std::string::npos)
@@ -710,6 +728,8 @@ void apply_override(toml::table& root, const std::string& raw, std::map<std::str
     throw ConfigError("--set", "'" + raw + "'", "malformed override: expected section.key=value (empty value)");
   const std::string section = qkey.substr(0, dot);
   const std::string key = qkey.substr(dot + 1);
+  if (has_comment(value))
+    throw ConfigError(qkey, value, "a '#' outside quotes, where TOML would drop the rest as a comment (quote a string)");
   std::string error;
   auto parsed = parse_value(value, &error);
   // A bare word is taken as a string (friction.law=smooth). For a numeric key this makes

@@ -33,29 +33,71 @@ std::string trim(const std::string& s) {
   return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
 }
 
-// Splits a CSV line into its fields; a field in double quotes may hold commas and doubled
-// quotes.
-std::vector<std::string> split_csv(const std::string& line) {
-  std::vector<std::string> out;
+// CSV by RFC 4180: records of fields separated by commas; a field in double quotes may hold
+// commas, doubled quotes, '#' and line breaks; blanks around a field are dropped. A line
+// whose first non-blank character is '#' outside a quoted field is a comment, and blank lines
+// are skipped. Each record comes with the line it starts on; a malformed one throws
+// std::invalid_argument naming that line.
+struct CsvRecord {
+  int line = 0;
+  std::vector<std::string> fields;
+};
+
+std::vector<CsvRecord> parse_csv(const std::string& text) {
+  std::vector<CsvRecord> out;
+  CsvRecord rec;
   std::string f;
-  bool quoted = false;
-  for (std::size_t i = 0; i < line.size(); ++i) {
-    const char ch = line[i];
-    if (quoted) {
-      if (ch == '"' && i + 1 < line.size() && line[i + 1] == '"') f += '"', ++i;
-      else if (ch == '"') quoted = false;
-      else f += ch;
+  int line = 1;
+  bool in_quotes = false, was_quoted = false, after_quote = false, at_start = true;
+  const auto fail = [&](int at, const std::string& why) {
+    throw std::invalid_argument("line " + std::to_string(at) + ": " + why);
+  };
+  const auto end_field = [&] {
+    rec.fields.push_back(was_quoted ? f : trim(f));
+    f.clear(), was_quoted = after_quote = false;
+  };
+  int quote_line = 0;
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char ch = text[i];
+    if (in_quotes) {
+      if (ch == '"' && i + 1 < text.size() && text[i + 1] == '"') f += '"', ++i;
+      else if (ch == '"') in_quotes = false, after_quote = true;
+      else f += ch, line += ch == '\n';
+      continue;
+    }
+    if (at_start) {  // a comment or a blank line, at the start of a record only
+      const std::size_t b = text.find_first_not_of(" \t\r", i);
+      if (b == std::string::npos) break;
+      if (text[b] == '#' || text[b] == '\n') {
+        const std::size_t nl = text.find('\n', b);
+        if (nl == std::string::npos) break;
+        i = nl, ++line;
+        continue;
+      }
+      at_start = false, rec.line = line;
+    }
+    if (ch == ',' || ch == '\n') {
+      end_field();
+      if (ch == '\n') out.push_back(std::move(rec)), rec = {}, at_start = true, ++line;
     } else if (ch == '"') {
-      quoted = true;
-    } else if (ch == ',') {
-      out.push_back(f), f.clear();
+      if (!trim(f).empty() || was_quoted) fail(line, "a quote inside an unquoted field (quote the whole field)");
+      f.clear(), in_quotes = was_quoted = true, quote_line = line;
+    } else if (after_quote) {
+      if (ch != ' ' && ch != '\t' && ch != '\r') fail(line, "characters after a closing quote");
     } else {
       f += ch;
     }
   }
-  if (quoted) throw std::runtime_error("unterminated quote");
-  out.push_back(f);
+  if (in_quotes) fail(quote_line, "a quote that is never closed");
+  if (!at_start) end_field(), out.push_back(std::move(rec));
   return out;
+}
+
+// The fields of one line of CSV (an --axis list, a row of the sweep's own table).
+std::vector<std::string> split_csv(const std::string& line) {
+  const std::vector<CsvRecord> r = parse_csv(line);
+  if (r.size() != 1) throw std::invalid_argument("not one line of CSV");
+  return r.front().fields;
 }
 
 std::string csv_field(const std::string& s) {
@@ -152,7 +194,13 @@ SweepAxis parse_axis(const std::string& text) {
     throw ConfigError("--axis", "'" + text + "'", "expected KEY=V1,V2,... (section.key=values)");
   SweepAxis a;
   a.key = trim(text.substr(0, eq));
-  for (const std::string& v : split_csv(text.substr(eq + 1))) {
+  std::vector<std::string> values;
+  try {
+    values = split_csv(text.substr(eq + 1));
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError("--axis", "'" + text + "'", e.what());
+  }
+  for (const std::string& v : values) {
     if (trim(v).empty()) throw ConfigError("--axis", "'" + text + "'", "an empty value");
     a.values.push_back(trim(v));
   }
@@ -177,29 +225,43 @@ SweepPlan SweepPlan::grid(const std::vector<SweepAxis>& axes) {
     p.points = std::move(next);
   }
   if (axes.empty()) p.points.clear();
+  p.origins.assign(p.points.size(), "--axis");
   return p;
 }
 
 SweepPlan SweepPlan::from_file(const std::string& path) {
-  std::ifstream in(path);
+  std::ifstream in(path, std::ios::binary);
   if (!in) throw ConfigError::unreadable(path, "no such file");
+  std::stringstream text;
+  text << in.rdbuf();
+  if (in.bad()) throw ConfigError::unreadable(path, "read error");
+  std::vector<CsvRecord> records;
+  try {
+    records = parse_csv(text.str());
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    const std::size_t colon = what.find(':');
+    throw ConfigError(path, what.substr(0, colon), what.substr(colon + 2));
+  }
   SweepPlan p;
-  std::string line;
-  int n = 0;
-  while (std::getline(in, line)) {
-    ++n;
-    if (const auto h = line.find('#'); h != std::string::npos) line.resize(h);
-    if (trim(line).empty()) continue;
-    std::vector<std::string> f = split_csv(line);
-    for (auto& x : f) x = trim(x);
+  for (const CsvRecord& r : records) {
+    const std::string where = "line " + std::to_string(r.line);
     if (p.keys.empty()) {
-      p.keys = f;
+      for (const std::string& k : r.fields) {
+        if (k.empty()) throw ConfigError(path, where, "an empty key in the header");
+        if (std::find(p.keys.begin(), p.keys.end(), k) != p.keys.end())
+          throw ConfigError(path, where, "the key '" + k + "' is given twice");
+        p.keys.push_back(k);
+      }
       continue;
     }
-    if (f.size() != p.keys.size())
-      throw ConfigError(path, "line " + std::to_string(n),
-                        std::to_string(f.size()) + " values for " + std::to_string(p.keys.size()) + " keys");
-    p.points.push_back(f);
+    if (r.fields.size() != p.keys.size())
+      throw ConfigError(path, where,
+                        std::to_string(r.fields.size()) + " values for " + std::to_string(p.keys.size()) + " keys");
+    for (std::size_t k = 0; k < r.fields.size(); ++k)
+      if (r.fields[k].empty()) throw ConfigError(path, where, "no value for " + p.keys[k]);
+    p.points.push_back(r.fields);
+    p.origins.push_back(path + " " + where);
   }
   if (p.keys.empty()) throw ConfigError(path, "", "no header line of keys");
   return p;
@@ -219,8 +281,15 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
     std::vector<std::string> ov = o.overrides;
     const auto own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
-    if (ck) parse_config(ck->config_toml, ov, o.from);
-    else load_config(o.config_path, ov);
+    try {
+      if (ck) parse_config(ck->config_toml, ov, o.from);
+      else load_config(o.config_path, ov);
+    } catch (const ConfigError& e) {  // named with the point's line
+      throw ConfigError(e.key(), e.value(), e.reason() + " (point " + std::to_string(i + 1) + ", " +
+                                                (static_cast<std::size_t>(i) < plan.origins.size() ? plan.origins[static_cast<std::size_t>(i)]
+                                                                                      : std::string("--axis")) +
+                                                ")");
+    }
   }
   return plan;
 }

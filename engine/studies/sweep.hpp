@@ -30,9 +30,13 @@ SweepAxis parse_axis(const std::string& text);
 struct SweepPlan {
   std::vector<std::string> keys;
   std::vector<std::vector<std::string>> points;
+  // Where each point was given: "--axis", or "FILE line N".
+  std::vector<std::string> origins;
   // The full grid; the first axis varies slowest.
   static SweepPlan grid(const std::vector<SweepAxis>& axes);
-  // A CSV file: a header of keys, then one row of values per point ('#' starts a comment).
+  // A CSV file by RFC 4180: a header of keys, then one row of values per point; a line whose
+  // first non-blank character is '#' outside quotes is a comment. ConfigError names the
+  // line of a malformed row, a key given twice, a row with too few or too many values.
   static SweepPlan from_file(const std::string& path);
   // The --set overrides of point i.
   std::vector<std::string> overrides(long i) const;

@@ -391,6 +391,16 @@ TEST(ConfigTest, MalformedOverride) {
   expect_override_error("", "--set", "''");
 }
 
+// A '#' outside TOML's quotes would make TOML drop the rest of the value as a comment
+// (geometry.ratio=0.9#x read as 0.9): refused; inside a string it is the string's.
+TEST(ConfigTest, AnOverrideWithACommentIsRefused) {
+  auto e = expect_override_error("geometry.ratio=0.9#x", "geometry.ratio", "0.9#x");
+  EXPECT_TRUE(contains(e.reason(), "'#' outside quotes")) << e.reason();
+  expect_override_error("load.torque=1 # note", "load.torque", "1 # note");
+  e = expect_override_error("friction.law=\"a#b\"", "friction.law", "\"a#b\"");
+  EXPECT_TRUE(contains(e.reason(), "unknown friction law")) << e.reason();
+}
+
 TEST(ConfigTest, OverridesAreValidated) {
   auto e = expect_override_error("chain.linkz=40", "chain.linkz", "40");
   EXPECT_TRUE(contains(e.reason(), "chain.links")) << e.reason();

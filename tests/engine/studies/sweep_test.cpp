@@ -80,14 +80,72 @@ TEST(SweepPlanTest, GridIsTheFullProductFirstAxisSlowest) {
 }
 
 TEST_F(SweepDir, PointsFileHasAHeaderOfKeysAndARowPerPoint) {
-  std::ofstream(dir_ / "points.csv") << "# operating points\nload.torque, friction.law\n50, smooth\n\n100,\"none\"  # b\n";
+  std::ofstream(dir_ / "points.csv") << "# operating points\nload.torque, friction.law\n50, smooth\n\n100,\"none\"\n";
   const SweepPlan p = SweepPlan::from_file((dir_ / "points.csv").string());
   EXPECT_EQ(p.keys, (std::vector<std::string>{"load.torque", "friction.law"}));
   ASSERT_EQ(p.points.size(), 2u);
   EXPECT_EQ(p.points[1], (std::vector<std::string>{"100", "none"}));
+  EXPECT_EQ(p.origins[1], (dir_ / "points.csv").string() + " line 5");
   std::ofstream(dir_ / "bad.csv") << "load.torque,clamping.driving\n50\n";
   EXPECT_THROW(SweepPlan::from_file((dir_ / "bad.csv").string()), ConfigError);
   EXPECT_THROW(SweepPlan::from_file((dir_ / "missing.csv").string()), ConfigError);
+}
+
+// Points files by RFC 4180: quoted fields hold commas, doubled quotes, '#' and line breaks;
+// comments only where a line starts; CRLF ends lines too. Every malformed file is a
+// ConfigError that names the line.
+TEST_F(SweepDir, PointsFilesAreReadByRfc4180) {
+  std::ofstream(dir_ / "good.csv") << "  # comment\r\n\"load.torque\" , friction.law\r\n"
+                                      "50,\"a#b, \"\"c\"\"\"\r\n   # another\n60,\"two\nlines\"\n70,x";
+  const SweepPlan p = SweepPlan::from_file((dir_ / "good.csv").string());
+  EXPECT_EQ(p.keys, (std::vector<std::string>{"load.torque", "friction.law"}));
+  ASSERT_EQ(p.points.size(), 3u);
+  EXPECT_EQ(p.points[0], (std::vector<std::string>{"50", "a#b, \"c\""}));
+  EXPECT_EQ(p.points[1], (std::vector<std::string>{"60", "two\nlines"}));
+  EXPECT_EQ(p.points[2], (std::vector<std::string>{"70", "x"}));
+  EXPECT_EQ(p.origins[2], (dir_ / "good.csv").string() + " line 7");  // after a field of two lines
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"k.a,k.b\n1,2\n3,\"4\n5,6\n", "line 3: a quote that is never closed"},
+      {"k.a,k.b\n1,\"2\"x\n", "line 2: characters after a closing quote"},
+      {"k.a,k.b\n1,2\"x\"\n", "line 2: a quote inside an unquoted field"},
+      {"k.a,k.a\n1,2\n", "line 1: the key 'k.a' is given twice"},
+      {"k.a,k.b\n1,2\n\n3\n", "line 4: 1 values for 2 keys"},
+      {"k.a,k.b\n1,2 # a comment after values\n7,8,9\n", "line 3: 3 values for 2 keys"},
+      {"k.a,k.b\n1,\n", "line 2: no value for k.b"},
+      {"k.a,,k.b\n", "line 1: an empty key"}};
+  for (const auto& [text, says] : bad) {
+    SCOPED_TRACE(text);
+    std::ofstream(dir_ / "bad.csv") << text;
+    try {
+      SweepPlan::from_file((dir_ / "bad.csv").string());
+      ADD_FAILURE() << "accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+    }
+  }
+}
+
+// A points file that cannot run is refused with exit 78 before the first point (nothing
+// written): its malformed rows, and a value that is no value of its key, named with its line.
+TEST_F(SweepDir, ABadPointsFileIsRefusedBeforeTheFirstPoint) {
+  const std::string mini = test::shell_quote(std::string(CVT_SOURCE_DIR) + "/configs/mini.toml");
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"geometry.ratio,load.torque\n0.9,\"1\n", "line 2: a quote that is never closed"},
+      {"geometry.ratio,geometry.ratio\n0.9,1\n", "given twice"},
+      {"geometry.ratio\n0.9 # a comment after the value\n", "a '#' outside quotes"},
+      {"geometry.ratio\n0.9\n\"abc\"\n", "(point 2, points.csv line 3)"}};
+  for (const auto& [text, says] : bad) {
+    SCOPED_TRACE(text);
+    std::ofstream(dir_ / "points.csv") << text;
+    EXPECT_EQ(sh(test::shell_quote(CVT_ENGINE_EXE) + " sweep " + mini +
+                 " --points points.csv --set run.t_end=1e-5 -o out 2>err.txt >/dev/null"),
+              78);
+    std::ifstream in(dir_ / "err.txt");
+    const std::string err((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(err.find(says), std::string::npos) << err;
+    for (const char* f : {"out.csv", "out.h5", "out.h5.partial", "out.runs", "out.csv.lock"})
+      EXPECT_FALSE(fs::exists(dir_ / f)) << f;
+  }
 }
 
 TEST(SweepCsvTest, ARowReadsBackToTheSameBits) {
