@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -98,6 +99,15 @@ std::vector<std::string> split_csv(const std::string& line) {
   const std::vector<CsvRecord> r = parse_csv(line);
   if (r.size() != 1) throw std::invalid_argument("not one line of CSV");
   return r.front().fields;
+}
+
+// 64-bit FNV-1a of a text, in 16 hex digits.
+std::string fingerprint(const std::string& text) {
+  std::uint64_t h = 14695981039346656037ull;
+  for (const unsigned char ch : text) h = (h ^ ch) * 1099511628211ull;
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
+  return b;
 }
 
 std::string csv_field(const std::string& s) {
@@ -282,8 +292,8 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
     const auto own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
     try {
-      if (ck) parse_config(ck->config_toml, ov, o.from);
-      else load_config(o.config_path, ov);
+      plan.fingerprints.push_back(
+          fingerprint(ck ? parse_config(ck->config_toml, ov, o.from).resolved_toml : load_config(o.config_path, ov).resolved_toml));
     } catch (const ConfigError& e) {  // named with the point's line
       throw ConfigError(e.key(), e.value(), e.reason() + " (point " + std::to_string(i + 1) + ", " +
                                                 (static_cast<std::size_t>(i) < plan.origins.size() ? plan.origins[static_cast<std::size_t>(i)]
@@ -312,7 +322,7 @@ std::string sweep_csv_header(const SweepPlan& plan) {
   s += "status";
   for (const auto& c : result_columns()) s += std::string(",") + c.name;
   for (const auto& e : error_columns()) s += "," + e + "_numerical_error";
-  return s + ",point,reason,wall_s\n";
+  return s + ",point,reason,wall_s,config\n";
 }
 
 std::string sweep_csv_row(const SweepRow& r) {
@@ -321,13 +331,14 @@ std::string sweep_csv_row(const SweepRow& r) {
   s += r.status;
   for (const auto& c : result_columns()) s += "," + exact_number(r.*c.field);
   for (const auto& e : error_columns()) s += "," + exact_number(row_error(r, e));
-  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "\n";
+  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "," + r.config +
+         "\n";
 }
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   const std::vector<std::string> f = split_csv(line);
   const std::size_t nk = plan.keys.size(), nr = result_columns().size() + error_columns().size();
-  if (f.size() != nk + 1 + nr + 3) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
+  if (f.size() != nk + 1 + nr + 4) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
   SweepRow r;
   r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
   r.status = f[nk];
@@ -339,7 +350,8 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
     if (const double x = std::stod(f[at++]); !std::isnan(x)) r.numerical_error[e] = x;
   r.point = std::stol(f[at++]);
   r.reason = f[at++];
-  r.wall_s = std::stod(f[at]);
+  r.wall_s = std::stod(f[at++]);
+  r.config = f[at];
   return r;
 }
 
@@ -351,6 +363,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
   r.values = plan.points[static_cast<std::size_t>(i)];
   const auto t0 = WallClock::now();
   const std::string path = point_file(o, i);
+  if (static_cast<std::size_t>(i) < plan.fingerprints.size()) r.config = plan.fingerprints[static_cast<std::size_t>(i)];
   try {
     std::vector<std::string> ov = o.overrides;
     const std::vector<std::string> own = plan.overrides(i);
@@ -434,6 +447,11 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
           r.values != plan.points[static_cast<std::size_t>(r.point)])
         throw ConfigError(csv_, "point " + std::to_string(r.point),
                           "holds another sweep (other values): give another --out, or remove it");
+      if (static_cast<std::size_t>(r.point) < plan.fingerprints.size() &&
+          r.config != plan.fingerprints[static_cast<std::size_t>(r.point)])
+        throw ConfigError(csv_, "point " + std::to_string(r.point),
+                          "holds another sweep (its row ran another configuration: another CONFIG, --from or --set "
+                          "than this sweep's): give another --out, or remove it");
       if (done_[static_cast<std::size_t>(r.point)]) continue;
       done_[static_cast<std::size_t>(r.point)] = true;
       rows_.push_back(r);

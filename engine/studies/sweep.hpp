@@ -32,6 +32,9 @@ struct SweepPlan {
   std::vector<std::vector<std::string>> points;
   // Where each point was given: "--axis", or "FILE line N".
   std::vector<std::string> origins;
+  // Each point's resolved configuration (base, --set and its keys) as a fingerprint
+  // (sweep_plan): a restart continues only rows run with the same.
+  std::vector<std::string> fingerprints;
   // The full grid; the first axis varies slowest.
   static SweepPlan grid(const std::vector<SweepAxis>& axes);
   // A CSV file by RFC 4180: a header of keys, then one row of values per point; a line whose
@@ -56,9 +59,12 @@ struct SweepRow {
   // run.verify: the numerical error of each verified mean among the columns, by column
   // name (speed_ratio, efficiency, ...); empty when the point was not verified.
   std::map<std::string, double> numerical_error;
+  // The fingerprint of the configuration it ran (SweepPlan::fingerprints; "" none).
+  std::string config;
 };
 
-// The CSV (docs/studies.md): the keys, then the results, then point, reason and wall_s.
+// The CSV (docs/studies.md): the keys, then the results, then point, reason, wall_s and
+// config (the fingerprint of the point's resolved configuration).
 // Numbers are written to 17 significant digits: they read back to the same bits.
 std::string sweep_csv_header(const SweepPlan& plan);
 std::string sweep_csv_row(const SweepRow& r);

@@ -38,10 +38,13 @@ std::vector<std::string> lines(const std::string& text) {
   return out;
 }
 
-// The CSV without its last column, wall_s (the only one that differs between runs).
+// The CSV without its column wall_s (the only one that differs between runs).
 std::string without_wall(const std::string& csv) {
   std::string out;
-  for (const auto& l : lines(csv)) out += l.substr(0, l.rfind(',')) + "\n";
+  for (const auto& l : lines(csv)) {  // wall_s is the last field but config
+    const auto config = l.rfind(','), wall = l.rfind(',', config - 1);
+    out += l.substr(0, wall) + l.substr(config) + "\n";
+  }
   return out;
 }
 
@@ -237,6 +240,34 @@ TEST_F(SweepDir, LedgerKeepsWholeRowsDropsATornLineRefusesAnotherSweep) {
     EXPECT_THROW(SweepLedger(o, moved), ConfigError);
   }
   (void)other;
+}
+
+// A restart compares each finished row's whole resolved configuration, not only its axes:
+// the same axes on another model, or with another --set, are another sweep.
+TEST_F(SweepDir, ARestartWithAnotherConfigurationIsAnotherSweep) {
+  SweepOptions o;
+  o.out = (dir_ / "s").string();
+  o.config_path = test::config_path("mini");
+  const SweepPlan a = sweep_plan(o, {"load.torque=5,10"}, "");
+  ASSERT_EQ(a.fingerprints.size(), 2u);
+  EXPECT_NE(a.fingerprints[0], a.fingerprints[1]);
+  {
+    SweepLedger l(o, a);
+    SweepRow r;
+    r.point = 0, r.values = a.points[0], r.status = "steady", r.config = a.fingerprints[0];
+    l.add(r);
+  }
+  EXPECT_EQ(SweepLedger(o, sweep_plan(o, {"load.torque=5,10"}, "")).finished(), 1);  // the same sweep goes on
+  o.config_path = test::config_path("reference");
+  EXPECT_THROW(SweepLedger(o, sweep_plan(o, {"load.torque=5,10"}, "")), ConfigError);
+  o.config_path = test::config_path("mini");
+  o.overrides = {"friction.f0=0.1"};
+  try {
+    SweepLedger(o, sweep_plan(o, {"load.torque=5,10"}, ""));
+    ADD_FAILURE() << "another --set was taken for the same sweep";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("ran another configuration"), std::string::npos) << e.what();
+  }
 }
 
 // The mini model, 4 points: one runs to t_end (short windows), one blows up (a step far
