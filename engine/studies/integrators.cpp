@@ -10,6 +10,7 @@
 #include <memory>
 
 #include "engine/guards.hpp"
+#include "engine/ode/ode.hpp"
 #include "engine/io/checkpoint.hpp"
 #include "engine/wmethod/driver.hpp"
 #include "engine/rhs/rhs.hpp"
@@ -586,6 +587,10 @@ CurveRun Study::run_once(const std::string& name, double p, int w_every, int w_k
       driver_curve(s, method, p, w_every, w_k_every, w_tol, r, w0);
   } catch (const BlowUpError& e) {
     r.status = "blow-up", r.why = e.what();
+  } catch (const OdeError& e) {  // a step-size underflow: a numerical failure, reported like a blow-up
+    r.status = "blow-up", r.why = std::string("numerical failure: ") + e.what();
+  } catch (const NumericalFailure& e) {
+    r.status = "blow-up", r.why = std::string("numerical failure: ") + e.what();
   } catch (const std::exception& e) {
     r.status = std::string(e.what()) == "timeout" ? "timeout" : std::string("error");
     if (r.status == "error") r.why = e.what();

@@ -56,9 +56,38 @@ def test_config_errors_name_the_key():
     with pytest.raises(cvt.ConfigError) as e:
         cvt.load_config("no/such.toml")
     assert "no/such.toml" in str(e.value)
-    with pytest.raises(TypeError):
-        cvt.load_config(MINI, "load.torque=3")
     assert isinstance(e.value, ValueError)
+
+
+def test_every_bad_override_is_a_config_error():
+    for bad in ({"load.torque": None}, {"load.torque": {"a": 1}}, {"load.torque": object()}, {3: 1.0},
+                "load.torque=3", [None], ["load.torque=3", {"x": 1}], 5):
+        with pytest.raises(cvt.ConfigError) as e:
+            cvt.load_config(MINI, bad)
+        assert e.value.key and e.value.reason, bad
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.run(MINI, t_end=1e-5, overrides={"friction.f0": None})
+    assert e.value.key == "friction.f0" and "NoneType" in e.value.reason
+
+
+def test_every_argument_is_checked_before_the_run(tmp_path):
+    out = tmp_path / "never.h5"
+    for kwargs, key in (({"progress": 5}, "progress"), ({"checkpoint_every": -1}, "checkpoint_every"),
+                        ({"checkpoint_every": 2.5}, "checkpoint_every"), ({"progress_seconds": math.nan},
+                                                                          "progress_seconds"),
+                        ({"grain": 0}, "grain"), ({"quiet": "yes"}, "quiet"), ({"threads": True}, "threads"),
+                        ({"scheduler": "fast"}, "scheduler")):
+        with pytest.raises(cvt.ConfigError) as e:
+            cvt.run(MINI, t_end=1e-5, out=out, **kwargs)
+        assert e.value.key == key, kwargs
+        assert not out.exists() and not (tmp_path / "never.h5.partial").exists(), kwargs
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.sweep(MINI, axes={"load.torque": 5}, out=tmp_path / "s")
+    assert e.value.key == "axes['load.torque']"
+    with pytest.raises(cvt.ConfigError) as e:
+        cvt.sweep(MINI, axes={"load.torque": [5, None]}, out=tmp_path / "s")
+    assert e.value.key == "load.torque"
+    assert not (tmp_path / "s.csv").exists()
 
 
 def test_config_reads_back_its_values():

@@ -42,15 +42,64 @@ def _text(value):
     raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as a configuration value")
 
 
+def _override(key, value):
+    """"key=value" for a dict's entry; ConfigError for a value that is no configuration value
+    (None, a dict, an object)."""
+    if not isinstance(key, str):
+        raise _error("overrides", repr(key), "a key must be a string 'section.key'")
+    try:
+        return f"{key}={_text(value)}"
+    except TypeError:
+        raise _error(key, repr(value), f"not a configuration value ({type(value).__name__}): give a number, "
+                                       "a string, a bool or a list of them") from None
+
+
 def _overrides(overrides):
-    """{"load.torque": 15} or ["load.torque=15"] as the list of "key=value" texts."""
+    """{"load.torque": 15} or ["load.torque=15"] as the list of "key=value" texts; ConfigError
+    for anything else."""
     if overrides is None:
         return []
     if isinstance(overrides, dict):
-        return [f"{k}={_text(v)}" for k, v in overrides.items()]
-    if isinstance(overrides, str):
-        raise TypeError("overrides: give a dict {key: value} or a list of 'key=value' texts, not one string")
-    return [str(o) for o in overrides]
+        return [_override(k, v) for k, v in overrides.items()]
+    if isinstance(overrides, str) or not isinstance(overrides, (list, tuple)):
+        raise _error("overrides", repr(overrides), "give a dict {key: value} or a list of 'key=value' texts")
+    for o in overrides:
+        if not isinstance(o, str):
+            raise _error("overrides", repr(o), "each entry of the list must be a 'key=value' text")
+    return list(overrides)
+
+
+def _integer(name, value, least):
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
+        raise _error(name, value, f"must be an integer >= {least}")
+    return int(value)
+
+
+def _nonnegative(name, value):
+    if not isinstance(value, (int, float, np.number)) or isinstance(value, bool) or not (
+            math.isfinite(value) and value >= 0):
+        raise _error(name, value, "must be a finite number >= 0")
+    return float(value)
+
+
+def _flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise _error(name, value, "must be True or False")
+    return bool(value)
+
+
+def _callable_or_none(name, value):
+    if value is not None and not callable(value):
+        raise _error(name, repr(value), "must be a callable or None")
+    return value
+
+
+def _path(name, value, none_ok=False):
+    if value is None and none_ok:
+        return None
+    if not isinstance(value, (str, os.PathLike)) or not os.fspath(value):
+        raise _error(name, repr(value), "must be a non-empty path")
+    return os.fspath(value)
 
 
 def _error(key, value, reason):
@@ -104,11 +153,14 @@ _SHORTCUT_NAMES = {"run.t_end": "the argument t_end", "run.until_steady": "the a
                    "integrator.step": "the argument step", "integrator.method": "the argument method"}
 
 
-def _schedule(scheduler, threads):
+def _schedule(scheduler, threads, grain=4):
+    """The schedule's arguments checked (ConfigError), before anything runs."""
+    threads = _integer("threads", threads, 1)
+    _integer("grain", grain, 1)
     if scheduler is None:
         scheduler = "serial" if threads == 1 else "flowgraph"
-    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
-        raise _error("threads", threads, "must be an integer >= 1")
+    if scheduler not in ("serial", "flowgraph", "paper-omp"):
+        raise _error("scheduler", repr(scheduler), "must be one of serial, flowgraph, paper-omp")
     return scheduler, threads
 
 
@@ -150,9 +202,16 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
     progress_seconds; returning a false value stops the run at the next step where the W
     matrix is rebuilt (summary["stopped"] == "callback").
     Ctrl-C stops the run the same way and raises KeyboardInterrupt; the file is kept.
-    Raises ConfigError for a bad key or argument, BlowUpError when the state blows up.
+    Raises ConfigError for a bad key or argument (every one checked before the run starts),
+    BlowUpError when the state blows up or the integration fails numerically, OutputError
+    when the file cannot be written.
     """
-    scheduler, threads = _schedule(scheduler, threads)
+    scheduler, threads = _schedule(scheduler, threads, grain)
+    quiet, channels = _flag("quiet", quiet), _flag("channels", channels)
+    progress = _callable_or_none("progress", progress)
+    progress_seconds = _nonnegative("progress_seconds", progress_seconds)
+    checkpoint_every = _integer("checkpoint_every", checkpoint_every, 0)
+    out = _path("out", out, none_ok=True)
     cfg = _config(config, overrides, {"run.t_end": t_end, "run.until_steady": until_steady,
                                       "integrator.step": step, "integrator.method": method})
     tmp = None
@@ -160,10 +219,10 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
         tmp = tempfile.mkdtemp(prefix="cvt_engine_")
         path = os.path.join(tmp, "run.h5")
     else:
-        path = os.fspath(out)
+        path = out
     try:
         text, stop_signal = _core.run(cfg, path, scheduler, threads, grain, quiet, progress,
-                                      float(progress_seconds), int(checkpoint_every))
+                                      progress_seconds, checkpoint_every)
         summary = json.loads(text)
         ch = read_channels(path) if channels and not stop_signal else {}
     finally:
@@ -206,15 +265,25 @@ def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, f
     A sweep started again with the same out skips the points OUT.csv holds.
     log: a callable given each progress line (default: silent when quiet, else print).
     """
-    scheduler, threads = _schedule(scheduler, threads)
-    ax = [f"{k}=" + ",".join(_text(v) for v in vals) for k, vals in (axes or {}).items()]
-    _core.sweep(os.fspath(config) if config is not None else "", from_checkpoint or "", _overrides(overrides), ax,
-                os.fspath(points) if points is not None else "", os.fspath(out), keep_runs, float(warm_ramp),
-                scheduler, threads, grain, _log(log, quiet))
+    scheduler, threads = _schedule(scheduler, threads, grain)
+    if axes is not None and not isinstance(axes, dict):
+        raise _error("axes", repr(axes), "give a dict {key: [values]}")
+    ax = []
+    for k, vals in (axes or {}).items():
+        if isinstance(vals, (str, bytes)) or not isinstance(vals, (list, tuple, np.ndarray)):
+            raise _error(f"axes[{k!r}]", repr(vals), "give a list of values")
+        ax.append(f"{k}=" + ",".join(_override(k, v).split("=", 1)[1] for v in vals))
+    log = _callable_or_none("log", log)
+    _core.sweep(_path("config", config, True) or "", _path("from_checkpoint", from_checkpoint, True) or "",
+                _overrides(overrides), ax, _path("points", points, True) or "", _path("out", out),
+                _flag("keep_runs", keep_runs), _nonnegative("warm_ramp", warm_ramp), scheduler, threads, grain,
+                _log(log, _flag("quiet", quiet)))
     return _rows(os.fspath(out) + ".csv")
 
 
 def _positive(name, values):
+    if isinstance(values, (str, bytes)) or not isinstance(values, (list, tuple, np.ndarray)):
+        raise _error(name, repr(values), "give a list of positive numbers")
     for v in values:
         if not (isinstance(v, (int, float, np.number)) and math.isfinite(v) and v > 0):
             raise _error(name, v, "must be a positive number")
@@ -226,25 +295,26 @@ def study_slip(config, *, clamping, thrust_ratio=0.0, ratios=None, tolerance=0.0
     """The slip limit (as `cvt-engine study slip`): for each clamping.driving value [N] the
     largest load torque held without gross slip, by bisection; rows as dicts (slip_torque,
     slips_at, theory_torque, runs, ...). thrust_ratio 0: the configuration's F1/F2."""
-    scheduler, threads = _schedule(scheduler, threads)
-    if not 1e-4 <= tolerance <= 0.5:
+    scheduler, threads = _schedule(scheduler, threads, grain)
+    if not 1e-4 <= _nonnegative("tolerance", tolerance) <= 0.5:
         raise _error("tolerance", tolerance, "must be in [1e-4, 0.5]")
-    if thrust_ratio:
+    if _nonnegative("thrust_ratio", thrust_ratio):
         _positive("thrust_ratio", [thrust_ratio])
-    return _core.study_slip(os.fspath(config), _overrides(overrides), _positive("clamping", clamping),
-                            float(thrust_ratio), [_text(r) for r in (ratios or [])], float(tolerance),
-                            os.fspath(out), scheduler, threads, grain, _log(log, quiet))
+    return _core.study_slip(_path("config", config), _overrides(overrides), _positive("clamping", clamping),
+                            float(thrust_ratio), [_override("ratios", r).split("=", 1)[1] for r in (ratios or [])],
+                            float(tolerance), _path("out", out), scheduler, threads, grain,
+                            _log(_callable_or_none("log", log), _flag("quiet", quiet)))
 
 
 def study_shift(config, *, thrust_ratios, speeds=None, settle=2e-3, window=1e-2, steady_bound=0.3,
                 out="shift.csv", overrides=None, threads=1, scheduler=None, grain=4, quiet=True, log=None):
     """The shift rate (as `cvt-engine study shift`): from the steady state at each input speed,
     a step to each F1/F2; rows as dicts (shift_rate [1/s], ln_thrust_ratio, ...)."""
-    scheduler, threads = _schedule(scheduler, threads)
-    if settle < 0:
-        raise _error("settle", settle, "must be >= 0")
+    scheduler, threads = _schedule(scheduler, threads, grain)
+    _nonnegative("settle", settle)
     _positive("window", [window])
     _positive("steady_bound", [steady_bound])
-    return _core.study_shift(os.fspath(config), _overrides(overrides), _positive("thrust_ratios", thrust_ratios),
+    return _core.study_shift(_path("config", config), _overrides(overrides), _positive("thrust_ratios", thrust_ratios),
                              _positive("speeds", speeds or []), float(settle), float(window), float(steady_bound),
-                             os.fspath(out), scheduler, threads, grain, _log(log, quiet))
+                             _path("out", out), scheduler, threads, grain,
+                             _log(_callable_or_none("log", log), _flag("quiet", quiet)))
