@@ -149,6 +149,14 @@ ChainPathParams chain_path_params(const Config& cfg) {
   gp.rocker_radius = cfg.rocker.radius;
   gp.r_min = cfg.sheave.hub_radius + 0.5 * cfg.chain.pitch;
   gp.r_max = cfg.sheave.outer_radius - 0.5 * cfg.chain.pitch;
+  // A pitch that leaves the joints no radius between the hub and the rim (half a pitch
+  // from each): no ratio can fit, and the pitch is what to change.
+  if (!(gp.r_min < gp.r_max))
+    throw ConfigError("chain.pitch", fmt(cfg.chain.pitch),
+                      "too long for the pulleys: the joints need half a pitch above sheave.hub_radius = " +
+                          fmt(cfg.sheave.hub_radius) + " m and below sheave.outer_radius = " +
+                          fmt(cfg.sheave.outer_radius) + " m, so the pitch must be below " +
+                          fmt(cfg.sheave.outer_radius - cfg.sheave.hub_radius) + " m");
   return gp;
 }
 

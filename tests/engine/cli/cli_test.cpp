@@ -187,6 +187,14 @@ TEST_F(CliTest, NegativePitch) {
   expect_config_error({"run", kMini, "--set", "chain.pitch=-0.008"}, "chain.pitch", "-0.008", "must be positive");
 }
 
+// A pitch that leaves the joints no radius on the pulleys is the pitch's fault, not the ratio's.
+TEST_F(CliTest, PitchTooLongForThePulleys) {
+  for (const char* p : {"1e10", "0.03"})
+    expect_config_error({"run", kMini, "--set", std::string("chain.pitch=") + p}, "chain.pitch", "",
+                        "too long for the pulleys");
+  EXPECT_EQ(read_text(dir_ / "stderr.txt").find("geometry.ratio"), std::string::npos);
+}
+
 TEST_F(CliTest, ZeroAxialRigidity) {
   expect_config_error({"run", kMini, "--set", "pin.ea=0"}, "pin.ea", "0", "must be positive");
 }
