@@ -158,6 +158,14 @@ class Run {
   bool warned_slip_ = false;
   double slipped_from_ = -1, slipped_most_ = 0;  // the warned gross slip's start and largest slip
   bool stop_asked_ = false;  // RunOptions::on_progress returned false
+  std::optional<WallClock::time_point> stop_seen_;  // when a stop was first seen
+  // A stop is taken at the next step where the W matrix is rebuilt (its continuation then
+  // repeats the uninterrupted run's bits), or at once where that is more than a second away
+  // (slow steps: the start-up's sub-steps, many threads on few cores).
+  bool stop_now(long n) {
+    if (!stop_seen_) stop_seen_ = WallClock::now();
+    return n % rebuild_every_ == 0 || n == total_ || seconds_since(*stop_seen_) > 1.0;
+  }
   double next_stability_check_ = 0;
   const bool tty_ = isatty(fileno(stderr));
   WallClock::time_point t0_ = WallClock::now(), last_progress_ = t0_, last_flush_ = t0_;
@@ -503,7 +511,7 @@ void Run::steps() {
         done_ = n;
         break;
       }
-      if ((g_stop_signal || stop_asked_) && (n % rebuild_every_ == 0 || n == total_)) {
+      if ((g_stop_signal || stop_asked_) && stop_now(n)) {
         done_ = n;  // its sample ends the series
         if (!on_grid) sim_.check_finite(), record();
         break;

@@ -739,6 +739,31 @@ TEST_P(CliSignalTest, AtAnyMomentLeavesAReadableFileOrNone) {
   }
 }
 
+// Slow steps (here some 3333 settling sub-steps each, about half a second): a stop is taken
+// within a second of the signal, not at the next matrix rebuild 16 steps on.
+TEST_P(CliSignalTest, AStopIsTakenWithinASecondEvenWhenStepsAreSlow) {
+  const int sig = GetParam();
+  const pid_t pid = start({"run", kMini, "--set", "integrator.startup_time=0", "--set", "integrator.settle_step=2.5e-10",
+                           "--set", "integrator.settle_time=1", "--t-end", "0.001", "--out", "slow.h5", "--quiet"});
+  ASSERT_NE(pid, -1);
+  std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  ASSERT_EQ(kill(pid, sig), 0);
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 130) << read_text(dir_ / "stderr.txt");
+  const hid_t f = H5Fopen((dir_ / "slow.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  long steps = -1;
+  const hid_t a = H5Aopen_by_name(f, "/summary", "steps", H5P_DEFAULT, H5P_DEFAULT);
+  H5Aread(a, H5T_NATIVE_LONG, &steps);
+  H5Aclose(a);
+  H5Fclose(f);
+  std::printf("signal %d: stopped after %ld slow steps\n", sig, steps);
+  EXPECT_GT(steps, 0);
+  EXPECT_LT(steps, 16) << "waited for the matrix rebuild";
+}
+
 // The output file can be read while the run writes it (SWMR), and after kill -9 it still
 // opens and holds every sample up to the last flush.
 TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
