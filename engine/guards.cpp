@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -124,10 +125,20 @@ void check_writable(const std::string& path, const std::string& what) {
 }
 
 FileLock::FileLock(const std::string& path, const std::string& what, bool remove) {
-  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
-  if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
-    if (fd_ >= 0) ::close(fd_);
-    throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+  // A lock file that its holder removes as it lets go: the lock taken may be on the file
+  // just removed, so it holds only while the path still names the file locked.
+  for (int attempt = 0;; ++attempt) {
+    fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+      if (fd_ >= 0) ::close(fd_);
+      throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+    }
+    struct stat held {}, named {};
+    if (::fstat(fd_, &held) == 0 && ::stat(path.c_str(), &named) == 0 && held.st_ino == named.st_ino &&
+        held.st_dev == named.st_dev)
+      break;
+    ::close(fd_);
+    if (attempt == 8) throw OutputError("another cvt-engine is writing " + what + " (" + path + " keeps changing)");
   }
   if (remove) remove_ = path;
 }

@@ -135,6 +135,7 @@ class Run {
   const bool append_;
   const std::string ckpt_path_, tmp_;
   FileLock lock_;  // one writer per output
+  std::deque<FileLock> json_locks_;  // and per JSON file
   Simulation sim_;
   Profiler& prof_;
   long start_ = 0, rebuild_every_ = 1, checkpoint_every_ = 0, done_ = 0;
@@ -199,6 +200,8 @@ Run::Run(const Model& m, const RunOptions& opt)
       ckpt_path_(opt.checkpoint_path.empty() ? opt.out_path + ".ckpt" : opt.checkpoint_path),
       tmp_(opt.out_path + ".partial"), lock_(output_lock(m, opt, ckpt_path_)), sim_(m, opt.schedule),
       prof_(sim_.enable_profiling()) {
+  for (const std::string* p : {&opt.summary_json, &opt.profile_json})
+    if (!p->empty()) json_locks_.emplace_back(*p + ".lock", "'" + *p + "'", true);
   if (opt.resume) {
     sim_.restore(*opt.resume);
     // A checkpoint of a run at another step (RK4 warmed at 1e-8, continued with ROS2 at

@@ -423,6 +423,17 @@ TEST_F(CliTest, ASecondWriterOfTheSameFileIsRefused) {
   EXPECT_EQ(first.exit_code, 0) << first.err;
   EXPECT_TRUE(fs::exists(dir_ / "same.h5"));
   EXPECT_FALSE(fs::exists(dir_ / "same.h5.lock"));
+  // The summary JSON too: two runs into other files but one JSON.
+  {
+    const FileLock held((dir_ / "s.json.lock").string(), "s.json");
+    const RunResult other = run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", "o.h5", "--summary-json", "s.json"});
+    EXPECT_EQ(other.exit_code, 73) << other.err;
+    EXPECT_NE(other.err.find("another cvt-engine is writing 's.json'"), std::string::npos) << other.err;
+    EXPECT_FALSE(fs::exists(dir_ / "o.h5.partial"));
+  }
+  EXPECT_EQ(run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", "o.h5", "--summary-json", "s.json"}).exit_code, 0);
+  EXPECT_TRUE(fs::exists(dir_ / "s.json"));
+  EXPECT_FALSE(fs::exists(dir_ / "s.json.lock"));
 }
 
 // A refused continuation leaves every file byte for byte as it was, under its name: the
