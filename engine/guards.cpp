@@ -104,7 +104,7 @@ std::string rk4_stability_warning(double h, double rho, double t) {
   return b;
 }
 
-void check_writable(const std::string& path, const std::string& what) {
+void check_writable(const std::string& path, const std::string& what, std::size_t suffix) {
   namespace fs = std::filesystem;
   const fs::path p(path);
   const fs::path dir = p.has_parent_path() ? p.parent_path() : fs::path(".");
@@ -122,6 +122,13 @@ void check_writable(const std::string& path, const std::string& what) {
                       "); choose another path");
   if (access(dir.c_str(), W_OK) != 0)
     throw OutputError("cannot write the " + what + " '" + path + "': no permission to write in '" + dir.string() + "'");
+  // Its name, and the longest name derived from it, within the file system's limit.
+  const long name_max = ::pathconf(dir.c_str(), _PC_NAME_MAX);
+  const std::size_t name = p.filename().string().size();
+  if (name_max > 0 && name + suffix > static_cast<std::size_t>(name_max))
+    throw OutputError("cannot write the " + what + " '" + path + "': its name is " + std::to_string(name) +
+                      " bytes" + (suffix ? " and gets up to " + std::to_string(suffix) + " more for the files made beside it" : "") +
+                      ", past the file system's limit of " + std::to_string(name_max) + " bytes; choose a shorter name");
 }
 
 FileLock::FileLock(const std::string& path, const std::string& what, bool remove) {
@@ -129,9 +136,14 @@ FileLock::FileLock(const std::string& path, const std::string& what, bool remove
   // just removed, so it holds only while the path still names the file locked.
   for (int attempt = 0;; ++attempt) {
     fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-    if (fd_ < 0 || ::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
-      if (fd_ >= 0) ::close(fd_);
-      throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+    if (fd_ < 0)
+      throw OutputError("cannot write " + what + ": its lock file " + path + " cannot be made: " + std::strerror(errno));
+    if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+      const int err = errno;
+      ::close(fd_);
+      if (err == EWOULDBLOCK) throw OutputError("another cvt-engine is writing " + what + " (" + path + " is held)");
+      throw OutputError("cannot write " + what + ": the file system does not lock " + path + " (" +
+                        std::strerror(err) + "); write it on a local file system");
     }
     struct stat held {}, named {};
     if (::fstat(fd_, &held) == 0 && ::stat(path.c_str(), &named) == 0 && held.st_ino == named.st_ino &&

@@ -77,8 +77,10 @@ struct PathRole {
 };
 void check_distinct(const std::vector<PathRole>& inputs, const std::vector<PathRole>& outputs);
 
-// Throws OutputError unless a file can be created at path (its folder exists and is writable).
-void check_writable(const std::string& path, const std::string& what);
+// Throws OutputError unless a file can be created at path (its folder exists and is writable,
+// the path is no folder, link, FIFO or device) and its name, with `suffix` bytes more for the
+// files derived from it (FILE.partial, FILE.lock, ...), is within the file system's limit.
+void check_writable(const std::string& path, const std::string& what, std::size_t suffix = 0);
 
 // Replaces path with the bytes, all or nothing: written to PATH.tmp, synced to the disk and
 // renamed over path. A write error (a full disk) removes PATH.tmp, leaves path as it was

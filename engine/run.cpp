@@ -67,11 +67,10 @@ namespace {
 // regular file or none, and no two of them one file (exit 73).
 void checked(const Model& m, const RunOptions& opt, const std::string& ckpt_path) {
   check_step_grid(m.cfg);
-  check_writable(opt.out_path, "output file");
-  check_writable(ckpt_path, "checkpoint");
-  check_writable(opt.out_path + ".partial", "output file");
+  check_writable(opt.out_path, "output file", std::string(".partial").size());  // .lock, .ckpt (shorter)
+  check_writable(ckpt_path, "checkpoint", std::string(".tmp").size());
   for (const std::string* p : {&opt.profile_json, &opt.summary_json})
-    if (!p->empty()) check_writable(*p, "JSON file");
+    if (!p->empty()) check_writable(*p, "JSON file", std::string(".lock").size());
   check_distinct({}, {{"output file", opt.out_path}, {"checkpoint", ckpt_path}, {"summary JSON", opt.summary_json},
                       {"profile JSON", opt.profile_json}});
 }

@@ -90,7 +90,7 @@ std::string shift_csv_row(const ShiftRow& r) {
 
 std::vector<ShiftRow> run_shift_study(const ShiftStudyOptions& o) {
   const auto log = sweep_log(o.sweep);
-  check_writable(o.csv, "CSV file");
+  check_writable(o.csv, "CSV file", std::string(".lock").size());
   const FileLock lock(o.csv + ".lock", o.csv + " and its runs");  // one study per CSV at a time
   { std::ofstream(o.csv) << shift_csv_header(); }
   const std::string dir = o.csv + ".runs";

@@ -76,7 +76,7 @@ std::vector<SlipRow> run_slip_study(const SlipStudyOptions& o) {
   const double thrust = o.thrust_ratio > 0 ? o.thrust_ratio : base.clamping.driving / base.clamping.driven;
   std::vector<std::string> ratios = o.ratios;
   if (ratios.empty()) ratios.push_back("");
-  check_writable(o.csv, "CSV file");
+  check_writable(o.csv, "CSV file", std::string(".lock").size());
   const FileLock lock(o.csv + ".lock", o.csv + " and its runs");  // one study per CSV at a time
   { std::ofstream(o.csv) << slip_csv_header(); }
   std::filesystem::create_directories(o.sweep.out + ".runs");

@@ -422,7 +422,7 @@ SweepLedger::SweepLedger(const SweepOptions& o, const SweepPlan& plan)
     : o_(o), plan_(plan), csv_(o.out + ".csv"), done_(plan.points.size(), false) {
   // One writer per sweep: a lock the kernel lets go of when the process ends, kill -9
   // included.
-  check_writable(csv_, "CSV file");
+  check_writable(csv_, "CSV file", std::string(".lock").size());
   lock_.emplace(csv_ + ".lock", csv_);
   const std::string header = sweep_csv_header(plan);
   std::ifstream in(csv_);

@@ -436,6 +436,22 @@ TEST_F(CliTest, ASecondWriterOfTheSameFileIsRefused) {
   EXPECT_FALSE(fs::exists(dir_ / "s.json.lock"));
 }
 
+// A name too long for the files made beside it (FILE.partial, FILE.ckpt.tmp) is refused with
+// exit 73 before the run, naming the limit; a lock file that cannot be made is not "another
+// writer".
+TEST_F(CliTest, ANameTooLongForItsCompanionsIsRefusedFirst) {
+  const long name_max = pathconf(dir_.c_str(), _PC_NAME_MAX);
+  ASSERT_GT(name_max, 20);
+  const std::string too_long = std::string(static_cast<std::size_t>(name_max) - 6, 'a') + ".h5";
+  const RunResult r = run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", too_long});
+  EXPECT_EQ(r.exit_code, 73) << r.err;
+  EXPECT_NE(r.err.find("past the file system's limit of " + std::to_string(name_max)), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("another cvt-engine"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / too_long));
+  const std::string fits = std::string(static_cast<std::size_t>(name_max) - 12, 'b') + ".h5";
+  EXPECT_EQ(run({"run", kMini, "--t-end", "1e-5", "--quiet", "-o", fits}).exit_code, 0);
+}
+
 // A refused continuation leaves every file byte for byte as it was, under its name: the
 // run's own file when it is empty, not HDF5, truncated, or another run's; the checkpoint.
 TEST_F(CliTest, ARefusedResumeLeavesTheFilesAsTheyWere) {
