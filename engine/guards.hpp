@@ -82,10 +82,5 @@ void check_distinct(const std::vector<PathRole>& inputs, const std::vector<PathR
 // files derived from it (FILE.partial, FILE.lock, ...), is within the file system's limit.
 void check_writable(const std::string& path, const std::string& what, std::size_t suffix = 0);
 
-// Replaces path with the bytes, all or nothing: written to PATH.tmp, synced to the disk and
-// renamed over path. A write error (a full disk) removes PATH.tmp, leaves path as it was
-// and throws OutputError naming the path and the system's reason (exit 73).
-void replace_file(const std::string& path, const void* bytes, std::size_t size);
-
 
 }  // namespace cvt

@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "engine/base/timing.hpp"
+#include "engine/io/files.hpp"
 #include "engine/model/envelope.hpp"
 #include "engine/ode/ode.hpp"
 #include "engine/output.hpp"
@@ -81,7 +82,13 @@ FileLock output_lock(const Model& m, const RunOptions& opt, const std::string& c
   return FileLock(opt.out_path + ".lock", "'" + opt.out_path + "'", true);
 }
 
-void write_text(const std::string& path, const std::string& text) { replace_file(path, text.data(), text.size()); }
+void write_text(const std::string& path, const std::string& text) {
+  try {
+    replace_file(path, text.data(), text.size());
+  } catch (const std::runtime_error& e) {
+    throw OutputError(e.what());
+  }
+}
 
 // One run, in the order it happens: the checks and the simulation at its start
 // (constructor), the output file opened and its series declared (open_output), the steps

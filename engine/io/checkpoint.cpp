@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "engine/guards.hpp"
+#include "engine/io/files.hpp"
 #include "engine/io/h5_writer.hpp"
 
 namespace cvt {
