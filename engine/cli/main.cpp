@@ -899,13 +899,17 @@ extern "C" void on_early_signal(int sig) {
   ::_exit(128 + sig);
 }
 
-// Installed before main, as the program's own static initialization begins (the shared
-// libraries' loading before it is the one moment left to the default action).
+// Installed before main, as the program's own static initialization begins; then the
+// signals that the launcher (engine/cli/launcher.c) blocked while the shared libraries
+// loaded are let through, and one that came meanwhile is answered here.
 __attribute__((constructor)) void install_early_signals() {
   struct sigaction sa {};
   sa.sa_handler = on_early_signal;
   sigemptyset(&sa.sa_mask);
-  for (const int sig : {SIGINT, SIGTERM, SIGHUP}) sigaction(sig, &sa, nullptr);
+  sigset_t stops;
+  sigemptyset(&stops);
+  for (const int sig : {SIGINT, SIGTERM, SIGHUP}) sigaction(sig, &sa, nullptr), sigaddset(&stops, sig);
+  sigprocmask(SIG_UNBLOCK, &stops, nullptr);
 }
 
 int main(int argc, char** argv) {
