@@ -14,6 +14,7 @@
 #include <optional>
 #include <unistd.h>
 
+#include "cvt_commit.h"  // generated at every build (tools/commit_header.cmake)
 #include "engine/cli/exit_codes.hpp"
 #include "engine/base/timing.hpp"
 #include "engine/io/checkpoint.hpp"
@@ -918,7 +919,7 @@ int main(int argc, char** argv) {
   H5dont_atexit();
   CLI::App app{"cvt-engine: dynamics of a chain-type continuously variable transmission"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", std::string(CVT_VERSION));
+  app.set_version_flag("--version", std::string("cvt-engine ") + CVT_VERSION + " (commit " + CVT_COMMIT + ")");
   app.footer("Example: cvt-engine run configs/reference-steady.toml --scheduler flowgraph --threads 2\n"
              "Each subcommand has its own --help (cvt-engine run --help); docs/cli.md has them all.");
   const Command commands[] = {add_run_command(app),      add_graph_command(app),    add_scale_command(app),

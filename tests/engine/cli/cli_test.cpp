@@ -208,6 +208,23 @@ TEST_F(CliTest, PitchTooLongForThePulleys) {
   EXPECT_EQ(read_text(dir_ / "stderr.txt").find("geometry.ratio"), std::string::npos);
 }
 
+// --version names the commit the binary was built from: 12 hex digits of one that exists in
+// the source tree's history ("-dirty" when tracked files differed), or "unknown" outside git.
+TEST_F(CliTest, VersionNamesTheCommit) {
+  const RunResult r = run({"--version"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string prefix = std::string("cvt-engine ") + CVT_VERSION + " (commit ";
+  ASSERT_EQ(r.out.rfind(prefix, 0), 0u) << r.out;
+  const std::string commit = r.out.substr(prefix.size(), r.out.find(')') - prefix.size());
+  if (commit == "unknown") return;
+  const std::string hash = commit.substr(0, 12);
+  ASSERT_EQ(hash.find_first_not_of("0123456789abcdef"), std::string::npos) << commit;
+  ASSERT_EQ(hash.size(), 12u) << commit;
+  EXPECT_TRUE(commit.size() == 12 || commit.substr(12) == "-dirty") << commit;
+  const std::string git = "git -C " + shell_quote(CVT_SOURCE_DIR) + " cat-file -e " + hash + "^{commit} 2>/dev/null";
+  EXPECT_EQ(std::system(git.c_str()), 0) << hash << " is no commit of " << CVT_SOURCE_DIR;
+}
+
 TEST_F(CliTest, ZeroAxialRigidity) {
   expect_config_error({"run", kMini, "--set", "pin.ea=0"}, "pin.ea", "0", "must be positive");
 }
