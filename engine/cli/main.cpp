@@ -14,7 +14,7 @@
 #include <optional>
 #include <unistd.h>
 
-#include "cvt_commit.h"  // generated at every build (tools/commit_header.cmake)
+#include "engine/cli/commit.h"  // generated into the build folder at every build (tools/commit_header.cmake)
 #include "engine/cli/exit_codes.hpp"
 #include "engine/base/timing.hpp"
 #include "engine/io/checkpoint.hpp"
