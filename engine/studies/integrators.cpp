@@ -1,3 +1,4 @@
+#include "engine/base/fingerprint.hpp"
 #include "engine/base/timing.hpp"
 #include "engine/studies/integrators.hpp"
 
@@ -104,13 +105,6 @@ void take_stats(const OdeDriver& drv, CurveRun& r) {
   r.fresh_rebuilds = drv.model_ode().w_fresh_rebuilds();
 }
 
-// FNV-1a over the text: a stable key for the cache files (the same on every build).
-std::uint64_t fnv1a(const std::string& s) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
-  return h;
-}
-
 // The resolved configuration without its [integrator] section: the study's RK4 runs set
 // their method and step and read no other integrator key.
 std::string without_integrator(const std::string& toml) {
@@ -136,14 +130,12 @@ struct StudyCache {
   std::string ckpt, ref;  // empty: no cache
   StudyCache(const Model& m, const IntegratorStudyOptions& opt) {
     if (opt.cache_dir.empty()) return;
-    char warm[64], curve[128], key[32];
+    char warm[64], curve[128];
     std::snprintf(warm, sizeof warm, "|%.17g", opt.t_warm);
     std::snprintf(curve, sizeof curve, "|%.17g|%.17g|%.17g", opt.t_sample, opt.sample_dt, opt.ref_step);
     const std::string physics = without_integrator(m.cfg.resolved_toml);
-    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(physics + warm)));
-    ckpt = opt.cache_dir + "/study-" + key + ".ckpt";
-    std::snprintf(key, sizeof key, "%016llx", static_cast<unsigned long long>(fnv1a(physics + warm + curve)));
-    ref = opt.cache_dir + "/study-" + key + "-reference.txt";
+    ckpt = opt.cache_dir + "/study-" + fingerprint(physics + warm) + ".ckpt";
+    ref = opt.cache_dir + "/study-" + fingerprint(physics + warm + curve) + "-reference.txt";
   }
   static bool exists(const std::string& p) { return !p.empty() && std::ifstream(p).good(); }
 };
