@@ -274,10 +274,16 @@ void Run::open_output() {
     // here, shows that no writer is left).
     const std::string own = fs::exists(opt_.out_path) ? opt_.out_path : tmp_;
     const long long cut = extend_to_recorded_end(own);
-    bool left_open;
+    bool left_open = false;
     try {
-      left_open = check_readable_h5(own);
-      H5File probe = H5File::open_for_reading(own, left_open);
+      H5File probe = [&] {
+        try {
+          return H5File::open_for_reading(own, &left_open);
+        } catch (const H5Error&) {
+          throw std::runtime_error("cannot continue " + own + ": it does not open as an HDF5 file (not one, or "
+                                   "truncated); the file is left as it was");
+        }
+      }();
       hist_ = continue_file(probe, m_, *opt_.resume, every_sample_, every_snapshot_);
       probe.close();
     } catch (...) {

@@ -16,7 +16,6 @@
 
 namespace cvt {
 
-// Where a run stands, for RunOptions::on_progress.
 // SIGINT, SIGTERM and SIGHUP from this guard's construction to its end: a signal stops the
 // run (or sweep) under way at its next stop point, with its file and checkpoint kept
 // (docs/cli.md, exit 130); a run holds one, and a command holds one from its first
@@ -35,6 +34,7 @@ class StopSignals {
   static int active_;
 };
 
+// Where a run stands, for RunOptions::on_progress.
 struct RunProgress {
   long step = 0, steps = 0;  // steps done and the steps to run.t_end (the bound with run.until_steady)
   double t = 0, t_end = 0;   // model time now and at the end [s]

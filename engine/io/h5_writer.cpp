@@ -303,23 +303,6 @@ long long extend_to_recorded_end(const std::string& path) {
   return ec ? -1 : static_cast<long long>(size);
 }
 
-bool check_readable_h5(const std::string& path) {
-  h5_silence_error_printing();
-  bool left_open = false;
-  hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (f < 0) {
-    H5Eclear2(H5E_DEFAULT);
-    f = H5Fopen(path.c_str(), H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, H5P_DEFAULT);
-    left_open = f >= 0;
-  }
-  H5Eclear2(H5E_DEFAULT);
-  if (f < 0)
-    throw std::runtime_error("cannot continue " + path +
-                             ": it does not open as an HDF5 file (not one, or truncated); the file is left as it was");
-  H5Fclose(f);
-  return left_open;
-}
-
 H5File H5File::open(const std::string& path, bool clear_status) {
   h5_silence_error_printing();
   H5Handle fapl(H5Pcreate(H5P_FILE_ACCESS), "H5Pcreate(H5P_FILE_ACCESS)", path);
@@ -338,11 +321,16 @@ H5File H5File::open(const std::string& path, bool clear_status) {
   return H5File(std::move(file), path);
 }
 
-H5File H5File::open_for_reading(const std::string& path, bool swmr) {
+H5File H5File::open_for_reading(const std::string& path, bool* marked) {
   h5_silence_error_printing();
-  const unsigned mode = H5F_ACC_RDONLY | (swmr ? H5F_ACC_SWMR_READ : 0u);
-  H5Handle file(H5Fopen(path.c_str(), mode, H5P_DEFAULT), "H5Fopen", path);
-  return H5File(std::move(file), path);
+  hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const bool swmr = f < 0;
+  if (swmr) {
+    H5Eclear2(H5E_DEFAULT);
+    f = H5Fopen(path.c_str(), H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, H5P_DEFAULT);
+  }
+  if (marked) *marked = swmr;
+  return H5File(H5Handle(f, "H5Fopen", path), path);
 }
 
 void H5File::start_swmr() {

@@ -29,11 +29,6 @@ class H5Error : public std::runtime_error {
 // Switches off HDF5's automatic printing of its error stack (once per process; the errors are
 // reported through H5Error instead). Called by H5File::create(); idempotent.
 void h5_silence_error_printing();
-// Throws std::runtime_error naming path unless it opens read-only as an HDF5 file (a run's own
-// file to continue): checked before the file is touched. Returns true where it opens only as
-// a SWMR reader: a writer still has it open, or one was killed (kill -9) and left its
-// superblock marked as open for writing (what h5clear -s clears).
-bool check_readable_h5(const std::string& path);
 // A file in the latest format that ends before the end its superblock records (a write that
 // failed on a full disk after the superblock was written): extended with zeros to that end,
 // so that it opens and its rows up to the last flush can be kept. Returns the size it had
@@ -133,9 +128,10 @@ class H5File {
   // cleared first, as h5clear -s does; only for a file whose writer is known to be gone (its
   // FileLock held by the caller).
   static H5File open(const std::string& path, bool clear_status = false);
-  // Opens an existing file read-only (as a SWMR reader where swmr: a file marked as open for
-  // writing); nothing in it changes.
-  static H5File open_for_reading(const std::string& path, bool swmr = false);
+  // Opens an existing file read-only; nothing in it changes. One marked as open for writing
+  // (a writer has it, or one was killed with kill -9 and left the mark h5clear -s clears)
+  // opens as a SWMR reader, and *marked says so. Throws H5Error where it does not open.
+  static H5File open_for_reading(const std::string& path, bool* marked = nullptr);
 
   H5File(H5File&& other) noexcept = default;
   H5File& operator=(H5File&& other) noexcept;

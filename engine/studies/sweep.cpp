@@ -15,6 +15,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "engine/base/fingerprint.hpp"
 #include "engine/base/timing.hpp"
 #include "engine/guards.hpp"
 #include "engine/io/checkpoint.hpp"
@@ -38,7 +39,14 @@ std::string trim(const std::string& s) {
 // commas, doubled quotes, '#' and line breaks; blanks around a field are dropped. A line
 // whose first non-blank character is '#' outside a quoted field is a comment, and blank lines
 // are skipped. Each record comes with the line it starts on; a malformed one throws
-// std::invalid_argument naming that line.
+// CsvError naming that line.
+struct CsvError : std::invalid_argument {
+  CsvError(int line, const std::string& why)
+      : std::invalid_argument("line " + std::to_string(line) + ": " + why), line(line), why(why) {}
+  int line;
+  std::string why;
+};
+
 struct CsvRecord {
   int line = 0;
   std::vector<std::string> fields;
@@ -50,9 +58,7 @@ std::vector<CsvRecord> parse_csv(const std::string& text) {
   std::string f;
   int line = 1;
   bool in_quotes = false, was_quoted = false, after_quote = false, at_start = true;
-  const auto fail = [&](int at, const std::string& why) {
-    throw std::invalid_argument("line " + std::to_string(at) + ": " + why);
-  };
+  const auto fail = [&](int at, const std::string& why) { throw CsvError(at, why); };
   const auto end_field = [&] {
     rec.fields.push_back(was_quoted ? f : trim(f));
     f.clear(), was_quoted = after_quote = false;
@@ -99,15 +105,6 @@ std::vector<std::string> split_csv(const std::string& line) {
   const std::vector<CsvRecord> r = parse_csv(line);
   if (r.size() != 1) throw std::invalid_argument("not one line of CSV");
   return r.front().fields;
-}
-
-// 64-bit FNV-1a of a text, in 16 hex digits.
-std::string fingerprint(const std::string& text) {
-  std::uint64_t h = 14695981039346656037ull;
-  for (const unsigned char ch : text) h = (h ^ ch) * 1099511628211ull;
-  char b[17];
-  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
-  return b;
 }
 
 std::string csv_field(const std::string& s) {
@@ -248,10 +245,8 @@ SweepPlan SweepPlan::from_file(const std::string& path) {
   std::vector<CsvRecord> records;
   try {
     records = parse_csv(text.str());
-  } catch (const std::invalid_argument& e) {
-    const std::string what = e.what();
-    const std::size_t colon = what.find(':');
-    throw ConfigError(path, what.substr(0, colon), what.substr(colon + 2));
+  } catch (const CsvError& e) {
+    throw ConfigError(path, "line " + std::to_string(e.line), e.why);
   }
   SweepPlan p;
   for (const CsvRecord& r : records) {
@@ -296,9 +291,7 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
           fingerprint(ck ? parse_config(ck->config_toml, ov, o.from).resolved_toml : load_config(o.config_path, ov).resolved_toml));
     } catch (const ConfigError& e) {  // named with the point's line
       throw ConfigError(e.key(), e.value(), e.reason() + " (point " + std::to_string(i + 1) + ", " +
-                                                (static_cast<std::size_t>(i) < plan.origins.size() ? plan.origins[static_cast<std::size_t>(i)]
-                                                                                      : std::string("--axis")) +
-                                                ")");
+                                                plan.origins[static_cast<std::size_t>(i)] + ")");
     }
   }
   return plan;

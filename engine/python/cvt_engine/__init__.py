@@ -42,16 +42,21 @@ def _text(value):
     raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as a configuration value")
 
 
-def _override(key, value):
-    """"key=value" for a dict's entry; ConfigError for a value that is no configuration value
+def _value(key, value):
+    """The TOML text of key's value; ConfigError for one that is no configuration value
     (None, a dict, an object)."""
-    if not isinstance(key, str):
-        raise _error("overrides", repr(key), "a key must be a string 'section.key'")
     try:
-        return f"{key}={_text(value)}"
+        return _text(value)
     except TypeError:
         raise _error(key, repr(value), f"not a configuration value ({type(value).__name__}): give a number, "
                                        "a string, a bool or a list of them") from None
+
+
+def _override(key, value):
+    """"key=value" for a dict's entry."""
+    if not isinstance(key, str):
+        raise _error("overrides", repr(key), "a key must be a string 'section.key'")
+    return f"{key}={_value(key, value)}"
 
 
 def _overrides(overrides):
@@ -272,7 +277,7 @@ def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, f
     for k, vals in (axes or {}).items():
         if isinstance(vals, (str, bytes)) or not isinstance(vals, (list, tuple, np.ndarray)):
             raise _error(f"axes[{k!r}]", repr(vals), "give a list of values")
-        ax.append(f"{k}=" + ",".join(_override(k, v).split("=", 1)[1] for v in vals))
+        ax.append(f"{k}=" + ",".join(_value(k, v) for v in vals))
     log = _callable_or_none("log", log)
     _core.sweep(_path("config", config, True) or "", _path("from_checkpoint", from_checkpoint, True) or "",
                 _overrides(overrides), ax, _path("points", points, True) or "", _path("out", out),
@@ -301,7 +306,7 @@ def study_slip(config, *, clamping, thrust_ratio=0.0, ratios=None, tolerance=0.0
     if _nonnegative("thrust_ratio", thrust_ratio):
         _positive("thrust_ratio", [thrust_ratio])
     return _core.study_slip(_path("config", config), _overrides(overrides), _positive("clamping", clamping),
-                            float(thrust_ratio), [_override("ratios", r).split("=", 1)[1] for r in (ratios or [])],
+                            float(thrust_ratio), [_value("ratios", r) for r in (ratios or [])],
                             float(tolerance), _path("out", out), scheduler, threads, grain,
                             _log(_callable_or_none("log", log), _flag("quiet", quiet)))
 
