@@ -16,25 +16,22 @@ PACKAGES = cmake g++ make pkg-config graphviz \
   python3-h5py python3-matplotlib python3-numpy python3-dev pybind11-dev python3-pytest python3-scipy \
   chromium
 
-SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
-
 .PHONY: deps configure build run test test-slow bench plots view video clean
 
+# Installs the missing Debian packages with apt-get: as root, or through sudo. A user who can
+# do neither is told which packages to ask for and make stops before apt-get
+# (docs/install.md: the plain CMake build once they are installed).
+INSTALL = tools/install_packages.sh
+
 deps:
-	@missing=$$(for p in $(PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "install ok installed" || echo $$p; done); \
-	if [ -n "$$missing" ]; then \
-	  echo "installing: $$missing"; \
-	  $(SUDO) apt-get update -qq && \
-	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
-	fi
+	@$(INSTALL) $(PACKAGES)
 	@# Node.js and npm (Debian's, unless the machine has them), then the 3D viewer's libraries
 	@# (three.js, h5wasm; playwright-core, pngjs for its browser test) from its lockfile.
-	@command -v node >/dev/null && command -v npm >/dev/null || { echo "installing: nodejs npm"; \
-	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null; }
+	@command -v node >/dev/null && command -v npm >/dev/null || $(INSTALL) nodejs npm
 	@cd tools/viewer && { [ node_modules/.package-lock.json -nt package-lock.json ] || npm ci --no-audit --no-fund --loglevel=error; }
 
 $(BUILD)/CMakeCache.txt: CMakeLists.txt | deps
-	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
+	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release -DCVT_REQUIRE_ALL=ON >/dev/null
 
 configure: $(BUILD)/CMakeCache.txt
 

@@ -5,12 +5,26 @@
 // everything else (the rest of the stage table: other forces, inertia, the solve) runs
 // serially. Each coordinate gets at most two contributions per module, so the buffer sums
 // equal the ordered gather to the bit (engine/rhs/rhs.hpp) and the trajectory is that of
-// the serial schedule.
-#include <omp.h>
-
+// the serial schedule. A build without OpenMP (CVT_WITH_OPENMP off) refuses the scheduler.
+#include <stdexcept>
 #include <vector>
 
 #include "graph/schedule.hpp"
+
+#ifndef CVT_WITH_OPENMP
+
+namespace cvt {
+
+std::unique_ptr<Schedule> make_paper_omp_schedule(const Model&, Workspace&, const ScheduleOptions&) {
+  throw std::invalid_argument("the scheduler paper-omp needs OpenMP, which this build was made without "
+                              "(cmake -DCVT_WITH_OPENMP=ON with the compiler's OpenMP installed)");
+}
+
+}  // namespace cvt
+
+#else
+
+#include <omp.h>
 
 namespace cvt {
 
@@ -160,3 +174,5 @@ std::unique_ptr<Schedule> make_paper_omp_schedule(const Model& m, Workspace& ws,
 }
 
 }  // namespace cvt
+
+#endif  // CVT_WITH_OPENMP
