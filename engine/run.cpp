@@ -165,6 +165,16 @@ class Run {
   bool warned_slip_ = false;
   double slipped_from_ = -1, slipped_most_ = 0;  // the warned gross slip's start and largest slip
   bool stop_asked_ = false;  // RunOptions::on_progress returned false
+  // run.max_wall: the stop is begun once the wall time since RunOptions::started comes
+  // within wall_reserve() of it, which covers the wait for the next rebuild (at most 1 s)
+  // and three times the longest flush and checkpoint so far (the last ones, and the summary).
+  bool wall_stop_ = false;
+  double longest_write_ = 0;
+  bool wall_near() {
+    if (wall_stop_ || !(c_.run.max_wall > 0)) return wall_stop_;
+    const double reserve = std::min(0.5 * c_.run.max_wall, std::max(5.0, 1.0 + 3 * longest_write_));
+    return wall_stop_ = seconds_since(opt_.started) >= c_.run.max_wall - reserve;
+  }
   std::optional<WallClock::time_point> stop_seen_;  // when a stop was first seen
   // A stop is taken at the next step where the W matrix is rebuilt (its continuation then
   // repeats the uninterrupted run's bits), or at once where that is more than a second away
@@ -517,16 +527,18 @@ void Run::steps() {
       start_writes();
       if (checkpoint_every_ > 0 && n % checkpoint_every_ == 0)
         output([&] {
+          const auto w0 = WallClock::now();
           sync_writes();
           file_->flush();
           last_flush_ = WallClock::now();
           write_checkpoint(ckpt_path_, checkpoint());
+          longest_write_ = std::max(longest_write_, seconds_since(w0));
         });
       if (until_ && n % check_every_ == 0 && steady_now()) {
         done_ = n;
         break;
       }
-      if ((g_stop_signal || stop_asked_) && stop_now(n)) {
+      if ((g_stop_signal || stop_asked_ || wall_near()) && stop_now(n)) {
         done_ = n;  // its sample ends the series
         if (!on_grid) sim_.check_finite(), record();
         break;
@@ -538,6 +550,7 @@ void Run::steps() {
             sync_writes();
             file_->flush();
           });
+          longest_write_ = std::max(longest_write_, seconds_since(now));
           last_flush_ = now;
         }
         progress(n, now);
@@ -602,9 +615,12 @@ void Run::write_failed(const std::string& what) {
 // The last checkpoint, the summary and the profile. SWMR allows no new objects: the
 // profile and the summary go into the file after it is closed, and it gets its name last.
 RunResult Run::finish() {
+  const std::string stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : wall_stop_ ? "max_wall" : stopped_;
   output([&] {
     sync_writes();
-    write_checkpoint(ckpt_path_, checkpoint());
+    Checkpoint last = checkpoint();
+    last.stopped = stopped;
+    write_checkpoint(ckpt_path_, last);
     file_->close();
   });
   const double t_start = opt_.resume ? opt_.resume->t : 0.0;
@@ -614,14 +630,14 @@ RunResult Run::finish() {
   r_.steps = steps;
   r_.rejected_steps = sim_.steps_rejected() - rejected0_;
   r_.mean_step = (sim_.time() - t_start) / static_cast<double>(std::max(1L, steps));
-  r_.interrupted = g_stop_signal != 0 || stop_asked_;
+  r_.interrupted = g_stop_signal != 0 || stop_asked_ || wall_stop_;
   r_.signal = g_stop_signal;
   r_.t_start = t_start;
   r_.model_time = sim_.time();
   r_.wall_s = step_wall_;
   r_.us_per_step = 1e6 * step_wall_ / static_cast<double>(std::max(1L, steps));
   r_.model_s_per_hour = static_cast<double>(done_ - start_) * h_ / step_wall_ * 3600.0;
-  r_.stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : stopped_;
+  r_.stopped = stopped;
   r_.steady_window = judged_;
   channels_.from = std::max(0.0, sim_.step_halved_at());
   summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);

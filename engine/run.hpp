@@ -7,6 +7,7 @@
 #include <mutex>
 #include <string>
 
+#include "engine/base/timing.hpp"
 #include "engine/guards.hpp"
 #include "engine/io/checkpoint.hpp"
 #include "engine/rhs/profile.hpp"
@@ -75,6 +76,8 @@ struct RunOptions {
   // verify_refine (2: the step halved). 1 repeats the run's own steps, whose errors are
   // then exactly 0 (the tests' check of the verification itself).
   int verify_refine = 2;
+  // What run.max_wall counts from: the command's start (default: when these options were made).
+  WallClock::time_point started = WallClock::now();
 };
 
 // What run_simulation returns: the summary and the profile.

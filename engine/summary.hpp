@@ -56,7 +56,7 @@ struct RunSummary {
   long rejected_steps = 0;  // adaptive steps rejected by the error test
   double mean_step = 0;     // model time / steps [s]
   double t_start = 0, model_time = 0, wall_s = 0, us_per_step = 0, model_s_per_hour = 0;
-  bool interrupted = false;  // stopped by SIGINT, SIGTERM or a progress callback (the file holds the run so far)
+  bool interrupted = false;  // stopped by a signal, a progress callback or run.max_wall (the file holds the run so far)
   int signal = 0;
   std::string method, controller;
   double step = 0;  // the step the window was taken with: integrator.step / 2^step_halvings
@@ -80,7 +80,8 @@ struct RunSummary {
   std::vector<std::string> reasons;
   std::vector<std::string> criteria;  // the checks that held, with their figures
   // What ended the run: "t_end", "steady" or "slip" (run.until_steady), "signal",
-  // "callback" (RunOptions::on_progress asked to stop: the Python module's progress callback).
+  // "callback" (RunOptions::on_progress asked to stop: the Python module's progress callback),
+  // "max_wall" (run.max_wall: the wall-time limit was near).
   std::string stopped = "t_end";
   double steady_window = 0;  // each of the two windows compared (run.until_steady) [s]
   // Energy balance at the end: residual [J] and its fraction of the energy turned over.

@@ -12,6 +12,7 @@
 #include <fstream>
 #include <iostream>
 #include <optional>
+#include <sstream>
 #include <unistd.h>
 
 #include "engine/cli/commit.h"  // generated into the build folder at every build (tools/commit_header.cmake)
@@ -45,6 +46,97 @@ std::string fmt_g(double x) {
   char b[32];
   std::snprintf(b, sizeof b, "%g", x);
   return b;
+}
+
+std::string exact(double x) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.17g", x);
+  return b;
+}
+
+// When the command started: what run.max_wall counts from.
+const cvt::WallClock::time_point g_command_start = cvt::WallClock::now();
+
+// A wall time as a job scheduler writes it: seconds ("3600", "90s"), minutes ("90m"), hours
+// ("23.5h"), or [D-]H:MM[:SS] ("23:50:00", "1-00:00:00", Slurm's --time). Seconds > 0.
+double parse_duration(const std::string& option, const std::string& text) {
+  const auto bad = [&] {
+    return cvt::ConfigError(option, text,
+                            "a wall time: seconds (3600), minutes or hours (90m, 23.5h), or [D-]H:MM[:SS] (23:50:00)");
+  };
+  double s = 0;
+  if (text.find(':') != std::string::npos) {
+    std::string rest = text;
+    long days = 0;
+    if (const auto dash = rest.find('-'); dash != std::string::npos) {
+      std::size_t used = 0;
+      try {
+        days = std::stol(rest.substr(0, dash), &used);
+      } catch (const std::exception&) {
+        throw bad();
+      }
+      if (used != dash || days < 0) throw bad();
+      rest = rest.substr(dash + 1);
+    }
+    std::vector<long> parts;
+    std::size_t at = 0;
+    while (at <= rest.size()) {
+      const std::size_t end = std::min(rest.find(':', at), rest.size());
+      const std::string p = rest.substr(at, end - at);
+      if (p.empty() || p.size() > 6 || p.find_first_not_of("0123456789") != std::string::npos) throw bad();
+      parts.push_back(std::stol(p));
+      at = end + 1;
+    }
+    if (parts.size() < 2 || parts.size() > 3 || parts[1] >= 60 || (parts.size() == 3 && parts[2] >= 60)) throw bad();
+    s = 86400.0 * days + 3600.0 * parts[0] + 60.0 * parts[1] + (parts.size() == 3 ? parts[2] : 0);
+  } else {
+    double unit = 1;
+    std::string num = text;
+    if (!num.empty() && (num.back() == 's' || num.back() == 'm' || num.back() == 'h')) {
+      unit = num.back() == 'h' ? 3600 : num.back() == 'm' ? 60 : 1;
+      num.pop_back();
+    }
+    double v = 0;
+    if (num.empty() || !CLI::detail::lexical_cast(num, v) || !std::isfinite(v)) throw bad();
+    s = v * unit;
+  }
+  if (!(s > 0) || !std::isfinite(s)) throw bad();
+  return s;
+}
+
+// --continue: OUT's own checkpoint, if one exists, for a run made by this configuration
+// (run.t_end and run.max_wall aside: the one extends the run, the other is the job's);
+// nullopt when there is none (the run starts from rest). Another configuration is refused
+// (exit 78), naming the first key that differs.
+std::optional<cvt::Checkpoint> continuation(const cvt::Config& cfg, const std::string& out) {
+  using namespace cvt;
+  const std::string path = out + ".ckpt";
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  Checkpoint c = read_checkpoint(path);
+  const std::string theirs = continuation_toml(c.config_toml, true), ours = continuation_toml(cfg.resolved_toml, true);
+  if (theirs != ours) {
+    std::istringstream a(theirs), b(ours);
+    std::string la, lb, section;
+    while (std::getline(a, la) && std::getline(b, lb) && la == lb)
+      if (!la.empty() && la[0] == '[') section = la;
+    for (std::string* l : {&la, &lb})
+      if (const auto hash = l->find("  #"); hash != std::string::npos) l->resize(hash);  // the unit comment
+    throw ConfigError("--continue", path,
+                      "the checkpoint was made by another configuration (" + section + " " + la + " there, " + lb +
+                          " here): give the command it was started with, or another --out to start anew");
+  }
+  return c;
+}
+
+// --continue of a run that has ended (t_end reached, or steady or slipping under
+// run.until_steady): said, and nothing run.
+bool already_complete(const cvt::Checkpoint& c, const cvt::Config& cfg, const std::string& out) {
+  const bool ended = c.stopped == "steady" || c.stopped == "slip" ||
+                     (c.stopped == "t_end" && cfg.run.t_end <= c.t + 0.5 * cvt::grid_step(cfg));
+  if (ended)
+    std::printf("cvt-engine: %s is complete (stopped: %s at t = %.9g s): nothing to continue; raise --t-end to go "
+                "further\n", out.c_str(), c.stopped.c_str(), c.t);
+  return ended;
 }
 
 // Numbers of the command line: finite and > 0, or >= 0 (CLI11's PositiveNumber and
@@ -200,6 +292,8 @@ struct RunArgs {
   bool profile = false, quiet = false;
   bool until_steady = false;  // --until-steady: run.until_steady
   bool verify = false;        // --verify: run.verify
+  std::string max_wall;       // --max-wall DURATION: run.max_wall
+  bool cont = false;          // --continue: from OUT.ckpt if it exists, else from rest
 };
 
 // "1.4 min per model second" for a throughput in model seconds per wall hour.
@@ -238,6 +332,48 @@ std::string run_output(const std::string& config_path, const cvt::Checkpoint* ck
   return out;
 }
 
+// The run's header: the model, its geometry, and how it is integrated.
+void print_run_header(const cvt::Config& cfg, const cvt::Model& model, const std::string& source) {
+  using namespace cvt;
+  std::printf("cvt-engine %s: %s\n", CVT_VERSION, source.c_str());
+  std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
+  std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
+              1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
+  const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
+  std::string w;
+  if (cfg.integrator.method != IntegratorMethod::rk4) {
+    w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+        std::to_string(cfg.integrator.w_k_every);
+    const int k_every = cvt::stiffness_every(model, cfg.integrator.step, cfg.integrator.w_every, cfg.integrator.w_k_every);
+    if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && k_every < cfg.integrator.w_k_every)
+      w += " (" + std::to_string(k_every) + " at this chain speed: a quarter of a pitch)";
+    if (startup_sub > 1)
+      w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
+           fmt_g(cfg.integrator.startup_time) + " s";
+    const int settle_sub = cvt::settle_substeps(cfg.integrator, cfg.integrator.step);
+    if (settle_sub > 1)
+      w += ", " + std::to_string(settle_sub) + " sub-steps per step before t = " + fmt_g(cfg.integrator.settle_time) +
+           " s";
+    if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && cfg.integrator.energy_leak > 0)
+      w += "; halved where the energy balance leaks more than " + fmt_g(100 * cfg.integrator.energy_leak) +
+           " % of the input work";
+    w += ")";
+  }
+  const std::string step = cvt::adaptive_steps(cfg)
+                               ? "adaptive steps (tolerance " + fmt_g(cfg.integrator.tolerance) + ", first " +
+                                     fmt_g(cfg.integrator.step) + " s, at most " + fmt_g(cfg.run.sample_interval) + " s)"
+                               : "step = " + fmt_g(cfg.integrator.step) + " s";
+  if (cvt::adaptive_steps(cfg) && startup_sub > 1)
+    w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
+        std::to_string(cfg.integrator.w_k_every) + "; ros2 sub-steps of " + fmt_g(cfg.integrator.startup_step) +
+        " s before t = " + fmt_g(cfg.integrator.startup_time) + " s)";
+  std::printf("  t_end = %g s%s, %s %s%s, friction %s\n", cfg.run.t_end,
+              cfg.run.until_steady ? (" (or until steady: two windows of " + fmt_g(steady_window(model)) + " s)").c_str()
+                                   : "",
+              to_string(cfg.integrator.method), step.c_str(), w.c_str(), to_string(cfg.friction.law));
+  std::fflush(stdout);
+}
+
 int cmd_run(const std::string& config_path, std::vector<std::string> overrides, const std::string& t_end,
             const std::string& step, const ScheduleArgs& sa, const RunArgs& ra) {
   using namespace cvt;
@@ -249,11 +385,13 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
   if (ra.until_steady) overrides.push_back("run.until_steady=true");
   if (ra.verify) overrides.push_back("run.verify=true");
+  if (!ra.max_wall.empty()) overrides.push_back("run.max_wall=" + exact(parse_duration("--max-wall", ra.max_wall)));
   // A resumed run takes its configuration from the checkpoint (overrides still apply:
   // --t-end to go further; changing the physics would break the continuation).
   std::optional<Checkpoint> ckpt;
   if (!ra.resume.empty()) {
     if (!config_path.empty()) throw ConfigError("CONFIG", config_path, "give either CONFIG or --resume, not both");
+    if (ra.cont) throw ConfigError("--continue", "", "give either --continue (with CONFIG) or --resume, not both");
     ckpt = read_checkpoint(ra.resume);
   } else if (config_path.empty()) {
     throw ConfigError("CONFIG", "", "missing: give a TOML configuration or --resume CHECKPOINT");
@@ -264,53 +402,21 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!ra.method.empty()) shortcuts["integrator.method"] = "--method";
   if (ra.until_steady) shortcuts["run.until_steady"] = "--until-steady";
   if (ra.verify) shortcuts["run.verify"] = "--verify";
+  if (!ra.max_wall.empty()) shortcuts["run.max_wall"] = "--max-wall";
   const Config cfg = ckpt ? parse_config(ckpt->config_toml, overrides, ra.resume, shortcuts)
                           : load_config(config_path, overrides, shortcuts);
+  // --continue: the run's own checkpoint, if there is one, made by this configuration.
+  const bool continued = ra.cont && (ckpt = continuation(cfg, ra.out.empty() ? "results.h5" : ra.out));
+  if (continued && already_complete(*ckpt, cfg, ra.out.empty() ? "results.h5" : ra.out)) return kExitOk;
   warn_outside_envelope(cfg);
   const Model model = build_model(cfg);
-  const bool append = ckpt && ra.out.empty();
-  const std::string out = run_output(config_path, ckpt ? &*ckpt : nullptr, ra);
+  const bool append = ckpt && (ra.out.empty() || continued);
+  const std::string out = continued ? ra.out.empty() ? "results.h5" : ra.out
+                                    : run_output(config_path, ckpt ? &*ckpt : nullptr, ra);
   cvt::check_step_grid(cfg);  // refused (exit 78) before the header, not after it
   const bool talk = !ra.quiet;
-  if (talk) {
-    std::printf("cvt-engine %s: %s\n", CVT_VERSION, ckpt ? ("resume " + ra.resume).c_str() : config_path.c_str());
-    std::printf("  %d links, %d coordinates, %d first-order unknowns\n", model.links, model.ndof, model.nstate);
-    std::printf("  geometry: R1 = %.4f mm, R2 = %.4f mm, closure residual = %.3g m\n",
-                1e3 * model.pulley[0].running_radius, 1e3 * model.pulley[1].running_radius, model.closure_residual);
-    const int startup_sub = cvt::startup_substeps(cfg.integrator, cfg.integrator.step);
-    std::string w;
-    if (cfg.integrator.method != IntegratorMethod::rk4) {
-      w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
-          std::to_string(cfg.integrator.w_k_every);
-      const int k_every = cvt::stiffness_every(model, cfg.integrator.step, cfg.integrator.w_every, cfg.integrator.w_k_every);
-      if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && k_every < cfg.integrator.w_k_every)
-        w += " (" + std::to_string(k_every) + " at this chain speed: a quarter of a pitch)";
-      if (startup_sub > 1)
-        w += "; " + std::to_string(startup_sub) + " ros2 sub-steps per step before t = " +
-             fmt_g(cfg.integrator.startup_time) + " s";
-      const int settle_sub = cvt::settle_substeps(cfg.integrator, cfg.integrator.step);
-      if (settle_sub > 1)
-        w += ", " + std::to_string(settle_sub) + " sub-steps per step before t = " + fmt_g(cfg.integrator.settle_time) +
-             " s";
-      if (!cvt::adaptive_steps(cfg) && !cfg.integrator.fixed_steps && cfg.integrator.energy_leak > 0)
-        w += "; halved where the energy balance leaks more than " + fmt_g(100 * cfg.integrator.energy_leak) +
-             " % of the input work";
-      w += ")";
-    }
-    const std::string step = cvt::adaptive_steps(cfg)
-                                 ? "adaptive steps (tolerance " + fmt_g(cfg.integrator.tolerance) + ", first " +
-                                       fmt_g(cfg.integrator.step) + " s, at most " + fmt_g(cfg.run.sample_interval) + " s)"
-                                 : "step = " + fmt_g(cfg.integrator.step) + " s";
-    if (cvt::adaptive_steps(cfg) && startup_sub > 1)
-      w = " (matrix every " + std::to_string(cfg.integrator.w_every) + " steps, its stiffness every " +
-          std::to_string(cfg.integrator.w_k_every) + "; ros2 sub-steps of " + fmt_g(cfg.integrator.startup_step) +
-          " s before t = " + fmt_g(cfg.integrator.startup_time) + " s)";
-    std::printf("  t_end = %g s%s, %s %s%s, friction %s\n", cfg.run.t_end,
-                cfg.run.until_steady ? (" (or until steady: two windows of " + fmt_g(steady_window(model)) + " s)").c_str()
-                                     : "",
-                to_string(cfg.integrator.method), step.c_str(), w.c_str(), to_string(cfg.friction.law));
-    std::fflush(stdout);
-  }
+  if (talk)
+    print_run_header(cfg, model, ckpt ? (continued ? "continue " + out + ".ckpt" : "resume " + ra.resume) : config_path);
   RunOptions opt;
   opt.schedule = sa.options();
   opt.checkpoint_every = ra.checkpoint_every;
@@ -321,14 +427,20 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   opt.progress = talk;
   opt.profile_json = ra.profile_json;
   opt.summary_json = ra.summary_json;
+  opt.started = g_command_start;
   if (ra.quiet) std::freopen("/dev/null", "w", stdout);  // the driver's own lines too
   const RunResult r = run_simulation(model, opt);
   // An interrupt is said on stderr, --quiet or not: the run did not reach t_end.
-  if (r.interrupted)
+  const std::string ckpt_out = opt.checkpoint_path.empty() ? out + ".ckpt" : opt.checkpoint_path;
+  if (r.stopped == "max_wall")
+    std::fprintf(stderr, "cvt-engine: run stopped at t = %.9g s after %ld steps, before its wall-time limit "
+                 "(run.max_wall = %s s): results up to there in %s; the same command with --continue, or "
+                 "cvt-engine run --resume %s, continues it\n",
+                 r.model_time, r.steps, fmt_g(cfg.run.max_wall).c_str(), out.c_str(), ckpt_out.c_str());
+  else if (r.interrupted)
     std::fprintf(stderr, "cvt-engine: run interrupted by signal %d at t = %.9g s after %ld steps: results up to "
                  "there in %s; continue with: cvt-engine run --resume %s\n",
-                 r.signal, r.model_time, r.steps, out.c_str(),
-                 (opt.checkpoint_path.empty() ? out + ".ckpt" : opt.checkpoint_path).c_str());
+                 r.signal, r.model_time, r.steps, out.c_str(), ckpt_out.c_str());
   if (talk) {
     if (r.interrupted)
       std::printf("\nrun stopped at t = %.9g s in %s\n", r.model_time, out.c_str());
@@ -341,7 +453,7 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
                 r.profile.scheduler.c_str(), r.profile.threads, r.profile.threads == 1 ? "" : "s");
     if (ra.profile) std::printf("\n%s", format_profile(r.profile).c_str());
   }
-  return r.interrupted ? kExitInterrupted : kExitOk;
+  return r.stopped == "max_wall" ? kExitWallLimit : r.interrupted ? kExitInterrupted : kExitOk;
 }
 
 
@@ -458,6 +570,12 @@ Command add_run_command(CLI::App& app) {
   run->add_flag("--until-steady", run_args.until_steady,
                 "stop once the operating point is steady or grossly slips, t_end the upper bound (run.until_steady; "
                 "docs/output.md)");
+  run->add_option("--max-wall", run_args.max_wall,
+                  "stop cleanly, with a checkpoint, before this much wall time: seconds, 90m, 23.5h or 23:50:00 "
+                  "(run.max_wall; docs/cli.md, \"On a cluster\")");
+  run->add_flag("--continue", run_args.cont,
+                "continue from OUT.ckpt when it exists (made by the same configuration, run.t_end and run.max_wall "
+                "aside), else start from rest: the same command line resubmitted continues a run");
   run->add_flag("--verify", run_args.verify,
                 "after the run, integrate the summary's window again with the step halved and print each mean's "
                 "numerical error beside it (run.verify; docs/output.md, \"Numerical error\")");
@@ -688,11 +806,80 @@ Command add_study_command(CLI::App& app) {
 
 // cvt-engine sweep: operating points until steady, one CSV and HDF5 row each
 // (engine/studies/sweep.cpp); under mpirun or srun the points go out to the ranks.
-int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points) {
+// How a sweep runs: all its points, one (a job array's task), or the rows of the tasks.
+struct SweepMode {
+  long point = -1;       // --point I (or --array: $SLURM_ARRAY_TASK_ID); -1: every point
+  bool array = false;
+  bool gather = false;   // --gather
+  std::string max_wall;  // --max-wall: run.max_wall of every point, counted from the command's start
+};
+
+// --point I / --array: the task's point, from the command line or the job array's index.
+long sweep_task_point(const SweepMode& m) {
+  if (!m.array) return m.point;
+  if (m.point >= 0) throw cvt::ConfigError("--array", "", "give either --point I or --array, not both");
+  const char* id = std::getenv("SLURM_ARRAY_TASK_ID");
+  if (!id || !*id)
+    throw cvt::ConfigError("--array", "", "SLURM_ARRAY_TASK_ID is not set: --array runs inside a Slurm job array "
+                                          "(sbatch --array=0-N); elsewhere give --point I");
+  char* end = nullptr;
+  const long i = std::strtol(id, &end, 10);
+  if (*end || i < 0) throw cvt::ConfigError("--array", id, "SLURM_ARRAY_TASK_ID must be a point number >= 0");
+  return i;
+}
+
+// cvt-engine sweep --point I / --array: one point, its row into OUT.points/.
+int cmd_sweep_task(const cvt::SweepOptions& o, const cvt::SweepPlan& plan, long i) {
+  using namespace cvt;
+  std::printf("cvt-engine %s sweep: point %ld of points 0..%zu (%s) into %s\n", CVT_VERSION, i, plan.points.size() - 1,
+              plan.label(i).c_str(), task_file(o, i).c_str());
+  std::fflush(stdout);
+  const SweepRow r = run_sweep_task(o, plan, i);
+  std::printf("  %s\n", sweep_point_line(plan, r, static_cast<long>(plan.points.size())).c_str());
+  return kExitOk;
+}
+
+// cvt-engine sweep --gather: the tasks' rows into OUT.csv and OUT.h5.
+int cmd_sweep_gather(const cvt::SweepOptions& o, const cvt::SweepPlan& plan) {
+  using namespace cvt;
+  long unsteady = 0;
+  const std::vector<long> missing = gather_sweep(o, plan, &unsteady);
+  if (!missing.empty()) {
+    std::string list;
+    for (std::size_t k = 0; k < missing.size() && k < 20; ++k) list += (k ? "," : "") + std::to_string(missing[k]);
+    if (missing.size() > 20) list += ",...";
+    std::fprintf(stderr, "cvt-engine: %zu of %zu points have no row in %s.points/ yet (%s): run them with --point I "
+                 "(or the sweep without --point runs them here), then --gather again; the %zu rows found are in %s.csv\n",
+                 missing.size(), plan.points.size(), o.out.c_str(), list.c_str(), plan.points.size() - missing.size(),
+                 o.out.c_str());
+    return kExitWallLimit;
+  }
+  std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
+              plan.points.size(), unsteady);
+  return kExitOk;
+}
+
+int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const std::string& points,
+              const SweepMode& mode) {
   using namespace cvt;
   const StopSignals stop_signals;  // from the first instruction, as for a run
+  o.started = g_command_start;
+  if (!mode.max_wall.empty())
+    o.overrides.push_back("run.max_wall=" + exact(parse_duration("--max-wall", mode.max_wall)));
   const SweepPlan plan = sweep_plan(o, axes, points);
+  const long task = sweep_task_point(mode);
+  if (mode.gather && task >= 0) throw ConfigError("--gather", "", "give either --gather or --point/--array, not both");
+  if (mode.gather) return cmd_sweep_gather(o, plan);
   const MpiWorld world;
+  if (task >= 0 && world.size() > 1)
+    throw ConfigError("--point", std::to_string(task), "a job array's task runs one point in one process, not on "
+                                                       "several MPI ranks");
+  if (task >= 0) try {
+      return cmd_sweep_task(o, plan, task);
+    } catch (const SweepInterrupted& e) {
+      std::fprintf(stderr, "cvt-engine: sweep point %ld interrupted (%s): the same command continues it\n", task, e.what());
+      return e.wall_limit ? kExitWallLimit : kExitInterrupted;
+    }
   if (world.rank() == 0) {
     const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
     for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
@@ -717,7 +904,7 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   } catch (const SweepInterrupted& e) {
     std::fprintf(stderr, "cvt-engine: sweep interrupted (%s): the finished points are in %s.csv; the same command "
                  "continues\n", e.what(), o.out.c_str());
-    return kExitInterrupted;
+    return e.wall_limit ? kExitWallLimit : kExitInterrupted;
   }
   if (world.rank() == 0) {
     std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
@@ -732,6 +919,7 @@ Command add_sweep_command(CLI::App& app) {
     std::vector<std::string> axes;
     std::string points;
     ScheduleArgs sched;
+    SweepMode mode;
   };
   auto a = std::make_shared<Args>();
   auto* sw = app.add_subcommand("sweep", "operating points, each run until steady, into OUT.csv and OUT.h5 (one row "
@@ -752,10 +940,17 @@ Command add_sweep_command(CLI::App& app) {
                                                 "over this time [s]")
       ->check(kNonNegative)->capture_default_str();
   sw->add_option("--set", a->o.overrides, "override a key for every point: section.key=value (repeatable)");
+  sw->add_option("--point", a->mode.point, "run point I alone (0-based, the CSV's point column), its row into "
+                                           "OUT.points/: a job array's task (docs/cli.md, \"On a cluster\")")
+      ->check(CLI::NonNegativeNumber);
+  sw->add_flag("--array", a->mode.array, "--point $SLURM_ARRAY_TASK_ID (sbatch --array=0-N)");
+  sw->add_flag("--gather", a->mode.gather, "after the tasks: their rows from OUT.points/ into OUT.csv and OUT.h5");
+  sw->add_option("--max-wall", a->mode.max_wall, "stop cleanly before this much wall time (run.max_wall); the same "
+                                                 "command continues, the point in progress from its checkpoint");
   add_schedule_options(sw, a->sched);
   return {sw, [a] {
     a->o.schedule = a->sched.options();
-    return cmd_sweep(a->o, a->axes, a->points);
+    return cmd_sweep(a->o, a->axes, a->points, a->mode);
   }};
 }
 

@@ -72,6 +72,7 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
                                                 static_cast<double>(c.leak_from), c.leak_residual, c.leak_work});
     if (!c.run_id.empty()) f.write_string("/checkpoint/run_id", c.run_id);
     if (!c.output.empty()) f.write_string("/checkpoint/output", c.output);
+    if (!c.stopped.empty()) f.write_string("/checkpoint/stopped", c.stopped);
     bytes = f.image();
     f.close();
   }
@@ -101,7 +102,8 @@ Checkpoint read_checkpoint(const std::string& path) {
     c.halvings = static_cast<int>(sc[0]), c.halved_at = sc[1], c.leak = sc[2];
     c.leak_from = static_cast<long>(sc[3]), c.leak_residual = sc[4], c.leak_work = sc[5];
   }
-  for (auto [name, to] : {std::pair{"/checkpoint/run_id", &c.run_id}, std::pair{"/checkpoint/output", &c.output}})
+  for (auto [name, to] : {std::pair{"/checkpoint/run_id", &c.run_id}, std::pair{"/checkpoint/output", &c.output},
+                          std::pair{"/checkpoint/stopped", &c.stopped}})
     if (H5Lexists(f, name, H5P_DEFAULT) > 0) *to = read_string(f, path, name);
   return c;
 }

@@ -31,6 +31,9 @@ struct Checkpoint {
   // The run this checkpoint continues: its id (also in its output file's /parameters) and
   // the output file it writes. Empty in checkpoints that predate them.
   std::string run_id, output;
+  // What ended the run that wrote it, as RunSummary::stopped (t_end, steady, slip, signal,
+  // callback, max_wall); empty in a periodic checkpoint, taken while the run went on.
+  std::string stopped;
 };
 
 void write_checkpoint(const std::string& path, const Checkpoint& c);

@@ -187,6 +187,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(run, steady_window, real, "s", nonneg),
       CVT_KEY(run, steady_tolerance, real, "1", (Range{0, true, 1, true})),
       CVT_KEY(run, verify, boolean, "", Range{}),
+      CVT_KEY(run, max_wall, real, "s", nonneg),
   };
   return defs;
 }
@@ -840,6 +841,12 @@ Config parse_config(const std::string& toml_text, const std::vector<std::string>
 
   cfg.resolved_toml = resolved_toml(cfg);
   return cfg;
+}
+
+std::string continuation_toml(const std::string& resolved_toml, bool any_t_end) {
+  std::vector<std::string> fixed = {"run.max_wall=0"};
+  if (any_t_end) fixed.push_back("run.t_end=1");
+  return parse_config(resolved_toml, fixed, "the resolved configuration").resolved_toml;
 }
 
 Config load_config(const std::string& path, const std::vector<std::string>& overrides,

@@ -229,6 +229,10 @@ struct Config {
     // halved and report each mean's change as its numerical error (docs/output.md,
     // "Numerical error").
     bool verify = false;
+    // Stop the run cleanly, with its checkpoint, before this much wall time has passed since
+    // the command started (a cluster job's limit; 0: no limit). Not part of the model: a
+    // continuation may change it (docs/cli.md, "On a cluster").
+    double max_wall = 0.0;  // [s]
   } run;
 
   // The fully resolved configuration as TOML text (what /parameters/config stores).
@@ -258,6 +262,12 @@ std::optional<std::string> closest_name(std::string_view word, const std::vector
 
 Config load_config(const std::string& path, const std::vector<std::string>& overrides = {},
                    const std::map<std::string, std::string>& shortcuts = {});
+
+// A resolved configuration (Config::resolved_toml) with the keys that do not change a run's
+// trajectory set to fixed values: run.max_wall, and with `any_t_end` run.t_end too. Two
+// configurations with the same text here continue each other's runs (cvt-engine run
+// --continue, a sweep's interrupted point, a sweep's config column).
+std::string continuation_toml(const std::string& resolved_toml, bool any_t_end);
 
 const char* to_string(FrictionLaw law);
 const char* to_string(IntegratorMethod method);

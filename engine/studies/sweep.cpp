@@ -19,6 +19,7 @@
 #include "engine/base/timing.hpp"
 #include "engine/guards.hpp"
 #include "engine/io/checkpoint.hpp"
+#include "engine/io/files.hpp"
 #include "engine/io/h5_writer.hpp"
 #include "engine/model/config.hpp"
 #include "engine/model/model.hpp"
@@ -287,8 +288,9 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
     const auto own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
     try {
-      plan.fingerprints.push_back(
-          fingerprint(ck ? parse_config(ck->config_toml, ov, o.from).resolved_toml : load_config(o.config_path, ov).resolved_toml));
+      plan.fingerprints.push_back(fingerprint(continuation_toml(
+          ck ? parse_config(ck->config_toml, ov, o.from).resolved_toml : load_config(o.config_path, ov).resolved_toml,
+          false)));
     } catch (const ConfigError& e) {  // named with the point's line
       throw ConfigError(e.key(), e.value(), e.reason() + " (point " + std::to_string(i + 1) + ", " +
                                                 plan.origins[static_cast<std::size_t>(i)] + ")");
@@ -348,6 +350,24 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   return r;
 }
 
+namespace {
+
+// The checkpoint of a point's run that a signal or run.max_wall stopped, if it ran this
+// configuration; nullopt otherwise (the point runs from its start).
+std::optional<Checkpoint> stopped_point(const std::string& path, const Config& cfg) {
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  try {
+    Checkpoint c = read_checkpoint(path);
+    if ((c.stopped == "signal" || c.stopped == "max_wall" || c.stopped == "callback") &&
+        continuation_toml(c.config_toml, false) == continuation_toml(cfg.resolved_toml, false))
+      return c;
+  } catch (const std::exception&) {
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
 // The point's configuration (the base, --set, the point's keys, run.until_steady), run into
 // its own file; the row from its summary.
 SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
@@ -365,15 +385,23 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     std::optional<Checkpoint> ck;
     if (!o.from.empty()) ck = read_checkpoint(o.from), ov = warm_overrides(*ck, o, ov);
     const Model m = build_model(ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov));
+    // A point that a signal or run.max_wall stopped continues from its own checkpoint.
+    std::optional<Checkpoint> mine = stopped_point(path + ".ckpt", m.cfg);
     RunOptions ro;
-    ro.resume = ck ? &*ck : nullptr;
+    ro.resume = mine ? &*mine : ck ? &*ck : nullptr;
+    ro.append = mine.has_value();
     ro.out_path = path;
     ro.progress = false;
     ro.schedule = o.schedule;
     ro.checkpoint_every = 0;
+    ro.started = o.started;
     ro.warn = [](const std::string&) {};
     const RunResult s = run_simulation(m, ro);
-    if (s.interrupted) throw SweepInterrupted("point " + std::to_string(i + 1) + " stopped by signal " + std::to_string(s.signal));
+    if (s.interrupted)
+      throw SweepInterrupted("point " + std::to_string(i + 1) + (s.stopped == "max_wall"
+                                                                      ? " stopped before the wall-time limit (run.max_wall)"
+                                                                      : " stopped by signal " + std::to_string(s.signal)),
+                             s.stopped == "max_wall");
     r.status = s.status;
     for (const auto& x : s.reasons) r.reason += (r.reason.empty() ? "" : "; ") + x;
     r.speed_ratio = s.speed_ratio, r.geometric_ratio = s.geometric_ratio, r.slip = s.slip;
@@ -574,6 +602,63 @@ long close_sweep(const SweepOptions& o, const SweepLedger& ledger) {
   long unsteady = 0;
   for (const auto& r : ledger.rows()) unsteady += r.status != "steady";
   return unsteady;
+}
+
+std::string task_file(const SweepOptions& o, long i) {
+  char b[32];
+  std::snprintf(b, sizeof b, "point-%04ld.csv", i);
+  return o.out + ".points/" + b;
+}
+
+SweepRow run_sweep_task(const SweepOptions& o, const SweepPlan& plan, long i) {
+  const long total = static_cast<long>(plan.points.size());
+  if (i < 0 || i >= total)
+    throw ConfigError("--point", std::to_string(i), "the sweep's points are 0 .. " + std::to_string(total - 1));
+  const std::string file = task_file(o, i);
+  for (const std::string& d : {o.out + ".runs", o.out + ".points"}) {
+    std::error_code ec;
+    std::filesystem::create_directories(d, ec);  // a failure is named by check_writable
+  }
+  check_writable(file, "point's row", std::string(".tmp").size());
+  const SweepRow r = run_sweep_point(o, plan, i);
+  const std::string text = sweep_csv_header(plan) + sweep_csv_row(r);
+  replace_file(file, text.data(), text.size());
+  return r;
+}
+
+std::vector<long> gather_sweep(const SweepOptions& o, const SweepPlan& plan, long* unsteady) {
+  SweepLedger ledger(o, plan);
+  std::vector<long> missing;
+  const long total = static_cast<long>(plan.points.size());
+  for (long i = 0; i < total; ++i) {
+    if (ledger.done(i)) continue;
+    std::ifstream in(task_file(o, i));
+    std::string header, line;
+    if (!in || !std::getline(in, header) || !std::getline(in, line)) {
+      missing.push_back(i);
+      continue;
+    }
+    const auto refuse = [&](const std::string& why) {
+      return ConfigError(task_file(o, i), "", why + ": it belongs to another sweep; give another --out, or remove it");
+    };
+    if (header + "\n" != sweep_csv_header(plan)) throw refuse("its header is not this sweep's");
+    SweepRow r;
+    try {
+      r = parse_sweep_csv_row(line, plan);
+    } catch (const std::exception& e) {
+      throw refuse(std::string("its row does not read (") + e.what() + ")");
+    }
+    if (r.point != i || r.values != plan.points[static_cast<std::size_t>(i)]) throw refuse("its point is not point " + std::to_string(i));
+    if (static_cast<std::size_t>(i) < plan.fingerprints.size() && r.config != plan.fingerprints[static_cast<std::size_t>(i)])
+      throw refuse("its point ran another configuration");
+    ledger.add(r);
+  }
+  if (!missing.empty()) return missing;
+  *unsteady = close_sweep(o, ledger);
+  std::error_code ec;
+  for (long i = 0; i < total; ++i) std::filesystem::remove(task_file(o, i), ec);
+  std::filesystem::remove(o.out + ".points", ec);  // only if empty
+  return missing;
 }
 
 }  // namespace cvt

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/base/timing.hpp"
 #include "engine/guards.hpp"
 #include "graph/schedule.hpp"
 
@@ -82,6 +83,8 @@ struct SweepOptions {
   std::string from;
   double warm_ramp = 1e-2;  // [s]
   ScheduleOptions schedule;
+  // What run.max_wall counts from: the command's start.
+  WallClock::time_point started = WallClock::now();
   // Lines of progress (default: stdout).
   std::function<void(const std::string&)> log;
 };
@@ -91,10 +94,11 @@ struct SweepOptions {
 // Throws ConfigError; also when o has both or neither of config_path and from.
 SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes, const std::string& points);
 
-// A point stopped by SIGINT or SIGTERM: the sweep stops without a row for it (a restart
-// runs it again).
+// A point stopped by a signal or by run.max_wall: the sweep stops without a row for it (a
+// restart continues it from its checkpoint).
 struct SweepInterrupted : std::runtime_error {
-  using std::runtime_error::runtime_error;
+  SweepInterrupted(const std::string& what, bool wall = false) : std::runtime_error(what), wall_limit(wall) {}
+  bool wall_limit;  // run.max_wall, not a signal
 };
 
 // Runs point i until steady, its run file in OUT.runs/; never throws for the point's own
@@ -129,6 +133,19 @@ class SweepLedger {
   // OUT.csv.lock, held while the sweep runs (and let go of if the constructor throws).
   std::optional<FileLock> lock_;
 };
+
+// A job array's task (cvt-engine sweep --point I): point i (0-based, as the CSV's point
+// column) alone, its row written whole to OUT.points/point-NNNN.csv (task_file), so that
+// tasks running at once share no file. Throws ConfigError for an i outside the plan, and
+// SweepInterrupted as run_sweep_point.
+std::string task_file(const SweepOptions& o, long i);
+SweepRow run_sweep_task(const SweepOptions& o, const SweepPlan& plan, long i);
+
+// The step after a job array (cvt-engine sweep --gather): the tasks' rows into OUT.csv (a
+// row of another sweep or configuration refused); returns the points that have no row yet.
+// When none is missing, OUT.csv in point order and OUT.h5 are written, OUT.points/ removed,
+// and *unsteady set to the points that did not end steady.
+std::vector<long> gather_sweep(const SweepOptions& o, const SweepPlan& plan, long* unsteady);
 
 // The whole sweep in this process: the points the ledger lacks, in order. Returns the
 // number of points that did not end steady.
