@@ -9,6 +9,7 @@
 #include <variant>
 
 #include "engine/io/json.hpp"
+#include "engine/provenance.hpp"
 
 namespace cvt {
 
@@ -16,10 +17,16 @@ void write_parameters(H5File& f, const Model& m, const std::string& run_id) {
   f.set_string_attribute("/parameters", "version", CVT_VERSION);
   f.set_string_attribute("/parameters", "config", m.cfg.resolved_toml);
   f.set_string_attribute("/parameters", "run_id", run_id);
-  f.set_string_attribute("/parameters", "geometry",
-                         "R1 = " + std::to_string(m.pulley[0].running_radius) + " m, R2 = " +
-                             std::to_string(m.pulley[1].running_radius) +
-                             " m, closure residual = " + std::to_string(m.closure_residual) + " m");
+  // The initial geometry as numbers, each a scalar dataset with its unit.
+  const std::pair<const char*, double> geometry[] = {{"running_radius_driving", m.pulley[0].running_radius},
+                                                     {"running_radius_driven", m.pulley[1].running_radius},
+                                                     {"closure_residual", m.closure_residual}};
+  for (const auto& [name, value] : geometry) {
+    const std::string path = std::string("/parameters/geometry/") + name;
+    if (!f.exists(path)) f.write_vector(path, {value});
+    f.set_string_attribute(path, "unit", "m");
+  }
+  write_provenance(f);
   // The layout the 3D viewer draws (docs/output.md): shaft axes, sheave faces, links.
   Json layout = {{"links", m.links},
                  {"tracked_pin", m.cfg.run.tracked_pin},
@@ -78,6 +85,7 @@ std::string new_run_id() {
 // Strings that h5py reads as str, flags and counts as integers, the rest as doubles.
 void write_summary(H5File& f, const RunSummary& s) {
   f.remove("/summary");
+  f.set_string_attribute("/summary", "units", summary_units_json());
   const auto& fields = summary_fields();
   for (std::size_t i = 0; i < fields.size(); ++i) {
     const SummaryField& e = fields[i];
@@ -126,6 +134,9 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
     if (n > 0 && !on_grid(t[n - 1], every) && n > 1) --n;  // an off-grid last sample (an interrupt, t_end)
     return n;
   };
+  if (!f.exists("/observables/input_speed/step"))
+    refuse("it has no step datasets (an older cvt-engine wrote it): give --out NEW to write the continuation to a "
+           "new file");
   FileHistory hist;
   const std::vector<double> t = f.read_doubles("/observables/input_speed/time");
   hist.samples = kept(t, every_sample);

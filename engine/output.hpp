@@ -25,19 +25,21 @@ class Recorder {
     if (declare_only_) return;
     x.value->append(value);
     x.time->append(t);
+    x.step->append(step_);
   }
   void vector(const std::string& name, const std::string& unit, double t, const double* v, hsize_t k) {
     const Slot& x = slot(name, unit, {k});
     if (declare_only_) return;
     x.value->append(v);
     x.time->append(t);
+    x.step->append(step_);
   }
   // Creates (or opens, in a continued file) every series and its unit without appending:
   // in SWMR mode no object may be created later.
   void declare(const Sample& s, bool snapshots) {
     declare_only_ = true;
     record(s);
-    if (snapshots) snapshot(s.t, {}, {}, {}, {});
+    if (snapshots) snapshot(s.t, s.step, {}, {}, {}, {});
     declare_only_ = false;
   }
   // Keeps the first `samples` rows of every observable and `snaps` of every snapshot series.
@@ -47,6 +49,7 @@ class Recorder {
   }
   void record(const Sample& s) {
     cursor_ = 0;
+    step_ = static_cast<double>(s.step);
     scalar("input_speed", "rad/s", s.t, s.input_speed);
     scalar("output_speed", "rad/s", s.t, s.output_speed);
     scalar("load_speed", "rad/s", s.t, s.load_speed);
@@ -84,34 +87,27 @@ class Recorder {
     scalar("work_contact_switching", "J", s.t, s.work_contact_switching);
     scalar("energy_residual", "J", s.t, s.energy_residual);
   }
-  void snapshot(double t, const std::vector<double>& pos, const std::vector<double>& tension,
+  // The snapshot elements of /particles/chain (H5MD time-dependent elements: value, time,
+  // step) and the particles group's box (3 dimensions, no periodic boundary).
+  void snapshot(double t, long step, const std::vector<double>& pos, const std::vector<double>& tension,
                 const std::vector<double>& pin_ends, const std::vector<double>& contact_normal) {
     const hsize_t N = hsize_t(N_);
-    auto& p = f_.series("/particles/chain/position/value", {N, 3}, 16);
-    auto& pt = f_.series("/particles/chain/position/time", {}, 256);
-    auto& l = f_.series("/particles/chain/link_tension/value", {N}, 16);
-    auto& lt = f_.series("/particles/chain/link_tension/time", {}, 256);
-    auto& e = f_.series("/particles/chain/pin_end_position/value", {N, 2, 2, 3}, 16);
-    auto& et = f_.series("/particles/chain/pin_end_position/time", {}, 256);
-    auto& c = f_.series("/particles/chain/pin_end_normal_force/value", {N, 2, 2}, 16);
-    auto& ct = f_.series("/particles/chain/pin_end_normal_force/time", {}, 256);
     if (!snap_init_) {
-      f_.set_string_attribute("/particles/chain/position/value", "unit", "m");
-      f_.set_string_attribute("/particles/chain/link_tension/value", "unit", "N");
-      f_.set_string_attribute("/particles/chain/pin_end_position/value", "unit", "m");
-      f_.set_string_attribute("/particles/chain/pin_end_normal_force/value", "unit", "N");
-      snapshots_ = {&p, &pt, &l, &lt, &e, &et, &c, &ct};
+      particle("position", "m", {N, 3});
+      particle("link_tension", "N", {N});
+      particle("pin_end_position", "m", {N, 2, 2, 3});
+      particle("pin_end_normal_force", "N", {N, 2, 2});
+      f_.set_int_attribute("/particles/chain/box", "dimension", 3);
+      f_.set_strings_attribute("/particles/chain/box", "boundary", {"none", "none", "none"});
       snap_init_ = true;
     }
     if (declare_only_) return;
-    p.append(pos.data());
-    pt.append(t);
-    l.append(tension.data());
-    lt.append(t);
-    e.append(pin_ends.data());
-    et.append(t);
-    c.append(contact_normal.data());
-    ct.append(t);
+    const std::vector<double>* rows[] = {&pos, &tension, &pin_ends, &contact_normal};
+    for (std::size_t k = 0; k < 4; ++k) {
+      particles_[k].value->append(rows[k]->data());
+      particles_[k].time->append(t);
+      particles_[k].step->append(static_cast<double>(step));
+    }
   }
 
  private:
@@ -120,10 +116,25 @@ class Recorder {
   struct Slot {
     H5Series* value;
     H5Series* time;
+    H5Series* step;
   };
   const Slot& slot(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
-    if (cursor_ == slots_.size()) slots_.push_back({&series(name, unit, std::move(shape)), &time(name)});
+    if (cursor_ == slots_.size()) {
+      const std::string at = "/observables/" + name;
+      slots_.push_back({&series(name, unit, std::move(shape)), &time(name), &f_.series(at + "/step", {}, 256, true)});
+      observables_.push_back(slots_.back().step);
+    }
     return slots_[cursor_++];
+  }
+  // A snapshot element: its value [S][N]..., time [S] in s and step [S].
+  void particle(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
+    const std::string at = "/particles/chain/" + name;
+    Slot x{&f_.series(at + "/value", std::move(shape), 16), &f_.series(at + "/time", {}, 256),
+           &f_.series(at + "/step", {}, 256, true)};
+    f_.set_string_attribute(at + "/value", "unit", unit);
+    f_.set_string_attribute(at + "/time", "unit", "s");
+    particles_.push_back(x);
+    snapshots_.insert(snapshots_.end(), {x.value, x.time, x.step});
   }
   H5Series& series(const std::string& name, const std::string& unit, std::vector<hsize_t> shape) {
     const std::string path = "/observables/" + name + "/value";
@@ -147,8 +158,9 @@ class Recorder {
   }
   H5File& f_;
   int N_;
-  std::vector<Slot> slots_;
+  std::vector<Slot> slots_, particles_;
   std::size_t cursor_ = 0;
+  double step_ = 0;  // the sample's step count
   bool snap_init_ = false, declare_only_ = false;
   std::set<std::string> units_done_;
   std::vector<H5Series*> observables_, snapshots_;

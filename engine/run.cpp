@@ -154,6 +154,7 @@ class Run {
   std::vector<double> pos_, ten_, ends_, normal_;  // a snapshot
   Sample written_;  // the sample the writes hold
   double snapshot_t_ = 0;
+  long snapshot_step_ = 0;
   bool write_sample_ = false, write_snapshot_ = false;
   RunResult r_;
   EnergyGuard energy_;
@@ -448,6 +449,7 @@ void Run::snapshot() {
     writes_.wait();
     sim_.snapshot(pos_, ten_, &ends_, &normal_);
     snapshot_t_ = sim_.time();
+    snapshot_step_ = sim_.steps();
     write_snapshot_ = true;
   });
 }
@@ -460,7 +462,7 @@ void Run::start_writes() {
     writes_.start([this, sample, snap] {
       h5_silence_error_printing();  // per thread: the job may run on a worker
       if (sample) rec_->record(written_);
-      if (snap) rec_->snapshot(snapshot_t_, pos_, ten_, ends_, normal_);
+      if (snap) rec_->snapshot(snapshot_t_, snapshot_step_, pos_, ten_, ends_, normal_);
     });
   });
 }

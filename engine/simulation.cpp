@@ -547,6 +547,7 @@ void Simulation::check_finite() {
 Sample Simulation::sample(double next_step) {
   Sample s;
   s.t = clock_.t;
+  s.step = clock_.steps;
   Energies e;
   const auto energy = [&] { e = energies(m_, clock_.t, y_.data(), &ws_.status); };
   // The evaluation the channels read. Before a fixed W-step: that step's first evaluation,

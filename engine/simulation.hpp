@@ -36,6 +36,7 @@ class NumericalFailure : public std::runtime_error {
 // One sample of the channels (docs/model.md 6).
 struct Sample {
   double t = 0;
+  long step = 0;  // the clock's step count at t (H5MD's `step`)
   double input_speed = 0, output_speed = 0, load_speed = 0;
   double input_torque = 0, output_torque = 0, load_torque = 0;
   double speed_ratio = 0, geometric_ratio = 0, efficiency = 0;

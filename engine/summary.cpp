@@ -579,8 +579,25 @@ std::string format_summary(const RunSummary& s) {
   return os.str();
 }
 
+namespace {
+
+Json summary_units() {
+  Json u = Json::object();
+  for (const SummaryField& f : summary_fields()) {
+    if (f.unit.empty()) continue;
+    u[std::string(f.name)] = std::string(f.unit);
+    if (f.verify.verified) u[std::string(f.name) + "_numerical_error"] = std::string(f.unit);
+  }
+  return u;
+}
+
+}  // namespace
+
+std::string summary_units_json() { return json_inline(summary_units()); }
+
 std::string summary_json(const RunSummary& s) {
   Json j = Json::object();
+  j["units"] = summary_units();
   const auto& fields = summary_fields();
   for (std::size_t i = 0; i < fields.size(); ++i) {
     const SummaryField& f = fields[i];

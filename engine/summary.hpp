@@ -123,6 +123,10 @@ struct SummaryField {
 // written from this table (docs/output.md lists it).
 const std::vector<SummaryField>& summary_fields();
 
+// The unit of every summary entry that has one (and of its numerical error), as a JSON
+// object {"input_torque": "N m", ...}: /summary's attribute `units` and the JSON's "units".
+std::string summary_units_json();
+
 // Fills the window, the means and the verdicts of s from the channels (the whole run).
 // The window is the last c.window_fraction of the run, or from window_start when that is
 // >= 0; never before the ramps have ended. span: the torsion span whose whole multiples the

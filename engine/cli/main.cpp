@@ -15,7 +15,7 @@
 #include <sstream>
 #include <unistd.h>
 
-#include "engine/cli/commit.h"  // generated into the build folder at every build (tools/commit_header.cmake)
+#include "engine/base/commit.h"  // generated into the build folder at every build (tools/commit_header.cmake)
 #include "engine/cli/exit_codes.hpp"
 #include "engine/base/timing.hpp"
 #include "engine/io/checkpoint.hpp"
@@ -831,6 +831,8 @@ long sweep_task_point(const SweepMode& m) {
 // cvt-engine sweep --point I / --array: one point, its row into OUT.points/.
 int cmd_sweep_task(const cvt::SweepOptions& o, const cvt::SweepPlan& plan, long i) {
   using namespace cvt;
+  if (i >= static_cast<long>(plan.points.size()))
+    throw ConfigError("--point", std::to_string(i), "the sweep's points are 0 .. " + std::to_string(plan.points.size() - 1));
   std::printf("cvt-engine %s sweep: point %ld of points 0..%zu (%s) into %s\n", CVT_VERSION, i, plan.points.size() - 1,
               plan.label(i).c_str(), task_file(o, i).c_str());
   std::fflush(stdout);

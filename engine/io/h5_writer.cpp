@@ -137,7 +137,7 @@ void H5Handle::close(const std::string& path) {
 // H5Series
 
 H5Series::H5Series(hid_t file, std::string path, std::vector<hsize_t> row_shape,
-                   hsize_t chunk_rows)
+                   hsize_t chunk_rows, bool integer)
     : path_(std::move(path)), row_shape_(std::move(row_shape)), chunk_rows_(chunk_rows) {
   if (chunk_rows_ == 0) throw H5Error("HDF5: chunk_rows must be > 0 for '" + path_ + "'");
   row_size_ = 1;
@@ -178,8 +178,8 @@ H5Series::H5Series(hid_t file, std::string path, std::vector<hsize_t> row_shape,
   check(H5Pset_shuffle(dcpl.get()), "H5Pset_shuffle", path_);
   check(H5Pset_deflate(dcpl.get(), 4), "H5Pset_deflate", path_);
   H5Handle lcpl = make_lcpl(path_);
-  dataset_ = H5Handle(H5Dcreate2(file, path_.c_str(), H5T_IEEE_F64LE, space.get(), lcpl.get(),
-                                 dcpl.get(), H5P_DEFAULT),
+  dataset_ = H5Handle(H5Dcreate2(file, path_.c_str(), integer ? H5T_STD_I64LE : H5T_IEEE_F64LE, space.get(),
+                                 lcpl.get(), dcpl.get(), H5P_DEFAULT),
                       "H5Dcreate2", path_);
   buffer_.reserve(static_cast<std::size_t>(chunk_rows_ * row_size_));
 }
@@ -381,7 +381,7 @@ bool H5File::link_exists(const std::string& object_path) const {
 }
 
 H5Series& H5File::series(const std::string& path, std::vector<hsize_t> row_shape,
-                         hsize_t chunk_rows) {
+                         hsize_t chunk_rows, bool integer) {
   const std::string key = normalize(path);
   require_open("series", key);
   auto it = series_.find(key);
@@ -392,7 +392,7 @@ H5Series& H5File::series(const std::string& path, std::vector<hsize_t> row_shape
     return *it->second;
   }
   std::unique_ptr<H5Series> created(
-      new H5Series(file_.get(), key, std::move(row_shape), chunk_rows));
+      new H5Series(file_.get(), key, std::move(row_shape), chunk_rows, integer));
   return *series_.emplace(key, std::move(created)).first->second;
 }
 
@@ -476,6 +476,21 @@ void H5File::set_int_attribute(const std::string& object_path, const std::string
   H5Handle attr(H5Acreate2(object.get(), name.c_str(), H5T_STD_I64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT),
                 "H5Acreate2", where);
   check(H5Awrite(attr.get(), H5T_NATIVE_LLONG, &value), "H5Awrite", where);
+  attr.close(where);
+  object.close(path);
+}
+
+void H5File::set_ints_attribute(const std::string& object_path, const std::string& name,
+                                const std::vector<long long>& v) {
+  const std::string path = normalize(object_path);
+  const std::string where = path + "@" + name;
+  require_open("set_ints_attribute", where);
+  H5Handle object = attribute_owner(path, name, where);
+  const hsize_t n = v.size();
+  H5Handle space(H5Screate_simple(1, &n, nullptr), "H5Screate_simple", where);
+  H5Handle attr(H5Acreate2(object.get(), name.c_str(), H5T_STD_I64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT),
+                "H5Acreate2", where);
+  check(H5Awrite(attr.get(), H5T_NATIVE_LLONG, v.data()), "H5Awrite", where);
   attr.close(where);
   object.close(path);
 }

@@ -96,7 +96,7 @@ class H5Series {
 
  private:
   friend class H5File;
-  H5Series(hid_t file, std::string path, std::vector<hsize_t> row_shape, hsize_t chunk_rows);
+  H5Series(hid_t file, std::string path, std::vector<hsize_t> row_shape, hsize_t chunk_rows, bool integer);
 
   hsize_t buffered_rows() const noexcept {
     return static_cast<hsize_t>(buffer_.size()) / row_size_;
@@ -145,8 +145,10 @@ class H5File {
   // same object and throws H5Error if row_shape differs. Every dimension of row_shape and
   // chunk_rows must be > 0. The reference stays valid for the lifetime of this H5File (after
   // close() the series is closed and append() throws).
+  // integer: the dataset holds 64-bit integers (H5MD's `step`); rows are still appended as
+  // doubles, which HDF5 converts (exactly, for integers below 2^53).
   H5Series& series(const std::string& path, std::vector<hsize_t> row_shape,
-                   hsize_t chunk_rows = 256);
+                   hsize_t chunk_rows = 256, bool integer = false);
 
   // A scalar variable-length UTF-8 string attribute on an existing group or dataset (object_path
   // "/" is the root group); a group that does not exist yet is created, with its parents.
@@ -159,6 +161,8 @@ class H5File {
                              const std::vector<std::string>& v);
   // A scalar 64-bit integer attribute (same rules as set_string_attribute).
   void set_int_attribute(const std::string& object_path, const std::string& name, long long value);
+  // A 1-D 64-bit integer attribute (H5MD's version [major, minor]).
+  void set_ints_attribute(const std::string& object_path, const std::string& name, const std::vector<long long>& v);
   // A scalar double attribute (same rules as set_string_attribute).
   void set_double_attribute(const std::string& object_path, const std::string& name, double value);
   // A 1-D dataset of variable-length UTF-8 strings; creates intermediate groups.

@@ -23,6 +23,7 @@
 #include "engine/io/h5_writer.hpp"
 #include "engine/model/config.hpp"
 #include "engine/model/model.hpp"
+#include "engine/provenance.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
 
@@ -120,24 +121,25 @@ std::string csv_field(const std::string& s) {
 struct Column {
   const char* name;
   double SweepRow::*field;
+  const char* unit;  // SI, "1" for a ratio (OUT.h5's `unit` attributes)
 };
 const std::vector<Column>& result_columns() {
   static const std::vector<Column> cols = {
-      {"speed_ratio", &SweepRow::speed_ratio},
-      {"geometric_ratio", &SweepRow::geometric_ratio},
-      {"slip", &SweepRow::slip},
-      {"input_torque", &SweepRow::input_torque},
-      {"output_torque", &SweepRow::output_torque},
-      {"efficiency", &SweepRow::efficiency},
-      {"input_speed", &SweepRow::input_speed},
-      {"output_speed", &SweepRow::output_speed},
-      {"load_torque", &SweepRow::load_torque},
-      {"clamping_force_driving", &SweepRow::clamping_force_driving},
-      {"clamping_force_driven", &SweepRow::clamping_force_driven},
-      {"model_time", &SweepRow::model_time},
-      {"steady_window", &SweepRow::steady_window},
-      {"step", &SweepRow::step},
-      {"energy_leak", &SweepRow::energy_leak},
+      {"speed_ratio", &SweepRow::speed_ratio, "1"},
+      {"geometric_ratio", &SweepRow::geometric_ratio, "1"},
+      {"slip", &SweepRow::slip, "1"},
+      {"input_torque", &SweepRow::input_torque, "N m"},
+      {"output_torque", &SweepRow::output_torque, "N m"},
+      {"efficiency", &SweepRow::efficiency, "1"},
+      {"input_speed", &SweepRow::input_speed, "rad/s"},
+      {"output_speed", &SweepRow::output_speed, "rad/s"},
+      {"load_torque", &SweepRow::load_torque, "N m"},
+      {"clamping_force_driving", &SweepRow::clamping_force_driving, "N"},
+      {"clamping_force_driven", &SweepRow::clamping_force_driven, "N"},
+      {"model_time", &SweepRow::model_time, "s"},
+      {"steady_window", &SweepRow::steady_window, "s"},
+      {"step", &SweepRow::step, "s"},
+      {"energy_leak", &SweepRow::energy_leak, "1"},
   };
   return cols;
 }
@@ -519,17 +521,23 @@ void SweepLedger::finish(const std::string& config_text) const {
   f.write_vector("/results/point", idx);
   f.write_strings("/results/status", st);
   f.write_strings("/results/reason", why);
+  std::map<std::string, std::string> units;
   for (const auto& c : result_columns()) {
     std::vector<double> v;
     for (const auto& r : rows) v.push_back(r.*c.field);
     f.write_vector(std::string("/results/") + c.name, v);
+    f.set_string_attribute(std::string("/results/") + c.name, "unit", c.unit);
+    units[c.name] = c.unit;
   }
   for (const auto& e : error_columns()) {
     std::vector<double> v;
     for (const auto& r : rows) v.push_back(row_error(r, e));
     f.write_vector("/results/" + e + "_numerical_error", v);
+    f.set_string_attribute("/results/" + e + "_numerical_error", "unit", units[e]);
   }
   f.write_vector("/results/wall_s", wall);
+  f.set_string_attribute("/results/wall_s", "unit", "s");
+  write_provenance(f);
   f.write_string("/config", config_text);
   f.set_strings_attribute("/points", "keys", plan_.keys);
   f.close();

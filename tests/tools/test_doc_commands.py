@@ -67,6 +67,8 @@ SKIP = {
     "make plots STUDY=study.csv": "as make plots",
     "make plots INTEGRATORS=int.csv": "as make plots",
     "/usr/bin/python3 tests/tools/test_cvt_plot.py [-v]": "the ctest CvtPlotTest runs this command",
+    "make: these Debian packages are missing, and this user cannot install them (not root, no sudo):":
+        "what make prints, not a command (MakeDepsTest checks it)",
     "build/schedule_bench --benchmark_repetitions=5":
         "a benchmark program (make bench): timings, not a recipe with an outcome",
 }
@@ -139,6 +141,14 @@ RECIPES = {
         needs="tools/viewer/node_modules"),
     "tools/cvt_view.py run.h5 --video run.webm --fps 30 --size 1280x720": dict(
         why="the viewer's libraries come with make deps", needs="tools/viewer/node_modules"),
+    "cvt-engine run configs/reference-steady.toml --t-end 2 -o job.h5 --threads $SLURM_CPUS_PER_TASK "
+    "--max-wall 23:55:00 --continue": dict(
+        why="the body of an sbatch script: Slurm sets SLURM_CPUS_PER_TASK", shell="SLURM_CPUS_PER_TASK=2"),
+    "cvt-engine sweep configs/reference-steady.toml --points map-points.csv --set controller.enabled=true -o map "
+    "--array --threads 2 --max-wall 1:59:00": dict(
+        why="a job array's task: Slurm sets SLURM_ARRAY_TASK_ID", shell="export SLURM_ARRAY_TASK_ID=0"),
+    "cvt-engine sweep configs/reference-steady.toml --points map-points.csv --set controller.enabled=true -o map --gather": dict(
+        why="only task 0 of the array ran here: the gather names the missing points and exits 75", rc=75),
     "PYTHONPATH=build/python docs/examples/optimize_clamping.py --load 15 --json opt.json": dict(
         why="a bisection on the slip verdict of runs until steady: a shortened run never slips, "
             "so its bracket holds no change of sign; run in full only", full_only=True),

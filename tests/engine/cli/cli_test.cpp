@@ -25,7 +25,9 @@
 #include <vector>
 
 #include "engine/guards.hpp"
+#include "engine/io/checkpoint.hpp"
 #include "engine/io/h5_writer.hpp"
+#include "engine/model/config.hpp"
 #include "tests/test_util.hpp"
 
 namespace cvt {
@@ -598,6 +600,56 @@ TEST_F(CliTest, AFullDiskEndsWithExit73AndAWholeCheckpoint) {
   for (const char* a : {"-o", "whole.h5"}) whole.push_back(a);
   ASSERT_EQ(run(whole).exit_code, 0);
   expect_same_run(dir_ / "full.h5", dir_ / "whole.h5");
+}
+
+// A cluster job: --max-wall stops the run with its checkpoint (exit 75), and the same command
+// line with --continue, resubmitted until it ends, gives the uninterrupted run's bits; once
+// complete it runs nothing; another configuration, or a malformed wall time, is refused.
+TEST_F(CliTest, AJobStoppedByMaxWallContinuesWhenResubmitted) {
+  const std::vector<std::string> job = {"run", kMini, "--t-end", "0.02", "-o", "job.h5", "--max-wall", "2",
+                                        "--continue", "--quiet"};
+  std::vector<int> codes;
+  std::string err;
+  for (int k = 0; k < 60 && (codes.empty() || codes.back() == 75); ++k) {
+    const RunResult r = run(job);
+    codes.push_back(r.exit_code);
+    err += r.err;
+  }
+  ASSERT_EQ(codes.back(), 0) << err;
+  ASSERT_GE(codes.size(), 2u) << "never stopped by --max-wall: the case is not tested";
+  EXPECT_NE(err.find("before its wall-time limit (run.max_wall = 2 s)"), std::string::npos) << err;
+  EXPECT_NE(err.find("the same command with --continue"), std::string::npos) << err;
+  ASSERT_EQ(run({"run", kMini, "--t-end", "0.02", "-o", "whole.h5", "--quiet"}).exit_code, 0);
+  expect_same_run(dir_ / "job.h5", dir_ / "whole.h5");
+
+  const auto bytes = read_text(dir_ / "job.h5");
+  const RunResult again = run({"run", kMini, "--t-end", "0.02", "-o", "job.h5", "--max-wall", "2", "--continue"});
+  EXPECT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_NE(again.out.find("job.h5 is complete (stopped: t_end"), std::string::npos) << again.out;
+  EXPECT_EQ(read_text(dir_ / "job.h5"), bytes) << "a complete run was run again";
+
+  const RunResult other = run({"run", kMini, "--t-end", "0.03", "--set", "load.torque=12", "-o", "job.h5", "--continue"});
+  EXPECT_EQ(other.exit_code, 78) << other.err;
+  EXPECT_NE(other.err.find("made by another configuration ([load] torque = 10.0 there, torque = 12.0 here)"),
+            std::string::npos) << other.err;
+  for (const char* bad : {"2:61", "0", "1h30", "abc", "1-x:00", "nan"})
+    expect_config_error({"run", kMini, "--max-wall", bad}, "--max-wall", bad, "a wall time");
+}
+
+TEST(CliDuration, WallTimesAreReadAsJobSchedulersWriteThem) {
+  // What --max-wall accepts, through the key it sets (run.max_wall in the resolved TOML).
+  for (const auto& [text, seconds] : std::vector<std::pair<std::string, double>>{
+           {"3600", 3600}, {"90m", 5400}, {"23.5h", 84600}, {"45s", 45}, {"23:50:00", 85800}, {"1-00:00:00", 86400},
+           {"10:30", 37800}}) {
+    const fs::path dir = fs::temp_directory_path() / ("cvt_cli_duration_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    const std::string cmd = "cd " + shell_quote(dir.string()) + " && " + shell_quote(CVT_ENGINE_EXE) + " run " +
+                            shell_quote(kMini) + " --t-end 1e-5 -q -o d.h5 --max-wall " + text + " > /dev/null 2>&1";
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << text;
+    const Config c = parse_config(read_checkpoint((dir / "d.h5.ckpt").string()).config_toml);
+    EXPECT_EQ(c.run.max_wall, seconds) << text;
+    fs::remove_all(dir);
+  }
 }
 
 // A numerical failure (a matrix singular at every retake from a sound state) is reported like

@@ -338,6 +338,58 @@ TEST_F(SweepDir, MiniSerialMpiAndKilledGiveTheSameCsv) {
 #endif
 }
 
+// A sweep as a job array: each point alone (--point I, or --array with the index Slurm
+// gives), then --gather, gives the CSV of the sweep run in one process; --gather before every
+// point has a row names the missing ones (exit 75), and a row of another configuration is
+// refused.
+TEST_F(SweepDir, AJobArrayOfPointsGivesTheSweepsCsv) {
+  const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
+  const std::string args = " sweep " + test::shell_quote(test::config_path("mini")) +
+                           " --axis load.torque=5,10,12 --set run.t_end=0.002 --set run.steady_window=5e-4";
+  ASSERT_EQ(sh(exe + args + " --out whole > whole.log 2>&1"), 0) << read_text(dir_ / "whole.log");
+  ASSERT_EQ(sh(exe + args + " --out arr --point 2 > p2.log 2>&1"), 0) << read_text(dir_ / "p2.log");
+  EXPECT_TRUE(fs::exists(dir_ / "arr.points" / "point-0002.csv"));
+  EXPECT_FALSE(fs::exists(dir_ / "arr.csv")) << "a task writes its own row only";
+  ASSERT_EQ(sh(exe + args + " --out arr --gather > g1.log 2>&1"), 75) << read_text(dir_ / "g1.log");
+  EXPECT_NE(read_text(dir_ / "g1.log").find("2 of 3 points have no row in arr.points/ yet (0,1)"), std::string::npos)
+      << read_text(dir_ / "g1.log");
+  ASSERT_EQ(sh("SLURM_ARRAY_TASK_ID=0 " + exe + args + " --out arr --array > p0.log 2>&1"), 0)
+      << read_text(dir_ / "p0.log");
+  EXPECT_EQ(sh(exe + args + " --out arr --array > noid.log 2>&1"), 78);
+  EXPECT_NE(read_text(dir_ / "noid.log").find("SLURM_ARRAY_TASK_ID is not set"), std::string::npos);
+  EXPECT_EQ(sh(exe + args + " --out arr --point 3 > out.log 2>&1"), 78);
+  EXPECT_NE(read_text(dir_ / "out.log").find("the sweep's points are 0 .. 2"), std::string::npos)
+      << read_text(dir_ / "out.log");
+  // Point 1 run with another --set: its row is refused by the gather of this sweep.
+  ASSERT_EQ(sh(exe + args + " --set damping.scale=2 --out arr --point 1 > p1x.log 2>&1"), 0);
+  EXPECT_EQ(sh(exe + args + " --out arr --gather > g2.log 2>&1"), 78);
+  EXPECT_NE(read_text(dir_ / "g2.log").find("its point ran another configuration"), std::string::npos)
+      << read_text(dir_ / "g2.log");
+  fs::remove(dir_ / "arr.points" / "point-0001.csv");
+  ASSERT_EQ(sh(exe + args + " --out arr --point 1 > p1.log 2>&1"), 0);
+  ASSERT_EQ(sh(exe + args + " --out arr --gather > g3.log 2>&1"), 0) << read_text(dir_ / "g3.log");
+  EXPECT_EQ(without_wall(read_text(dir_ / "arr.csv")), without_wall(read_text(dir_ / "whole.csv")));
+  EXPECT_TRUE(fs::exists(dir_ / "arr.h5"));
+  EXPECT_FALSE(fs::exists(dir_ / "arr.points"));
+}
+
+// run.max_wall in a sweep: the point in progress stops with its checkpoint (exit 75), and the
+// same command, given again until it ends, continues it: the CSV of an uninterrupted sweep.
+TEST_F(SweepDir, ASweepStoppedByMaxWallContinuesItsPoint) {
+  const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
+  const std::string args = " sweep " + test::shell_quote(test::config_path("mini")) +
+                           " --axis load.torque=5,10 --set run.t_end=0.005 --set run.steady_window=1e-3";
+  ASSERT_EQ(sh(exe + args + " --out whole > whole.log 2>&1"), 0) << read_text(dir_ / "whole.log");
+  std::vector<int> codes;
+  for (int k = 0; k < 40 && (codes.empty() || codes.back() == 75); ++k)
+    codes.push_back(sh(exe + args + " --out job --max-wall 4 >> job.log 2>&1"));
+  const std::string log = read_text(dir_ / "job.log");
+  ASSERT_EQ(codes.back(), 0) << log;
+  ASSERT_GE(codes.size(), 2u) << "never stopped by --max-wall: the case is not tested\n" << log;
+  EXPECT_NE(log.find("stopped before the wall-time limit (run.max_wall)"), std::string::npos) << log;
+  EXPECT_EQ(without_wall(read_text(dir_ / "job.csv")), without_wall(read_text(dir_ / "whole.csv")));
+}
+
 // Points started from a steady state's checkpoint (sweep --from): the point at the
 // checkpoint's own load is steady once two windows of its own samples agree; a changed load ramps
 // over --warm-ramp first; mpirun -np 3 gives the serial CSV.
