@@ -14,6 +14,7 @@ PACKAGES = cmake g++ make pkg-config graphviz \
   universal-ctags \
   libopenmpi-dev openmpi-bin \
   python3-h5py python3-matplotlib python3-numpy python3-dev pybind11-dev python3-pytest python3-scipy \
+  python3-venv python3-pandas python3-xarray \
   chromium
 
 .PHONY: deps configure build run test test-slow bench plots view video clean

@@ -1,12 +1,13 @@
 #include "engine/provenance.hpp"
 
+#include <hwloc.h>
 #include <pwd.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <string>
 
 #include "engine/base/commit.h"  // generated into the build folder at every build (tools/commit_header.cmake)
-#include "numa/topology.hpp"
 
 #ifndef CVT_BUILD_FLAGS
 #define CVT_BUILD_FLAGS "unknown"
@@ -26,15 +27,18 @@ std::string plural(int n, const char* what) {
   return std::to_string(n) + " " + what + (n == 1 ? "" : "s");
 }
 
+// The machine as hwloc sees it (the whole machine, not this process's binding).
 std::string topology_line() {
-  try {
-    const numa::Topology t = numa::discover_topology();
-    const int packages = hwloc_get_nbobjs_by_type(t.handle(), HWLOC_OBJ_PACKAGE);
-    return plural(packages > 0 ? packages : 1, "package") + ", " + plural(t.node_count(), "NUMA node") + ", " +
-           plural(t.total_cores(), "core") + ", " + std::to_string(t.total_pus()) + " PUs";
-  } catch (const std::exception& e) {
-    return std::string("unknown (") + e.what() + ")";
+  hwloc_topology_t t = nullptr;
+  if (hwloc_topology_init(&t) != 0) return "unknown";
+  std::string line = "unknown";
+  if (hwloc_topology_load(t) == 0) {
+    const auto count = [&](hwloc_obj_type_t type) { return std::max(1, hwloc_get_nbobjs_by_type(t, type)); };
+    line = plural(count(HWLOC_OBJ_PACKAGE), "package") + ", " + plural(count(HWLOC_OBJ_NUMANODE), "NUMA node") +
+           ", " + plural(count(HWLOC_OBJ_CORE), "core") + ", " + plural(count(HWLOC_OBJ_PU), "PU");
   }
+  hwloc_topology_destroy(t);
+  return line;
 }
 
 }  // namespace

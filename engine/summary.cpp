@@ -597,7 +597,6 @@ std::string summary_units_json() { return json_inline(summary_units()); }
 
 std::string summary_json(const RunSummary& s) {
   Json j = Json::object();
-  j["units"] = summary_units();
   const auto& fields = summary_fields();
   for (std::size_t i = 0; i < fields.size(); ++i) {
     const SummaryField& f = fields[i];
@@ -612,6 +611,7 @@ std::string summary_json(const RunSummary& s) {
     if (f.verify.verified && i < s.numerical_error.size())
       j[std::string(f.name) + "_numerical_error"] = json_number(s.numerical_error[i]);
   }
+  j["units"] = summary_units();  // after the table's entries
   return json_text(j);
 }
 

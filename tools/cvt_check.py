@@ -51,10 +51,9 @@ def main():
     cfg = f["parameters"].attrs["config"] if "config" in f["parameters"].attrs else f["parameters/config"][()]
     cfg = cfg.decode() if isinstance(cfg, bytes) else str(cfg)
     key = lambda name: float([l for l in cfg.splitlines() if l.strip().startswith(name + " ")][0].split("=")[1].split("#")[0])
-    geometry = f["parameters"].attrs.get("geometry", "")
-    geometry = geometry.decode() if isinstance(geometry, bytes) else str(geometry)
-    if "R1 = " in geometry and i1 - i0 > 64:
-        R1 = float(geometry.split("R1 = ")[1].split()[0])
+    R1 = float(np.ravel(f["parameters/geometry/running_radius_driving"][()])[0]) \
+        if "parameters/geometry/running_radius_driving" in f else None
+    if R1 is not None and i1 - i0 > 64:
         f_mesh = v("input_speed")[w].mean() * R1 / key("pitch")
         x = v("output_torque")[w] - Mout
         F = np.abs(np.fft.rfft(x * np.hanning(x.size)))

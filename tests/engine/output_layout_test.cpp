@@ -379,7 +379,8 @@ TEST_F(OutputLayoutTest, SummaryHoldsEveryEntryOfTheTable) {
         return 0;
       },
       &count);
-  EXPECT_EQ(count, summary_fields().size()) << "attributes beyond the table";
+  EXPECT_EQ(count, summary_fields().size() + 1) << "attributes beyond the table and its units";
+  EXPECT_EQ(attribute_class(f_, "/summary", "units", nullptr), H5T_STRING) << "the units";
 }
 
 // The layout the viewer reads is JSON that a parser reads back.

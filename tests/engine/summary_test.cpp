@@ -301,7 +301,14 @@ TEST(SummaryTest, JsonParsesAndGivesBackEveryEntryOfTheTable) {
   s.warnings.push_back(std::string("nul \0 inside", 12) + ", delete \x7f, bell \a");
   const nlohmann::json j = nlohmann::json::parse(summary_json(s));
   ASSERT_TRUE(j.is_object());
-  EXPECT_EQ(j.size(), summary_fields().size()) << "keys beyond the table";
+  EXPECT_EQ(j.size(), summary_fields().size() + 1) << "keys beyond the table and its units";
+  // The units: every entry of the table that has one, and none that has none.
+  ASSERT_TRUE(j.contains("units") && j.at("units").is_object());
+  for (const SummaryField& f : summary_fields()) {
+    const std::string name(f.name);
+    if (f.unit.empty()) EXPECT_FALSE(j.at("units").contains(name)) << name;
+    else EXPECT_EQ(j.at("units").value(name, ""), std::string(f.unit)) << name;
+  }
   for (const SummaryField& f : summary_fields()) {
     const std::string name(f.name);
     ASSERT_TRUE(j.contains(name)) << name;

@@ -26,8 +26,8 @@ function(expect text)
 endfunction()
 
 configure(bare 0 ${hide})
-foreach(part "the tests left out: no GoogleTest found" "the benchmarks left out: no Google Benchmark found"
-             "the Python module left out: no pybind11 found" "the paper-omp scheduler left out: no OpenMP found"
+foreach(part "the tests left out: no GoogleTest" "the benchmarks left out: no Google Benchmark"
+             "the Python module left out: no pybind11" "the paper-omp scheduler left out: no OpenMP found"
              "sweeps across MPI ranks left out: no MPI found")
   expect("cvt-engine: ${part}")
 endforeach()

@@ -24,7 +24,8 @@ from ._core import BlowUpError, Config, ConfigError, OutputError
 
 __version__ = _core.version
 __all__ = ["Config", "ConfigError", "BlowUpError", "OutputError", "Result", "load_config", "parse_config",
-           "run", "sweep", "study_slip", "study_shift", "model_info", "config_value"]
+           "run", "sweep", "study_slip", "study_shift", "model_info", "config_value", "read_channels", "read_units",
+           "shipped_config"]
 
 
 def _text(value):
@@ -170,16 +171,81 @@ def _schedule(scheduler, threads, grain=4):
 
 
 class Result:
-    """A finished run: summary (dict, the keys of docs/output.md /summary), channels (dict of
-    NumPy arrays, "time" among them), file (the HDF5 file, or None when it was temporary)."""
+    """A finished run: summary (dict, the keys of docs/output.md /summary; its "units" entry
+    gives each entry's unit), channels (dict of NumPy arrays, "time" [s] among them), units
+    (each channel's SI unit, "1" for a ratio), file (the HDF5 file, or None when it was
+    temporary)."""
 
-    def __init__(self, summary, channels, file):
+    def __init__(self, summary, channels, file, units=None):
         self.summary, self.channels, self.file = summary, channels, file
+        self.units = dict(units or {})
+
+    def to_pandas(self):
+        """The channels as a pandas DataFrame indexed by time [s]: a column per scalar channel,
+        NAME[i] per entry of a vector channel; df.attrs["units"] maps each column to its unit.
+        Needs pandas (Debian's python3-pandas)."""
+        try:
+            import pandas as pd
+        except ImportError as e:
+            raise ImportError("Result.to_pandas needs pandas (apt-get install python3-pandas)") from e
+        cols, units = {}, {}
+        for name, v in self.channels.items():
+            if name == "time":
+                continue
+            if v.ndim == 1:
+                cols[name], units[name] = v, self.units.get(name, "")
+            else:
+                for i in range(v.shape[1]):
+                    cols[f"{name}[{i}]"], units[f"{name}[{i}]"] = v[:, i], self.units.get(name, "")
+        df = pd.DataFrame(cols, index=pd.Index(self.channels["time"], name="time"))
+        df.attrs["units"] = {"time": "s", **units}
+        return df
+
+    def to_xarray(self):
+        """The channels as an xarray Dataset over the coordinate time [s]; a vector channel
+        has a second dimension NAME_index; every variable's attrs["units"] is its unit.
+        Needs xarray (Debian's python3-xarray)."""
+        try:
+            import xarray as xr
+        except ImportError as e:
+            raise ImportError("Result.to_xarray needs xarray (apt-get install python3-xarray)") from e
+        data = {}
+        for name, v in self.channels.items():
+            if name == "time":
+                continue
+            dims = ("time",) if v.ndim == 1 else ("time", f"{name}_index")
+            data[name] = xr.DataArray(v, dims=dims, attrs={"units": self.units.get(name, "")})
+        return xr.Dataset(data, coords={"time": ("time", self.channels["time"], {"units": "s"})},
+                          attrs={k: v for k, v in self.summary.items() if isinstance(v, (int, float, str))})
 
     def __repr__(self):
         s = self.summary
         return (f"<cvt_engine.Result t = {s['model_time']:.6g} s, {s['status']}, efficiency {s['efficiency']:.4f}, "
                 f"{len(self.channels)} channels>")
+
+
+def read_units(path):
+    """The unit of each channel of a run's file: {name: "N m", ...} ("time": "s")."""
+    import h5py
+    with h5py.File(path, "r") as f:
+        obs = f["observables"]
+        out = {"time": "s"}
+        for name in obs:
+            out[name] = str(obs[name]["value"].attrs.get("unit", ""))
+    return out
+
+
+def shipped_config(name):
+    """The path of a configuration shipped with cvt-engine ("mini", "reference-steady", ...:
+    the files of the repository's configs/), wherever the package is installed from."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    for folder in (os.path.join(here, "configs"),                                   # a wheel (pip install .)
+                   os.path.join(here, "..", "..", "..", "..", "share", "cvt-engine", "configs"),  # cmake --install
+                   os.path.join(here, "..", "..", "configs")):                      # build/python in the tree
+        path = os.path.normpath(os.path.join(folder, name + ".toml"))
+        if os.path.isfile(path):
+            return path
+    raise _error("name", repr(name), "no such shipped configuration")
 
 
 def read_channels(path):
@@ -230,6 +296,7 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
                                       progress_seconds, checkpoint_every)
         summary = json.loads(text)
         ch = read_channels(path) if channels and not stop_signal else {}
+        units = read_units(path) if channels and not stop_signal else {}
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -238,7 +305,7 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
         # now Python's own handler acts on it: KeyboardInterrupt for Ctrl-C, the end of the
         # process for SIGTERM (unless the program handles it, when the run's result returns).
         signal.raise_signal(stop_signal)
-    return Result(summary, ch, None if tmp else path)
+    return Result(summary, ch, None if tmp else path, units)
 
 
 def _number(text):
