@@ -72,11 +72,18 @@ auto released(SweepOptions& o, const py::object& log, F&& f) {
 
 // The run: the summary as JSON text (the same as --summary-json), to be parsed by the
 // package, and the signal that stopped the run (0: none).
+// With `resume` (a checkpoint's path) the run continues from it, appended to `out` when
+// `append` (the run's own file) or into `out` as a new file.
 std::pair<std::string, int> run(const Config& cfg, const std::string& out, const std::string& scheduler, int threads, int grain,
-                bool quiet, const py::object& progress, double progress_seconds, long checkpoint_every) {
+                bool quiet, const py::object& progress, double progress_seconds, long checkpoint_every,
+                const std::string& resume, bool append) {
   if (!(progress_seconds >= 0)) throw ConfigError("progress_seconds", std::to_string(progress_seconds), "must be >= 0");
   const Model model = build_model(cfg);
+  std::optional<Checkpoint> ck;
+  if (!resume.empty()) ck = read_checkpoint(resume);
   RunOptions opt;
+  opt.resume = ck ? &*ck : nullptr;
+  opt.append = ck && append;
   opt.schedule = schedule(scheduler, threads, grain);
   opt.out_path = out;
   opt.progress = !quiet && progress.is_none();
@@ -199,7 +206,18 @@ PYBIND11_MODULE(_core, m) {
         py::arg("shortcuts") = std::map<std::string, std::string>{});
   m.def("model_info", &model_info, py::arg("config"));
   m.def("run", &run, py::arg("config"), py::arg("out"), py::arg("scheduler"), py::arg("threads"), py::arg("grain"),
-        py::arg("quiet"), py::arg("progress"), py::arg("progress_seconds"), py::arg("checkpoint_every"));
+        py::arg("quiet"), py::arg("progress"), py::arg("progress_seconds"), py::arg("checkpoint_every"),
+        py::arg("resume") = std::string(), py::arg("append") = false);
+  // A checkpoint's configuration (its overrides applied) and the run's own file it names.
+  m.def("checkpoint_config",
+        [](const std::string& path, const std::vector<std::string>& overrides,
+           const std::map<std::string, std::string>& shortcuts) {
+          const Checkpoint ck = read_checkpoint(path);
+          std::string own = ck.output;
+          if (own.empty()) own = path.size() > 5 && path.ends_with(".ckpt") ? path.substr(0, path.size() - 5) : path;
+          return std::make_pair(parse_config(ck.config_toml, overrides, path, shortcuts), own);
+        },
+        py::arg("path"), py::arg("overrides"), py::arg("shortcuts"));
   m.def("sweep",
         [](const std::string& config, const std::string& from, const std::vector<std::string>& overrides,
            const std::vector<std::string>& axes, const std::string& points, const std::string& out, bool keep_runs,

@@ -50,5 +50,5 @@ if(PYTHON)
   endif()
   step("import the installed package" ${CMAKE_COMMAND} -E env --unset=PYTHONPATH PYTHONPATH=${pydirs}
        ${CMAKE_COMMAND} -E chdir ${WORK} ${PYTHON} -c
-       "import cvt_engine as c, sys; print(c.__file__, c.__version__); sys.exit(not c.__file__.startswith('${prefix}'))")
+       "import cvt_engine as c, sys; print(c.__file__, c.__version__, c.shipped_config('mini')); sys.exit(not (c.__file__.startswith('${prefix}') and c.shipped_config('mini').startswith('${prefix}')))")
 endif()

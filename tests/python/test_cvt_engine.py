@@ -119,6 +119,37 @@ def test_run_gives_the_same_bits_as_the_command_line(tmp_path):
     assert r.channels["time"][-1] == pytest.approx(0.004) and r.summary["status"] in ("steady", "not_steady", "slip")
 
 
+def test_resume_continues_a_run_to_the_uninterrupted_bits(tmp_path):
+    # A run to 2 ms, then resumed into its own file to 4 ms: the channels of one 4 ms run; a
+    # resume into a new file holds the continuation alone.
+    whole = cvt.run(MINI, t_end=0.004, out=tmp_path / "whole.h5")
+    first = cvt.run(MINI, t_end=0.002, out=tmp_path / "parts.h5")
+    assert first.summary["model_time"] == pytest.approx(0.002)
+    r = cvt.resume(tmp_path / "parts.h5.ckpt", t_end=0.004)
+    assert r.file == os.path.abspath(tmp_path / "parts.h5")
+    for name, value in whole.channels.items():
+        assert np.array_equal(value, r.channels[name]), name
+    assert r.units["output_torque"] == "N m" and r.summary["units"]["input_torque"] == "N m"
+    new = cvt.resume(tmp_path / "parts.h5.ckpt", t_end=0.006, out=tmp_path / "more.h5")
+    assert new.channels["time"][0] == pytest.approx(0.004) and new.channels["time"][-1] == pytest.approx(0.006)
+    with pytest.raises(cvt.ConfigError, match="t_end"):
+        cvt.resume(tmp_path / "parts.h5.ckpt", t_end="soon")
+
+
+def test_results_convert_to_pandas_and_xarray_with_units(tmp_path):
+    r = cvt.run(cvt.shipped_config("mini"), t_end=0.0005)
+    pd = pytest.importorskip("pandas")
+    df = r.to_pandas()
+    assert isinstance(df, pd.DataFrame) and df.index.name == "time"
+    assert np.array_equal(df["output_torque"].to_numpy(), r.channels["output_torque"])
+    assert np.array_equal(df["sheave_position[1]"].to_numpy(), r.channels["sheave_position"][:, 1])
+    assert df.attrs["units"]["output_torque"] == "N m" and df.attrs["units"]["time"] == "s"
+    xr = pytest.importorskip("xarray")
+    ds = r.to_xarray()
+    assert isinstance(ds, xr.Dataset) and ds["time"].attrs["units"] == "s"
+    assert ds["support_force"].attrs["units"] == "N" and ds["support_force"].dims == ("time", "support_force_index")
+
+
 def test_progress_reaches_the_callback_which_can_stop_the_run():
     seen = []
     r = cvt.run(MINI, t_end=0.003, progress=seen.append, progress_seconds=0)

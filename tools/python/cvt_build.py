@@ -86,7 +86,7 @@ def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
     package = os.environ.get("CVT_PIP_PACKAGE_DIR") or _build()
     files = {}
     for name in sorted(os.listdir(package)):
-        if name.endswith((".py", ".pyi", ".so")) or name == "py.typed":
+        if name.endswith((".py", ".pyi", ".so")) or name == "py.typed":  # configs/: from the source, below
             with open(os.path.join(package, name), "rb") as f:
                 files[f"{NAME}/{name}"] = f.read()
     configs = os.path.join(ROOT, "configs")

@@ -24,7 +24,7 @@ from ._core import BlowUpError, Config, ConfigError, OutputError
 
 __version__ = _core.version
 __all__ = ["Config", "ConfigError", "BlowUpError", "OutputError", "Result", "load_config", "parse_config",
-           "run", "sweep", "study_slip", "study_shift", "model_info", "config_value", "read_channels", "read_units",
+           "run", "resume", "sweep", "study_slip", "study_shift", "model_info", "config_value", "read_channels", "read_units",
            "shipped_config"]
 
 
@@ -239,9 +239,8 @@ def shipped_config(name):
     """The path of a configuration shipped with cvt-engine ("mini", "reference-steady", ...:
     the files of the repository's configs/), wherever the package is installed from."""
     here = os.path.dirname(os.path.abspath(__file__))
-    for folder in (os.path.join(here, "configs"),                                   # a wheel (pip install .)
-                   os.path.join(here, "..", "..", "..", "..", "share", "cvt-engine", "configs"),  # cmake --install
-                   os.path.join(here, "..", "..", "configs")):                      # build/python in the tree
+    for folder in (os.path.join(here, "configs"),  # a wheel (pip install .), build/python
+                   os.path.join(here, "..", "..", "..", "..", "share", "cvt-engine", "configs")):  # cmake --install
         path = os.path.normpath(os.path.join(folder, name + ".toml"))
         if os.path.isfile(path):
             return path
@@ -265,35 +264,63 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
     """Runs a simulation (as `cvt-engine run`) and returns a Result.
 
     config: a path or a Config; overrides: {key: value} or ["key=value", ...];
-    t_end, until_steady, step, method: as --t-end, --until-steady, --step, --method.
+    t_end [s], until_steady, step [s], method: as --t-end, --until-steady, --step, --method.
     out: the HDF5 file to keep (None: a temporary file, removed after the channels are read).
     threads > 1 runs the flow graph (the same bits for any thread count).
     quiet: no lines on stdout/stderr (warnings are in summary["warnings"] all the same).
-    progress: a callable given a dict (step, steps, t, t_end, wall_s, eta_s) every
-    progress_seconds; returning a false value stops the run at the next step where the W
-    matrix is rebuilt (summary["stopped"] == "callback").
+    progress: a callable given a dict (step, steps, t [s], t_end [s], wall_s [s], eta_s [s])
+    every progress_seconds [s of wall time]; returning a false value stops the run at the
+    next step where the W matrix is rebuilt (summary["stopped"] == "callback").
+    checkpoint_every: steps between checkpoints to OUT.ckpt (0: only at the end).
     Ctrl-C stops the run the same way and raises KeyboardInterrupt; the file is kept.
     Raises ConfigError for a bad key or argument (every one checked before the run starts),
     BlowUpError when the state blows up or the integration fails numerically, OutputError
     when the file cannot be written.
     """
+    cfg = _config(config, overrides, {"run.t_end": t_end, "run.until_steady": until_steady,
+                                      "integrator.step": step, "integrator.method": method})
+    return _run(cfg, out, None, threads, scheduler, grain, quiet, progress, progress_seconds, checkpoint_every,
+                channels)
+
+
+def resume(checkpoint, *, t_end=None, out=None, overrides=None, threads=1, scheduler=None, grain=4, quiet=True,
+           progress=None, progress_seconds=3.0, checkpoint_every=50000, channels=True):
+    """Continues a run from its checkpoint (as `cvt-engine run --resume`) and returns a Result.
+
+    checkpoint: FILE.ckpt of a run; t_end [s]: where to go (beyond the first run's run.t_end).
+    Without out the continuation is appended to the run's own file (the one the checkpoint
+    names), which then equals an uninterrupted run bit for bit, and the Result covers the
+    whole run; with out a new file holds the continuation alone. Every other argument is
+    run's. Raises ConfigError, BlowUpError, OutputError as run does.
+    """
+    checkpoint = _path("checkpoint", checkpoint)
+    cfg, own = _core.checkpoint_config(checkpoint, _overrides(overrides), {"*": "the overrides"})
+    if t_end is not None:
+        cfg = _core.parse_config(cfg.toml, [f"run.t_end={_text(_value('t_end', t_end))}"], checkpoint,
+                                 {"run.t_end": "the argument t_end"})
+    append = out is None
+    return _run(cfg, own if append else out, (checkpoint, append), threads, scheduler, grain, quiet, progress,
+                progress_seconds, checkpoint_every, channels)
+
+
+def _run(cfg, out, resuming, threads, scheduler, grain, quiet, progress, progress_seconds, checkpoint_every,
+         channels):
     scheduler, threads = _schedule(scheduler, threads, grain)
     quiet, channels = _flag("quiet", quiet), _flag("channels", channels)
     progress = _callable_or_none("progress", progress)
     progress_seconds = _nonnegative("progress_seconds", progress_seconds)
     checkpoint_every = _integer("checkpoint_every", checkpoint_every, 0)
     out = _path("out", out, none_ok=True)
-    cfg = _config(config, overrides, {"run.t_end": t_end, "run.until_steady": until_steady,
-                                      "integrator.step": step, "integrator.method": method})
     tmp = None
     if out is None:
         tmp = tempfile.mkdtemp(prefix="cvt_engine_")
         path = os.path.join(tmp, "run.h5")
     else:
         path = out
+    resume_path, append = resuming or ("", False)
     try:
         text, stop_signal = _core.run(cfg, path, scheduler, threads, grain, quiet, progress,
-                                      progress_seconds, checkpoint_every)
+                                      progress_seconds, checkpoint_every, resume_path, append)
         summary = json.loads(text)
         ch = read_channels(path) if channels and not stop_signal else {}
         units = read_units(path) if channels and not stop_signal else {}
