@@ -285,10 +285,12 @@ std::string controller_text(const Config& cfg) {
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
                double window_start, double span) {
   const Config& cfg = m.cfg;
-  s.drive_speed = cfg.drive.speed;
-  s.load_torque_nominal = cfg.load.torque;
-  s.clamp_driving_nominal = cfg.clamping.driving;
-  s.clamp_driven_nominal = cfg.clamping.driven;
+  // As configured, or where an input's profile ends.
+  const auto last = [](const Config::Profile& p, double constant) { return p.empty() ? constant : p.back()[1]; };
+  s.drive_speed = final_drive_speed(cfg);
+  s.load_torque_nominal = last(cfg.load.torque_profile, cfg.load.torque);
+  s.clamp_driving_nominal = last(cfg.clamping.driving_profile, cfg.clamping.driving);
+  s.clamp_driven_nominal = last(cfg.clamping.driven_profile, cfg.clamping.driven);
   s.ratio_target = cfg.geometry.ratio;
   s.method = to_string(cfg.integrator.method);
   s.step = cfg.integrator.step;
@@ -359,10 +361,12 @@ const std::vector<SummaryField>& summary_fields() {
       {"energy_leak", "1",
        "the energy balance's residual change per input work over the last torsion span measured (null: none)",
        &S::energy_leak},
-      {"drive_speed", "rad/s", "drive.speed: the input speed as configured", &S::drive_speed},
-      {"load_torque_nominal", "N m", "load.torque as configured", &S::load_torque_nominal},
-      {"clamping_force_driving_nominal", "N", "clamping.driving as configured", &S::clamp_driving_nominal},
-      {"clamping_force_driven_nominal", "N", "clamping.driven as configured", &S::clamp_driven_nominal},
+      {"drive_speed", "rad/s", "drive.speed: the input speed as configured (a profile's last value)", &S::drive_speed},
+      {"load_torque_nominal", "N m", "load.torque as configured (a profile's last value)", &S::load_torque_nominal},
+      {"clamping_force_driving_nominal", "N", "clamping.driving as configured (a profile's last value)",
+       &S::clamp_driving_nominal},
+      {"clamping_force_driven_nominal", "N", "clamping.driven as configured (a profile's last value)",
+       &S::clamp_driven_nominal},
       {"ratio_target", "1", "geometry.ratio as configured", &S::ratio_target},
       {"window_start", "s", "the start of the window of the means", &S::window_start},
       {"window_end", "s", "the end of the window of the means", &S::window_end},

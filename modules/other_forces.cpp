@@ -20,7 +20,7 @@ void slip_safe_control(const Model& m, Workspace& ws, const double F[2], double 
   const double B = std::max(std::min(F[0], F[1]), slip_safe_gain(m) * transmitted_torque(c, ws.t) / R2);
   // Larger ratio wanted -> smaller driving radius -> a smaller thrust ratio.
   // The gains at the input speed they are given for (gain_speed): the shift rate grows with it.
-  const double g = c.controller.gain_speed > 0 ? c.controller.gain_speed / c.drive.speed : 1.0;
+  const double g = c.controller.gain_speed > 0 ? c.controller.gain_speed / drive_speed(c, ws.t) : 1.0;
   const double u = std::log(c.clamping.driving / c.clamping.driven) -
                    (g * c.controller.shift_kp * err + g * c.controller.shift_ki * ws.aux[kCtrlIntegral]);
   const double lim = std::log(c.controller.thrust_limit);
@@ -71,7 +71,7 @@ void other_forces(const Model& m, Workspace& ws) {
   }
   // 4.6.2 drive: torsion spring-damper from the prescribed input angle.
   const int p1 = m.shaft(0) + kPhi, p2 = m.shaft(1) + kPhi, pl = m.load_index();
-  const double win = c.drive.speed;
+  const double win = drive_speed(c, ws.t);
   const double ct = d.drive;
   const double Min = c.drive.stiffness * (input_angle(m, ws.t) - q[p1]) + ct * (win - v[p1]);
   o.f[kPhi] += Min;

@@ -12,7 +12,8 @@ void other_forces(const Model& m, Workspace& ws);
 // sigma_m F_ramp(t) w (4.6.4).
 double other_energy(const Model& m, double t, const double* q);
 
-// Prescribed input angle phi_in(t) = omega_in t.
-inline double input_angle(const Model& m, double t) { return m.cfg.drive.speed * t; }
+// Prescribed input angle phi_in(t): the integral of omega_in (drive.speed t, or of
+// drive.speed_profile).
+inline double input_angle(const Model& m, double t) { return drive_angle(m.cfg, t); }
 
 }  // namespace cvt

@@ -130,10 +130,12 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(bearing, axial_damping, real, "N s/m", nonneg),
 
       CVT_KEY(drive, speed, real, "rad/s", nonneg),
+      CVT_KEY(drive, speed_profile, profile, "s, rad/s", positive),
       CVT_KEY(drive, stiffness, real, "N m/rad", nonneg),
       CVT_KEY(drive, damping, real, "N m s/rad", nonneg),
 
       CVT_KEY(load, torque, real, "N m", nonneg),
+      CVT_KEY(load, torque_profile, profile, "s, N m", nonneg),
       CVT_KEY(load, inertia, real, "kg m^2", positive),
       CVT_KEY(load, speed_coefficient, real, "N m s/rad", nonneg),
       CVT_KEY(load, stiffness, real, "N m/rad", nonneg),
@@ -141,6 +143,8 @@ const std::vector<KeyDef>& schema() {
 
       CVT_KEY(clamping, driving, real, "N", positive),
       CVT_KEY(clamping, driven, real, "N", positive),
+      CVT_KEY(clamping, driving_profile, profile, "s, N", positive),
+      CVT_KEY(clamping, driven_profile, profile, "s, N", positive),
       CVT_KEY(clamping, sheave_damping, real, "N s/m", nonneg),
 
       CVT_KEY(controller, enabled, boolean, "", Range{}),
@@ -545,33 +549,86 @@ class Validator {
         law = v == "nonsmooth" ? FrictionLaw::nonsmooth : v == "smooth" ? FrictionLaw::smooth : FrictionLaw::none;
         break;
       }
-      case Kind::profile: read_profile(qkey, n, *static_cast<std::vector<std::array<double, 2>>*>(d.ref(cfg))); break;
+      case Kind::profile:
+        read_profile(qkey, n, *static_cast<std::vector<std::array<double, 2>>*>(d.ref(cfg)), d);
+        break;
     }
   }
 
-  // An array of [time, ratio] pairs: finite numbers, times >= 0 and non-decreasing,
-  // ratios in the key's range.
-  void read_profile(const std::string& qkey, const toml::node& n, std::vector<std::array<double, 2>>& out) const {
-    const auto* a = n.as_array();
-    if (!a) fail(qkey, &n, std::string("wrong type: expected an array of [time, ratio] pairs, got ") + type_name(n));
+  // An array of [time, value] pairs, or the name of a CSV file of them (relative to the
+  // configuration's folder): finite numbers, times >= 0 and non-decreasing (increasing for
+  // a clamping force, whose work needs its rate), values in the key's range.
+  void read_profile(const std::string& qkey, const toml::node& n, std::vector<std::array<double, 2>>& out,
+                    const KeyDef& d) const {
+    const std::string what = std::string_view(d.key) == "target_profile" ? "ratio" : "value";
     out.clear();
-    for (const toml::node& e : *a) {
-      const auto* pair = e.as_array();
-      std::array<double, 2> p{};
-      if (!pair || pair->size() != 2) fail(qkey, &n, "each point must be a [time, ratio] pair of two numbers");
-      for (int k = 0; k < 2; ++k) {
-        const toml::node& x = *pair->get(static_cast<std::size_t>(k));
-        if (auto f = x.as_floating_point()) p[k] = f->get();
-        else if (auto i = x.as_integer()) p[k] = static_cast<double>(i->get());
-        else fail(qkey, &n, std::string("each point must be a [time, ratio] pair of two numbers, got ") + type_name(x));
-        if (!std::isfinite(p[k])) fail(qkey, &n, "must hold finite numbers");
+    if (const auto s = n.as_string()) {
+      out = profile_file(qkey, n, s->get());
+    } else {
+      const auto* a = n.as_array();
+      if (!a)
+        fail(qkey, &n, "wrong type: expected an array of [time, " + what + "] pairs or a CSV file's name, got " +
+                           std::string(type_name(n)));
+      for (const toml::node& e : *a) {
+        const auto* pair = e.as_array();
+        std::array<double, 2> p{};
+        if (!pair || pair->size() != 2) fail(qkey, &n, "each point must be a [time, " + what + "] pair of two numbers");
+        for (int k = 0; k < 2; ++k) {
+          const toml::node& x = *pair->get(static_cast<std::size_t>(k));
+          if (auto f = x.as_floating_point()) p[k] = f->get();
+          else if (auto i = x.as_integer()) p[k] = static_cast<double>(i->get());
+          else fail(qkey, &n, "each point must be a [time, " + what + "] pair of two numbers, got " + type_name(x));
+        }
+        out.push_back(p);
       }
-      const std::string at = "point " + std::to_string(out.size() + 1) + " [" + format_double(p[0]) + ", " + format_double(p[1]) + "]: ";
+    }
+    const bool strict = std::string_view(d.section) == "clamping";
+    for (std::size_t i = 0; i < out.size(); ++i) {
+      const auto& p = out[i];
+      const std::string at = "point " + std::to_string(i + 1) + " [" + format_double(p[0]) + ", " + format_double(p[1]) + "]: ";
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1])) fail(qkey, &n, at + "must hold finite numbers");
       if (p[0] < 0) fail(qkey, &n, at + "the time must not be negative");
-      if (!out.empty() && p[0] < out.back()[0]) fail(qkey, &n, at + "the times must not decrease");
-      if (!(p[1] > 0)) fail(qkey, &n, at + "the ratio must be positive (> 0)");
+      if (i > 0 && (strict ? p[0] <= out[i - 1][0] : p[0] < out[i - 1][0]))
+        fail(qkey, &n, at + (strict ? "the times must increase (a clamping force has a rate)" : "the times must not decrease"));
+      const bool lo_ok = d.range.lo_open ? p[1] > d.range.lo : p[1] >= d.range.lo;
+      if (!lo_ok) fail(qkey, &n, at + "the " + what + (d.range.lo_open ? " must be positive (> 0)" : " must not be negative (>= 0)"));
+    }
+  }
+
+  // The points of a CSV file: "time, value" per line, a first line of names allowed, lines
+  // starting with '#' and blank ones skipped.
+  std::vector<std::array<double, 2>> profile_file(const std::string& qkey, const toml::node& n,
+                                                  const std::string& name) const {
+    std::filesystem::path path(name);
+    if (path.is_relative() && std::filesystem::is_regular_file(origin_))
+      path = std::filesystem::path(origin_).parent_path() / path;
+    std::ifstream in(path);
+    if (!in) fail(qkey, &n, "cannot read the profile file " + path.string());
+    std::vector<std::array<double, 2>> out;
+    std::string line;
+    bool header = false;
+    for (int number = 1; std::getline(in, line); ++number) {
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      const auto first = line.find_first_not_of(" \t");
+      if (first == std::string::npos || line[first] == '#') continue;
+      const auto comma = line.find(',');
+      std::array<double, 2> p{};
+      bool ok = comma != std::string::npos;
+      for (int k = 0; ok && k < 2; ++k) {
+        const std::string field = k == 0 ? line.substr(0, comma) : line.substr(comma + 1);
+        char* end = nullptr;
+        p[k] = std::strtod(field.c_str(), &end);
+        ok = end != field.c_str() && std::string(end).find_first_not_of(" \t") == std::string::npos;
+      }
+      if (!ok && out.empty() && !header) {
+        header = true;  // the first line may name the columns
+        continue;
+      }
+      if (!ok) fail(qkey, &n, path.string() + " line " + std::to_string(number) + ": expected \"time, value\", got \"" + line + "\"");
       out.push_back(p);
     }
+    if (out.empty()) fail(qkey, &n, "the profile file " + path.string() + " holds no points");
+    return out;
   }
 
   void check_name(const std::string& qkey, const toml::node& n, const std::string& v,

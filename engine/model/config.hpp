@@ -122,13 +122,19 @@ struct Config {
     double axial_stiffness = 1.0e8;  // [N/m]
     double axial_damping = 2.0e3;    // [N s/m]
   } bearing;
+  // A value over time (docs/config.md, "Inputs that change in time"): (time [s], value)
+  // points, linear between them, held before the first and after the last; empty: the
+  // constant key (with its ramp).
+  using Profile = std::vector<std::array<double, 2>>;
   struct Drive {
     double speed = 209.4;      // omega_in [rad/s]
+    Profile speed_profile;     // omega_in(t) [s, rad/s]
     double stiffness = 2.0e4;  // k_t [N m/rad]
     double damping = 2.0;      // [N m s/rad]
   } drive;
   struct Load {
     double torque = 150.0;            // M0 [N m]
+    Profile torque_profile;           // M0(t) [s, N m], instead of torque and its ramp
     double inertia = 0.05;            // J_load [kg m^2]
     double speed_coefficient = 0.0;   // c_omega [N m s/rad]
     double stiffness = 2.0e4;         // torsion spring pulley <-> load [N m/rad]
@@ -137,6 +143,7 @@ struct Config {
   struct Clamping {
     double driving = 25.0e3;  // F1 [N]
     double driven = 30.0e3;   // F2 [N]
+    Profile driving_profile, driven_profile;  // F1(t), F2(t) [s, N], instead of the ramp; times increasing
     double sheave_damping = 2.0e3;  // moving sheave on its shaft [N s/m]
   } clamping;
   struct Controller {

@@ -100,10 +100,13 @@ std::vector<std::string> envelope_warnings(const Config& c) {
     if (c.controller.target_profile.empty()) ratio("controller.target_ratio", c.controller.target_ratio);
     for (const auto& p : c.controller.target_profile) ratio("controller.target_profile", p[1]);
   }
-  if (!(c.drive.speed >= e.speed_min && c.drive.speed <= e.speed_max))
-    w.push_back("drive.speed = " + num(c.drive.speed) + " rad/s is outside the envelope (" +
-                range(e.speed_min, e.speed_max, "rad/s") + "): the time step, the W matrix's rebuilds and the "
-                "steady criteria are not checked at this speed");
+  const auto speed = [&](const std::string& key, double v) {
+    if (!(v >= e.speed_min && v <= e.speed_max))
+      w.push_back(key + " = " + num(v) + " rad/s is outside the envelope (" + range(e.speed_min, e.speed_max, "rad/s") +
+                  "): the time step, the W matrix's rebuilds and the steady criteria are not checked at this speed");
+  };
+  if (c.drive.speed_profile.empty()) speed("drive.speed", c.drive.speed);
+  for (const auto& p : c.drive.speed_profile) speed("drive.speed_profile", p[1]);
   if (c.friction.law == FrictionLaw::none) {
     w.push_back("friction.law = none: the chain transmits no torque by friction; the envelope's loads and "
                 "friction coefficients (" + range(e.f0_min, e.f0_max, "") + ") do not apply");

@@ -19,7 +19,52 @@ double ramp_rate(double t, double t_ramp) {
   return 0.5 * M_PI / t_ramp * std::sin(M_PI * t / t_ramp);
 }
 
+double profile_value(const Config::Profile& p, double t) {
+  if (t <= p.front()[0]) return p.front()[1];
+  for (std::size_t i = 1; i < p.size(); ++i)
+    if (t < p[i][0]) return p[i - 1][1] + (p[i][1] - p[i - 1][1]) * (t - p[i - 1][0]) / (p[i][0] - p[i - 1][0]);
+  return p.back()[1];
+}
+
+double profile_rate(const Config::Profile& p, double t) {
+  for (std::size_t i = 1; i < p.size(); ++i)
+    if (t >= p[i - 1][0] && t < p[i][0]) return (p[i][1] - p[i - 1][1]) / (p[i][0] - p[i - 1][0]);
+  return 0.0;
+}
+
+double profile_integral(const Config::Profile& p, double t) {
+  double sum = p.front()[1] * std::min(t, p.front()[0]);  // held before the first point
+  for (std::size_t i = 1; i < p.size() && t > p[i - 1][0]; ++i) {
+    const double dt = p[i][0] - p[i - 1][0];
+    if (!(dt > 0)) continue;  // a step: no area
+    const double b = std::min(t, p[i][0]);
+    const double vb = p[i - 1][1] + (p[i][1] - p[i - 1][1]) * (b - p[i - 1][0]) / dt;  // this segment's line at b
+    sum += 0.5 * (p[i - 1][1] + vb) * (b - p[i - 1][0]);
+  }
+  if (t > p.back()[0]) sum += p.back()[1] * (t - p.back()[0]);
+  return sum;
+}
+
+double drive_speed(const Config& c, double t) {
+  return c.drive.speed_profile.empty() ? c.drive.speed : profile_value(c.drive.speed_profile, t);
+}
+
+double drive_angle(const Config& c, double t) {
+  return c.drive.speed_profile.empty() ? c.drive.speed * t : profile_integral(c.drive.speed_profile, t);
+}
+
+double peak_drive_speed(const Config& c) {
+  double v = std::abs(c.drive.speed_profile.empty() ? c.drive.speed : 0.0);
+  for (const auto& p : c.drive.speed_profile) v = std::max(v, std::abs(p[1]));
+  return v;
+}
+
+double final_drive_speed(const Config& c) {
+  return c.drive.speed_profile.empty() ? c.drive.speed : c.drive.speed_profile.back()[1];
+}
+
 double ramped_load_torque(const Config& c, double t) {
+  if (!c.load.torque_profile.empty()) return profile_value(c.load.torque_profile, t);
   const double from = c.ramp.load_from, to = c.load.torque, ts = t - c.ramp.load_start;
   if (ts < 0) return from;
   return from + (to - from) * ramp(ts, c.ramp.load_time);
@@ -29,28 +74,23 @@ void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]) {
   const Config& c = m.cfg;
   const double r = ramp(t, c.ramp.time), rd = ramp_rate(t, c.ramp.time);
   const double F0[2] = {c.clamping.driving, c.clamping.driven};
-  for (int k = 0; k < 2; ++k) F[k] = F0[k] * r, Fdot[k] = F0[k] * rd;
+  const Config::Profile* profile[2] = {&c.clamping.driving_profile, &c.clamping.driven_profile};
+  for (int k = 0; k < 2; ++k) {
+    if (!profile[k]->empty()) F[k] = profile_value(*profile[k], t), Fdot[k] = profile_rate(*profile[k], t);
+    else F[k] = F0[k] * r, Fdot[k] = F0[k] * rd;
+  }
 }
 
 double target_ratio(const Config& c, double t) {
   const auto& p = c.controller.target_profile;
-  if (p.empty()) return c.controller.target_ratio;
-  if (t <= p.front()[0]) return p.front()[1];
-  for (std::size_t i = 1; i < p.size(); ++i)
-    if (t < p[i][0]) return p[i - 1][1] + (p[i][1] - p[i - 1][1]) * (t - p[i - 1][0]) / (p[i][0] - p[i - 1][0]);
-  return p.back()[1];
+  return p.empty() ? c.controller.target_ratio : profile_value(p, t);
 }
 
-double target_rate(const Config& c, double t) {
-  const auto& p = c.controller.target_profile;
-  for (std::size_t i = 1; i < p.size(); ++i)
-    if (t >= p[i - 1][0] && t < p[i][0]) return (p[i][1] - p[i - 1][1]) / (p[i][0] - p[i - 1][0]);
-  return 0.0;
-}
+double target_rate(const Config& c, double t) { return profile_rate(c.controller.target_profile, t); }
 
 double transmitted_torque(const Config& c, double t) {
   const double r = target_ratio(c, t);
-  return std::abs(ramped_load_torque(c, t)) + c.load.inertia * c.drive.speed * std::abs(target_rate(c, t)) / (r * r);
+  return std::abs(ramped_load_torque(c, t)) + c.load.inertia * drive_speed(c, t) * std::abs(target_rate(c, t)) / (r * r);
 }
 
 double sheave_radius(const Model& m, int k, double w) {
@@ -65,7 +105,13 @@ double slip_safe_gain(const Model& m) {
   return c.controller.clamping_safety * m.cos_beta / (2 * c.friction.f0);
 }
 
-double ramps_end(const Config& c) { return std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time); }
+double ramps_end(const Config& c) {
+  double end = std::max(c.ramp.time, c.ramp.load_start + c.ramp.load_time);
+  for (const Config::Profile* p : {&c.drive.speed_profile, &c.load.torque_profile, &c.clamping.driving_profile,
+                                   &c.clamping.driven_profile})
+    if (!p->empty()) end = std::max(end, p->back()[0]);  // the inputs' last change
+  return end;
+}
 
 double settle_end(const Config& c) { return c.integrator.settle_time < 0 ? ramps_end(c) : c.integrator.settle_time; }
 
@@ -86,7 +132,7 @@ double torsion_period(const Model& m) {
 
 double steady_window(const Model& m) {
   if (m.cfg.run.steady_window > 0) return m.cfg.run.steady_window;
-  const double v_chain = m.cfg.drive.speed * m.pulley[0].running_radius;
+  const double v_chain = final_drive_speed(m.cfg) * m.pulley[0].running_radius;
   const double t_mesh = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0.0;
   const double w = 2 * torsion_period(m);
   if (!(t_mesh > 0)) return w;
@@ -187,7 +233,7 @@ Model build_model(const Config& cfg) {
   m.y0 = Eigen::VectorXd::Zero(m.nstate);
   double* q = m.y0.data();
   double* v = q + m.ndof;
-  const double w1 = cfg.drive.speed;
+  const double w1 = drive_speed(cfg, 0.0);
   const double speed = w1 * pl.R1;
   const double w2 = speed / pl.R2;
   for (int j = 0; j < m.links; ++j) {

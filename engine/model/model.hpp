@@ -88,8 +88,24 @@ double ramp(double t, double t_ramp);
 double ramp_rate(double t, double t_ramp);
 
 // The load torque's ramped part at t (docs/model.md 4.6.3): ramp.load_from until
-// ramp.load_start, then along the ramp to load.torque over ramp.load_time.
+// ramp.load_start, then along the ramp to load.torque over ramp.load_time; or, with
+// load.torque_profile, the profile at t.
 double ramped_load_torque(const Config& c, double t);
+
+// An input that changes in time (Config::Profile): its value at t, linear between its
+// points and held before the first and after the last; its rate (0 where it is held); its
+// integral from 0 to t.
+double profile_value(const Config::Profile& p, double t);
+double profile_rate(const Config::Profile& p, double t);
+double profile_integral(const Config::Profile& p, double t);
+// The drive's prescribed speed omega_in(t) and angle (its integral from 0): drive.speed, or
+// drive.speed_profile.
+double drive_speed(const Config& c, double t);
+double drive_angle(const Config& c, double t);
+// The largest drive speed the run prescribes (what the numerics' intervals must resolve)
+// and the one it ends at (what its steady state turns at).
+double peak_drive_speed(const Config& c);
+double final_drive_speed(const Config& c);
 
 // The period [s] of the lowest torsion mode of the drive line: the prescribed drive, its
 // torsion spring, both pulleys turning together through a rigid chain at the geometric
@@ -103,7 +119,8 @@ double torsion_period(const Model& m);
 double steady_window(const Model& m);
 
 // The clamping forces' potential part at t (docs/model.md 4.6.4), F_k rho(t), and its
-// time rate; the controller's forces are external to it.
+// time rate (with clamping.driving_profile / driven_profile: the profile and its rate);
+// the controller's forces are external to it.
 void clamping_schedule(const Model& m, double t, double F[2], double Fdot[2]);
 // The controller's target ratio at t: controller.target_profile interpolated linearly
 // (held before its first point and after its last), or controller.target_ratio.
@@ -121,7 +138,8 @@ double sheave_radius(const Model& m, int k, double w);
 // strand tension difference M_load / R2.
 double slip_safe_gain(const Model& m);
 
-// The time from which every ramp (clamping forces and load torque) has ended.
+// The time from which every ramp (clamping forces and load torque) and every input's
+// profile has ended.
 double ramps_end(const Config& c);
 // The end of the W-methods' settling phase: integrator.settle_time, or ramps_end when < 0.
 double settle_end(const Config& c);

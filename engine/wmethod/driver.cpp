@@ -27,7 +27,7 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
 }
 
 int stiffness_every(const Model& m, double hs, int w_every, int w_k_every) {
-  const double v = std::abs(m.cfg.drive.speed) * m.pulley[0].running_radius;
+  const double v = peak_drive_speed(m.cfg) * m.pulley[0].running_radius;
   int k = w_k_every;
   while (w_every > 0 && k % 2 == 0 && (k / 2) % w_every == 0 && k * hs * v > kStiffnessTravel * m.cfg.chain.pitch)
     k /= 2;

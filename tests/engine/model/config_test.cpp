@@ -110,7 +110,8 @@ TEST(ConfigTest, ReferenceEqualsStructDefaults) {
 TEST(ConfigTest, EveryShippedConfigLoads) {
   // Every shipped config runs the advised method at a step that divides its intervals (its
   // own, checked against RK4: docs/integrators.md 12.6).
-  for (const char* name : {"reference.toml", "reference-steady.toml", "reference-shift.toml", "mini.toml", "ratio-0.5.toml", "ratio-2.0.toml"}) {
+  for (const char* name : {"reference.toml", "reference-steady.toml", "reference-shift.toml", "mini.toml", "ratio-0.5.toml",
+                           "ratio-2.0.toml", "launch.toml"}) {
     SCOPED_TRACE(name);
     Config c;
     ASSERT_NO_THROW(c = load_config(kConfigDir + name));
