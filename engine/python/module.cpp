@@ -7,6 +7,8 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cmath>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -159,6 +161,97 @@ py::list shift_study(ShiftStudyOptions o, const py::object& log) {
   return out;
 }
 
+// A simulation stepped from Python (cvt_engine.Simulation, docs/python.md "Stepping"): the
+// model from rest, advanced to a time in the configured steps, its channels read, and its
+// inputs changed between advances by rewriting their profiles from the current time on
+// (docs/model.md 4.6.5). Without changes its trajectory is the run's, bit for bit.
+class Stepper {
+ public:
+  Stepper(const Config& cfg, const std::string& scheduler, int threads, int grain)
+      : model_(std::make_unique<Model>(build_model(cfg))),
+        sim_(std::make_unique<Simulation>(*model_, schedule(scheduler, threads, grain))),
+        h_(model_->cfg.integrator.step) {
+    if (adaptive_steps(model_->cfg))
+      throw ConfigError("integrator.tolerance", std::to_string(model_->cfg.integrator.tolerance),
+                        "a stepped simulation takes fixed steps: leave integrator.tolerance at 0");
+  }
+  double time() const { return sim_->time(); }
+  long steps() const { return sim_->steps(); }
+  double step() const { return h_; }
+
+  // Steps to t (to the step grid: t a multiple of the step within 1e-6 of it), the GIL
+  // released; BlowUpError on a blow-up, as a run.
+  void advance(double t) {
+    const double k = std::round(t / h_);
+    if (!std::isfinite(t) || std::abs(k * h_ - t) > 1e-6 * h_)
+      throw ConfigError("t", std::to_string(t), "must be a multiple of the step " + std::to_string(h_) + " s");
+    const long n = static_cast<long>(k);
+    if (n < sim_->steps())
+      throw ConfigError("t", std::to_string(t), "is before the simulation's time " + std::to_string(sim_->time()) + " s");
+    py::gil_scoped_release nogil;
+    const long every = std::max(1L, std::lround(model_->cfg.run.sample_interval / h_));
+    for (long i = sim_->steps() + 1; i <= n; ++i) {
+      sim_->step(h_);
+      if (i % every == 0 || i == n) sim_->check_finite();
+    }
+  }
+
+  py::dict channels() {
+    const Sample s = sim_->sample(h_);
+    return py::dict(py::arg("time") = s.t, py::arg("step") = s.step, py::arg("input_speed") = s.input_speed,
+                    py::arg("output_speed") = s.output_speed, py::arg("load_speed") = s.load_speed,
+                    py::arg("input_torque") = s.input_torque, py::arg("output_torque") = s.output_torque,
+                    py::arg("load_torque") = s.load_torque, py::arg("speed_ratio") = s.speed_ratio,
+                    py::arg("geometric_ratio") = s.geometric_ratio, py::arg("efficiency") = s.efficiency,
+                    py::arg("clamping_force_driving") = s.clamp[0], py::arg("clamping_force_driven") = s.clamp[1],
+                    py::arg("sheave_position") = std::vector<double>(s.sheave_position, s.sheave_position + 2),
+                    py::arg("link_tension") = s.link_tension, py::arg("power_input") = s.power_input,
+                    py::arg("power_output") = s.power_output, py::arg("work_input") = s.work_input,
+                    py::arg("work_output") = s.work_output, py::arg("energy_residual") = s.energy_residual);
+  }
+
+  std::vector<double> state() const {
+    const Eigen::VectorXd& y = sim_->state();
+    return std::vector<double>(y.data(), y.data() + y.size());
+  }
+
+  // An input from now on: "drive_speed" [rad/s] and "load_torque" [N m] step to the value
+  // at the current time; "clamping_driving" and "clamping_driven" [N] go linearly to it over
+  // `over` seconds (> 0: a clamping force's rate enters the energy balance).
+  void set_input(const std::string& name, double value, double over) {
+    Config& c = model_->cfg;
+    const double t = sim_->time();
+    if (!std::isfinite(value)) throw ConfigError(name, std::to_string(value), "must be a finite number");
+    if (name == "drive_speed") {
+      if (!(value > 0)) throw ConfigError(name, std::to_string(value), "must be positive (> 0)");
+      // The angle is the speed's integral: the past is kept, the new speed holds from t.
+      Config::Profile& p = c.drive.speed_profile;
+      const double now = drive_speed(c, t);
+      if (p.empty()) p = {{0.0, c.drive.speed}};
+      while (!p.empty() && p.back()[0] > t) p.pop_back();
+      p.push_back({t, now});
+      p.push_back({t, value});
+    } else if (name == "load_torque") {
+      if (!(value >= 0)) throw ConfigError(name, std::to_string(value), "must not be negative (>= 0)");
+      c.load.torque_profile = {{t, ramped_load_torque(c, t)}, {t, value}};
+    } else if (name == "clamping_driving" || name == "clamping_driven") {
+      if (!(value > 0)) throw ConfigError(name, std::to_string(value), "must be positive (> 0)");
+      if (!(over > 0)) throw ConfigError("over", std::to_string(over), "must be positive (> 0)");
+      double F[2], Fd[2];
+      clamping_schedule(*model_, t, F, Fd);
+      const int k = name == "clamping_driving" ? 0 : 1;
+      (k == 0 ? c.clamping.driving_profile : c.clamping.driven_profile) = {{t, F[k]}, {t + over, value}};
+    } else {
+      throw ConfigError("name", name, "must be one of drive_speed, load_torque, clamping_driving, clamping_driven");
+    }
+  }
+
+ private:
+  std::unique_ptr<Model> model_;  // owned: the inputs are changed in its configuration
+  std::unique_ptr<Simulation> sim_;
+  double h_;
+};
+
 py::dict model_info(const Config& cfg) {
   const Model m = build_model(cfg);
   return py::dict(py::arg("links") = m.links, py::arg("coordinates") = m.ndof, py::arg("unknowns") = m.nstate,
@@ -205,6 +298,16 @@ PYBIND11_MODULE(_core, m) {
   m.def("parse_config", &parse_config, py::arg("text"), py::arg("overrides"), py::arg("origin"),
         py::arg("shortcuts") = std::map<std::string, std::string>{});
   m.def("model_info", &model_info, py::arg("config"));
+  py::class_<Stepper>(m, "Stepper", "a simulation stepped from Python (use cvt_engine.Simulation)")
+      .def(py::init<const Config&, const std::string&, int, int>(), py::arg("config"), py::arg("scheduler"),
+           py::arg("threads"), py::arg("grain"))
+      .def_property_readonly("time", &Stepper::time)
+      .def_property_readonly("steps", &Stepper::steps)
+      .def_property_readonly("step", &Stepper::step)
+      .def("advance", &Stepper::advance, py::arg("t"))
+      .def("channels", &Stepper::channels)
+      .def("state", &Stepper::state)
+      .def("set_input", &Stepper::set_input, py::arg("name"), py::arg("value"), py::arg("over"));
   m.def("run", &run, py::arg("config"), py::arg("out"), py::arg("scheduler"), py::arg("threads"), py::arg("grain"),
         py::arg("quiet"), py::arg("progress"), py::arg("progress_seconds"), py::arg("checkpoint_every"),
         py::arg("resume") = std::string(), py::arg("append") = false);

@@ -136,6 +136,37 @@ def test_resume_continues_a_run_to_the_uninterrupted_bits(tmp_path):
         cvt.resume(tmp_path / "parts.h5.ckpt", t_end="soon")
 
 
+def test_stepping_gives_the_runs_bits_and_takes_new_inputs():
+    # Advanced in three pieces without changes: the channels of one run at each time.
+    whole = cvt.run(MINI, t_end=0.003)
+    sim = cvt.Simulation(MINI)
+    h = sim.step
+    times = whole.channels["time"]
+    for t in (0.001, 0.002, 0.003):
+        ch = sim.advance(round(t / h) * h)
+        i = int(np.argmin(np.abs(times - t)))
+        for name in ("input_torque", "output_torque", "clamping_force_driving", "energy_residual", "work_input"):
+            assert ch[name] == whole.channels[name][i], (t, name)
+    assert sim.state().shape == (cvt.model_info(MINI)["unknowns"],) and np.isfinite(sim.state()).all()
+    # New inputs: the load torque steps, the drive speeds up, the clamping rises; the load
+    # channel follows at once, the drive's speed within the drive spring's settling, and the
+    # energy balance stays closed (its residual a small share of the input work).
+    sim.set_load_torque(15.0)
+    sim.set_drive_speed(250.0)
+    sim.set_clamping(driving=12e3, driven=12e3, over=5e-4)
+    ch = sim.advance(round(0.006 / h) * h)
+    assert ch["load_torque"] == pytest.approx(15.0)
+    assert ch["clamping_force_driving"] == pytest.approx(12e3)
+    assert ch["input_speed"] == pytest.approx(250.0, rel=0.02)
+    assert abs(ch["energy_residual"]) < 0.01 * ch["work_input"]
+    with pytest.raises(cvt.ConfigError, match="before the simulation's time"):
+        sim.advance(0.001)
+    with pytest.raises(cvt.ConfigError, match="multiple of the step"):
+        sim.advance(0.0061234567)
+    with pytest.raises(cvt.ConfigError):
+        sim.set_drive_speed(-1)
+
+
 def test_results_convert_to_pandas_and_xarray_with_units(tmp_path):
     r = cvt.run(cvt.shipped_config("mini"), t_end=0.0005)
     pd = pytest.importorskip("pandas")

@@ -24,7 +24,7 @@ from ._core import BlowUpError, Config, ConfigError, OutputError
 
 __version__ = _core.version
 __all__ = ["Config", "ConfigError", "BlowUpError", "OutputError", "Result", "load_config", "parse_config",
-           "run", "resume", "sweep", "study_slip", "study_shift", "model_info", "config_value", "read_channels", "read_units",
+           "run", "resume", "Simulation", "sweep", "study_slip", "study_shift", "model_info", "config_value", "read_channels", "read_units",
            "shipped_config"]
 
 
@@ -333,6 +333,67 @@ def _run(cfg, out, resuming, threads, scheduler, grain, quiet, progress, progres
         # process for SIGTERM (unless the program handles it, when the run's result returns).
         signal.raise_signal(stop_signal)
     return Result(summary, ch, None if tmp else path, units)
+
+
+class Simulation:
+    """A simulation stepped from Python, for co-simulation (docs/python.md, "Stepping").
+
+        sim = cvt.Simulation(cvt.shipped_config("mini"))
+        ch = sim.advance(0.01)            # to t = 0.01 s: the channels there (dict)
+        sim.set_load_torque(15.0)         # N m, from now on
+        ch = sim.advance(0.02)
+
+    The model starts from rest, as a run. advance(t) takes the configured steps to t [s] (a
+    multiple of the step, .step [s]) and returns the channels at t: time [s], the speeds
+    [rad/s], torques [N m], clamping forces [N], sheave positions [m], powers [W], works and
+    the energy residual [J], the ratios and efficiency [1]. Between advances the inputs may
+    change: set_drive_speed (rad/s, a step), set_load_torque (N m, a step),
+    set_clamping (N, linear over `over` seconds). Without changes the trajectory is that of
+    run() to the same time, bit for bit. Raises ConfigError for a bad argument and
+    BlowUpError when the state blows up.
+    """
+
+    def __init__(self, config, *, overrides=None, threads=1, scheduler=None, grain=4):
+        scheduler, threads = _schedule(scheduler, threads, grain)
+        self._s = _core.Stepper(_config(config, overrides, {}), scheduler, threads, grain)
+
+    @property
+    def time(self):
+        """The simulation's time [s]."""
+        return self._s.time
+
+    @property
+    def step(self):
+        """The integration step [s]: advance() goes to multiples of it."""
+        return self._s.step
+
+    def advance(self, t):
+        """Steps to time t [s] and returns the channels there (dict)."""
+        self._s.advance(_nonnegative("t", t))
+        return self._s.channels()
+
+    def channels(self):
+        """The channels at the current time (dict; units as in advance)."""
+        return self._s.channels()
+
+    def state(self):
+        """The state vector y (positions, then velocities, then the auxiliary integrals)."""
+        return np.asarray(self._s.state())
+
+    def set_drive_speed(self, omega):
+        """The drive's speed omega_in [rad/s] from now on (a step; its angle stays continuous)."""
+        self._s.set_input("drive_speed", _nonnegative("omega", omega), 0.0)
+
+    def set_load_torque(self, torque):
+        """The load torque M0 [N m] from now on (a step)."""
+        self._s.set_input("load_torque", _nonnegative("torque", torque), 0.0)
+
+    def set_clamping(self, driving=None, driven=None, over=1e-4):
+        """The clamping forces F1 (driving), F2 (driven) [N], each reached linearly over
+        `over` [s] from its present value (a force's rate enters the energy balance)."""
+        for name, value in (("clamping_driving", driving), ("clamping_driven", driven)):
+            if value is not None:
+                self._s.set_input(name, _nonnegative(name, value), _nonnegative("over", over))
 
 
 def _number(text):
