@@ -397,7 +397,9 @@ def expected_files(command, kind):
     if m:
         files.append(m.group(1))
     out = option_value(first, "-o", "--out")
-    if kind == "sweep":
+    if kind == "sweep" and re.search(r"\s--(point|array)\b", first):
+        files.append((out or "sweep") + ".points")  # a job array's task writes its row there
+    elif kind == "sweep" and " --gather" not in first:
         files.append((out or "sweep") + ".csv")
     elif kind in ("run", "scale", "study slip", "study shift", "study integrators", "tool") and out:
         if kind != "tool" or out.endswith((".png", ".gif", ".webm", ".csv")):
