@@ -138,7 +138,7 @@ def config_value(config, key):
 
 
 def model_info(config):
-    """links, coordinates, unknowns, the running radii [m] and the closure residual [m]."""
+    """links, coordinates, unknowns (counts), the running radii [m] and the closure residual [m]."""
     return _core.model_info(_config(config, None, {}))
 
 
@@ -248,7 +248,8 @@ def shipped_config(name):
 
 
 def read_channels(path):
-    """The channels of a run's file: {"time": [T], name: [T] or [T][k], ...} as NumPy arrays."""
+    """The channels of a run's file: {"time": [T] in s, name: [T] or [T][k], ...} as NumPy
+    arrays, each in its SI unit (read_units gives them)."""
     import h5py
     with h5py.File(path, "r") as f:
         obs = f["observables"]
@@ -418,7 +419,9 @@ def _log(log, quiet):
 def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, from_checkpoint=None,
           keep_runs=False, warm_ramp=1e-2, threads=1, scheduler=None, grain=4, quiet=True, log=None):
     """Operating points, each run until steady (as `cvt-engine sweep`); returns OUT.csv's rows
-    as dicts (the keys, status, speed_ratio, ..., efficiency, ...: docs/studies.md).
+    as dicts (the keys, status, speed_ratio [1], input_torque [N m], input_speed [rad/s],
+    clamping_force_driving [N], efficiency [1], model_time [s], ...: docs/studies.md; OUT.h5's
+    /results carry each column's unit).
 
     axes: {key: [values]} (a full grid, the first key slowest); points: a CSV file of points.
     from_checkpoint: start every point from a steady state's checkpoint (then config is None).
