@@ -48,12 +48,6 @@ std::string fmt_g(double x) {
   return b;
 }
 
-std::string exact(double x) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  return b;
-}
-
 // When the command started: what run.max_wall counts from.
 const cvt::WallClock::time_point g_command_start = cvt::WallClock::now();
 
@@ -385,7 +379,8 @@ int cmd_run(const std::string& config_path, std::vector<std::string> overrides, 
   if (!ra.method.empty()) overrides.push_back("integrator.method=" + ra.method);
   if (ra.until_steady) overrides.push_back("run.until_steady=true");
   if (ra.verify) overrides.push_back("run.verify=true");
-  if (!ra.max_wall.empty()) overrides.push_back("run.max_wall=" + exact(parse_duration("--max-wall", ra.max_wall)));
+  if (!ra.max_wall.empty())
+    overrides.push_back("run.max_wall=" + cvt::exact_number(parse_duration("--max-wall", ra.max_wall)));
   // A resumed run takes its configuration from the checkpoint (overrides still apply:
   // --t-end to go further; changing the physics would break the continuation).
   std::optional<Checkpoint> ckpt;
@@ -867,7 +862,7 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   const StopSignals stop_signals;  // from the first instruction, as for a run
   o.started = g_command_start;
   if (!mode.max_wall.empty())
-    o.overrides.push_back("run.max_wall=" + exact(parse_duration("--max-wall", mode.max_wall)));
+    o.overrides.push_back("run.max_wall=" + cvt::exact_number(parse_duration("--max-wall", mode.max_wall)));
   const SweepPlan plan = sweep_plan(o, axes, points);
   const long task = sweep_task_point(mode);
   if (mode.gather && task >= 0) throw ConfigError("--gather", "", "give either --gather or --point/--array, not both");
