@@ -17,7 +17,7 @@ PACKAGES = cmake g++ make pkg-config graphviz \
   python3-venv python3-pandas python3-xarray \
   chromium
 
-.PHONY: deps configure build run test test-slow bench plots view video clean
+.PHONY: deps configure build run test test-checks test-slow bench plots view video clean
 
 # Installs the missing Debian packages with apt-get: as root, or through sudo. A user who can
 # do neither is told which packages to ask for and make stops before apt-get
@@ -49,8 +49,16 @@ run: build
 # The whole fast suite (minutes). Long physics runs are named Slow* (the test or its case:
 # SlowPythonTest, UntilSteadyTest.SlowReference...) and run by test-slow; a name with "Slow"
 # elsewhere (StiffComponentOnItsSlowManifold) is a fast test.
+# Then the checking builds (docs/testing.md), each in $(BUILD)/check-KIND: AddressSanitizer
+# and UndefinedBehaviorSanitizer over the kernels and runs, ThreadSanitizer over the threaded
+# tests, and the determinism tests of the portable x86-64-v2 build. CHECKS= leaves them out.
+CHECKS ?= asan tsan portable
 test: build
 	@cd $(BUILD) && ctest -E '^Slow|[.]Slow' -j $(JOBS) --output-on-failure --timeout 900
+	@tools/checking_builds.sh $(BUILD) $(JOBS) $(CHECKS)
+
+test-checks: deps
+	@tools/checking_builds.sh $(BUILD) $(JOBS) $(CHECKS)
 
 test-slow: build
 	@cd $(BUILD) && ctest -R '^Slow|[.]Slow' --output-on-failure --timeout 3600

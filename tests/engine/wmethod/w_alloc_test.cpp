@@ -15,6 +15,7 @@ namespace cvt {
 namespace {
 
 TEST(WAlloc, NoAllocationInsideRos34pw2Steps) {
+  CVT_SKIP_UNLESS_ALLOCATIONS_COUNTED();
   // Past the start-up sub-steps (integrator.startup_time) and the ramp, so that the steps
   // counted are the production ones; a tiny threshold makes the fresh-friction
   // correction take contacts at most steps.
