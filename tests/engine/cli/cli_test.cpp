@@ -887,10 +887,17 @@ TEST_F(CliTest, FileIsReadableWhileWritingAndSurvivesKill9) {
                            "--quiet", "--flush-every", "0.2"});
   ASSERT_NE(pid, -1);
   const auto rows = [&] { return h5_rows(dir_ / "live.h5.partial", "/observables/input_speed/time", true); };
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
-  const long first = rows();
-  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
-  const long second = rows();
+  // Polled, not timed: a sanitizer build on a loaded machine writes its first rows late.
+  const auto rows_above = [&](long n) {
+    long r = rows();
+    for (int i = 0; i < 1200 && r <= n; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      r = rows();
+    }
+    return r;
+  };
+  const long first = rows_above(0);
+  const long second = rows_above(first);
   ASSERT_EQ(kill(pid, SIGKILL), 0);
   int status = 0;
   waitpid(pid, &status, 0);
