@@ -50,10 +50,10 @@ run: build
 # SlowPythonTest, UntilSteadyTest.SlowReference...) and run by test-slow; a name with "Slow"
 # elsewhere (StiffComponentOnItsSlowManifold) is a fast test.
 # Then the checking builds (docs/testing.md), each in $(BUILD)/check-KIND: AddressSanitizer
-# and UndefinedBehaviorSanitizer over the kernels and runs, and the determinism tests of the
-# portable x86-64-v2 build. CHECKS= leaves them out; CHECKS=tsan is the ThreadSanitizer
-# build, not yet clean with Debian's oneTBB (docs/testing.md).
-CHECKS ?= asan portable
+# and UndefinedBehaviorSanitizer over the kernels and runs, ThreadSanitizer over the threaded
+# tests, and the determinism tests of the portable x86-64-v2 build. CHECKS= leaves them out;
+# CHECKS=tsan runs one.
+CHECKS ?= asan tsan portable
 test: build
 	@cd $(BUILD) && ctest -E '^Slow|[.]Slow' -j $(JOBS) --output-on-failure --timeout 900
 	@tools/checking_builds.sh $(BUILD) $(JOBS) $(CHECKS)

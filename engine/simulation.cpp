@@ -15,6 +15,7 @@
 #include "modules/chain_forces.hpp"
 #include "modules/pulley_contact.hpp"
 #include "modules/inertia.hpp"
+#include "numa/hand_off.hpp"
 
 namespace cvt {
 
@@ -24,6 +25,12 @@ namespace {
 double energy_flow(const double* a, const double* b) {
   return std::abs(b[kWorkIn] - a[kWorkIn]) + std::abs(b[kWorkOut] - a[kWorkOut]) +
          std::abs(b[kWorkDiss] - a[kWorkDiss]) + std::abs(b[kWorkClamp] - a[kWorkClamp]);
+}
+// f and g at once on the schedule's threads.
+template <class F, class G>
+void both(const F& f, const G& g) {
+  const numa::ScopedForkJoin fj;
+  tbb::parallel_invoke(fj.task(f), fj.task(g));
 }
 }  // namespace
 
@@ -568,7 +575,7 @@ Sample Simulation::sample(double next_step) {
     const auto evaluate = [&] { f = begin_w_step(next, next_step); };
     const bool beside = schedule_->threads() > 1;
     if (beside)
-      schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
+      schedule_->within([&] { both(evaluate, energy); });
     else
       evaluate();
     if (prof_) prof_->add_step_ahead(Profiler::ticks() - t0);
@@ -577,7 +584,7 @@ Sample Simulation::sample(double next_step) {
     diag_.status = ws_.status;
     const auto evaluate = [&] { rhs_serial(m_, diag_, clock_.t, y_.data(), dy_.data()); };
     if (schedule_->threads() > 1)
-      schedule_->within([&] { tbb::parallel_invoke(evaluate, energy); });
+      schedule_->within([&] { both(evaluate, energy); });
     else
       evaluate(), energy();
   }

@@ -67,7 +67,7 @@ class FlowGraphSchedule final : public Schedule {
     if (arenas_->nodes() == 1) {
       const auto run = [&] { parts_[0][0].run(); };
       if (inside_) run();
-      else arenas_->arena(0).execute(run);
+      else arenas_->execute_on(0, run);
       return;
     }
     for (int p = 0; p < phases_; ++p) arenas_->run_on_all_nodes([&](int n) { parts_[n][p].run(); });
@@ -128,7 +128,7 @@ class FlowGraphSchedule final : public Schedule {
     };
     if (arenas_->nodes() == 1) {
       if (inside_) pass(0);
-      else arenas_->arena(0).execute([&] { pass(0); });
+      else arenas_->execute_on(0, [&] { pass(0); });
     } else {
       arenas_->run_on_all_nodes(pass);
     }
@@ -137,7 +137,7 @@ class FlowGraphSchedule final : public Schedule {
   }
   void within_impl(void (*body)(void*), void* ctx) override {
     if (arenas_->nodes() > 1 || inside_) return body(ctx);
-    arenas_->arena(0).execute([&] {
+    arenas_->execute_on(0, [&] {
       inside_ = true;
       try {
         body(ctx);
@@ -148,9 +148,9 @@ class FlowGraphSchedule final : public Schedule {
       inside_ = false;
     });
   }
-  bool enqueue(std::function<void()>&& f) override {
+  bool enqueue(void (*job)(void*), void* ctx) override {
     if (arenas_->nodes() > 1 || arenas_->total_threads() < 2) return false;
-    arenas_->arena(0).enqueue(std::move(f));
+    arenas_->arena(0).enqueue(numa::enqueued(job, ctx));
     return true;
   }
   void set_tracing(bool on) override { tracing_ = on; }
@@ -167,10 +167,16 @@ class FlowGraphSchedule final : public Schedule {
     std::unique_ptr<flow::graph> graph;
     std::unique_ptr<flow::broadcast_node<Msg>> start;
     std::vector<std::unique_ptr<flow::continue_node<Msg>>> nodes;
+    // What ThreadSanitizer is told of the graph's edges (numa/hand_off.hpp): the run's
+    // fork and join, and per stage its end, which the stages after it acquire.
+    numa::ForkJoin sync;
+    std::array<char, kStageCount> done{};
     void run() {
       if (nodes.empty()) return;
+      sync.fork();
       start->try_put(Msg());
       graph->wait_for_all();
+      sync.joined();
     }
   };
 
@@ -195,19 +201,18 @@ class FlowGraphSchedule final : public Schedule {
     const int P = T * c;
     std::atomic<unsigned char>* claim = claims_[n * kPasses + pass].get();
     for (int p = 0; p < P; ++p) claim[p].store(0, std::memory_order_relaxed);
-    tbb::parallel_for(
-        0, T,
-        [&](int) {
-          const int me = tbb::this_task_arena::current_thread_index();
-          const auto run = [&](int p) {
-            if (claim[p].exchange(1, std::memory_order_acq_rel)) return;
-            f(b0 + p * len / P, b0 + (p + 1) * len / P);
-          };
-          if (me >= 0 && me < T)
-            for (int p = me * c; p < (me + 1) * c; ++p) run(p);
-          for (int p = P - 1; p >= 0; --p) run(p);
-        },
-        tbb::simple_partitioner());
+    const auto part = [&](int) {
+      const int me = tbb::this_task_arena::current_thread_index();
+      const auto run = [&](int p) {
+        if (claim[p].exchange(1, std::memory_order_acq_rel)) return;
+        f(b0 + p * len / P, b0 + (p + 1) * len / P);
+      };
+      if (me >= 0 && me < T)
+        for (int p = me * c; p < (me + 1) * c; ++p) run(p);
+      for (int p = P - 1; p >= 0; --p) run(p);
+    };
+    const numa::ScopedForkJoin fj;
+    tbb::parallel_for(0, T, fj.task(part), tbb::simple_partitioner());
   }
   // This thread's index among all the schedule's threads (arena n's slots come after
   // those of the nodes before it).
@@ -302,14 +307,23 @@ class FlowGraphSchedule final : public Schedule {
       std::array<flow::continue_node<Msg>*, kStageCount> made{};
       for (const StageDecl& s : kStages) {
         if (phase_[stage_index(s.id)] != ph || !runs_on(n, s)) continue;
-        p.nodes.push_back(std::make_unique<flow::continue_node<Msg>>(*p.graph, [this, n, &s](const Msg&) {
-          if (empty_) return;
-          if (!tracing_) return run(n, s);
-          NodeSpan& span = spans_[n * kStageCount + stage_index(s.id)];
-          span.begin = now();
-          run(n, s);
-          span.end = now();
-        }));
+        // (The sanitizer's view of the node's edges: it acquires the ends of the stages
+        // it reads and releases its own.)
+        auto body = [this, n, &s, &p](const Msg&) {
+          if constexpr (numa::kThreadSanitizer)
+            for (const StageDecl& d : kStages)
+              if (contains(s.after, d.id)) numa::tsan_acquire(&p.done[stage_index(d.id)]);
+          if (!empty_ && !tracing_) {
+            run(n, s);
+          } else if (!empty_) {
+            NodeSpan& span = spans_[n * kStageCount + stage_index(s.id)];
+            span.begin = now();
+            run(n, s);
+            span.end = now();
+          }
+          numa::tsan_release(&p.done[stage_index(s.id)]);
+        };
+        p.nodes.push_back(std::make_unique<flow::continue_node<Msg>>(*p.graph, p.sync.task(std::move(body))));
         flow::continue_node<Msg>* node = made[stage_index(s.id)] = p.nodes.back().get();
         bool fed = false;
         for (const StageDecl& d : kStages)

@@ -3,7 +3,6 @@
 // arena, or as the published OpenMP scheme. All three give the same bits.
 #pragma once
 
-#include <functional>
 #include <type_traits>
 #include <memory>
 #include <string>
@@ -62,10 +61,10 @@ class Schedule {
     within_impl([](void* c) { (*static_cast<Body*>(c))(); }, const_cast<void*>(static_cast<const void*>(&f)));
   }
   virtual void within_impl(void (*body)(void*), void* ctx) { body(ctx); }
-  // Hands f to the schedule's threads to run when one is free, beside the caller (the flow
-  // graph on one NUMA arena with more than one thread; graph/side_job.hpp). False: nothing
-  // was taken, the caller runs f itself.
-  virtual bool enqueue(std::function<void()>&& f) { return false; }
+  // Hands job(ctx) to the schedule's threads to run when one is free, beside the caller (the
+  // flow graph on one NUMA arena with more than one thread; graph/side_job.hpp). False:
+  // nothing was taken, the caller runs it itself.
+  virtual bool enqueue(void (*job)(void*), void* ctx) { return false; }
   virtual std::string describe() const = 0;
   // GraphViz of one evaluation: the table's stages (engine/rhs/stages.hpp) as this schedule
   // runs them (flowgraph: its nodes and edges; the others: the order they run them in).

@@ -39,10 +39,14 @@ class SideJob {
     st_->phase.store(kReady, std::memory_order_release);
     State* st = st_;
     st->refs.fetch_add(1, std::memory_order_relaxed);
-    // The lambda holds one pointer: it fits std::function's own buffer (nothing allocated).
     bool taken = false;
     try {
-      taken = s_.enqueue([st] { st->claim_and_run(), st->release(); });
+      taken = s_.enqueue(
+          [](void* ctx) {
+            State* st = static_cast<State*>(ctx);
+            st->claim_and_run(), st->release();
+          },
+          st);
     } catch (...) {
       st->release();  // nothing was enqueued; the job stays ready for wait()
       throw;

@@ -71,12 +71,30 @@ class BindingObserver final : public tbb::task_scheduler_observer {
   BindingObserver(tbb::task_arena& arena, hwloc_topology_t topo, hwloc_const_cpuset_t set,
                   std::atomic<long>& binds, std::atomic<long>& failures)
       : tbb::task_scheduler_observer(arena), topo_(topo), set_(set), binds_(binds), failures_(failures) {
+    tsan_release(&made_);
     observe(true);
   }
   // Stops notifications before this object is half destroyed (TBB's advice).
-  ~BindingObserver() override { observe(false); }
+  ~BindingObserver() override {
+    observe(false);
+    tsan_acquire(&used_);
+  }
 
+  // (The notifications reach the threads through libtbb: hand_off.hpp's annotations order
+  // them after the constructor and before the destructor.)
   void on_scheduler_entry(bool) override {
+    tsan_acquire(&made_);
+    enter();
+    tsan_release(&used_);
+  }
+  void on_scheduler_exit(bool) override {
+    tsan_acquire(&made_);
+    leave();
+    tsan_release(&used_);
+  }
+
+ private:
+  void enter() {
     ThreadBindings& tb = tls_bindings;
     SavedBinding& saved = tb.push(this);
     if (!tb.known) tb.known = hwloc_get_cpubind(topo_, tb.current, HWLOC_CPUBIND_THREAD) == 0;
@@ -91,7 +109,7 @@ class BindingObserver final : public tbb::task_scheduler_observer {
     if (!ok) failures_.fetch_add(1, std::memory_order_relaxed);
   }
 
-  void on_scheduler_exit(bool) override {
+  void leave() {
     ThreadBindings& tb = tls_bindings;
     // An exit without our entry on top (observer switched on while the thread was
     // inside) has nothing to give back.
@@ -102,11 +120,11 @@ class BindingObserver final : public tbb::task_scheduler_observer {
     if (tb.known) hwloc_bitmap_copy(tb.current, saved.set);
   }
 
- private:
   hwloc_topology_t topo_;
   hwloc_const_cpuset_t set_;
   std::atomic<long>& binds_;
   std::atomic<long>& failures_;
+  char made_ = 0, used_ = 0;
 };
 
 namespace {

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "numa/hand_off.hpp"
 #include "numa/topology.hpp"
 
 namespace cvt::numa {
@@ -71,7 +72,8 @@ class NodeArenas {
   // the call and gets its previous binding back afterwards) and returns its result.
   template <class F>
   decltype(auto) execute_on(int node, F&& f) {
-    return arena(node).execute(std::forward<F>(f));
+    const ScopedForkJoin fj;
+    return arena(node).execute(fj.task(f));
   }
 
   // Runs f(node) for every node at once and waits: node 0 on the calling thread in its
@@ -105,10 +107,12 @@ template <class F>
 void NodeArenas::run_on_all_nodes(F&& f) {
   const int n = nodes();
   tbb::task_group* groups = groups_.get();
-  for (int node = 1; node < n; ++node) arena(node).enqueue(groups[node].defer([&f, node] { f(node); }));
+  const ScopedForkJoin fj;
+  const auto g = fj.task(f);
+  for (int node = 1; node < n; ++node) arena(node).enqueue(groups[node].defer([&g, node] { g(node); }));
   std::exception_ptr first;
   try {
-    arena(0).execute([&f] { f(0); });
+    arena(0).execute([&g] { g(0); });
   } catch (...) {
     first = std::current_exception();
   }

@@ -49,12 +49,11 @@ NodeMemory::NodeMemory(NodeArenas& arenas, int node, std::size_t bytes) : bytes_
   const std::size_t pages = mapped_bytes_ / page;
   try {
     arenas.execute_on(node, [&] {
-      tbb::parallel_for(
-          tbb::blocked_range<std::size_t>(0, pages),
-          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t i = r.begin(); i != r.end(); ++i) *static_cast<volatile char*>(base + i * page) = 0;
-          },
-          tbb::static_partitioner());
+      const auto touch = [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i != r.end(); ++i) *static_cast<volatile char*>(base + i * page) = 0;
+      };
+      const ScopedForkJoin fj;
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pages), fj.task(touch), tbb::static_partitioner());
     });
   } catch (...) {
     release();  // a throwing constructor gets no destructor

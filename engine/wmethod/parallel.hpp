@@ -9,6 +9,7 @@
 #include <tbb/task_arena.h>
 
 #include "graph/schedule.hpp"
+#include "numa/hand_off.hpp"
 
 namespace cvt {
 
@@ -20,10 +21,14 @@ struct TwoTasks {
   bool parallel;
   template <class F, class G>
   void operator()(const F& f, const G& g) const {
-    if (parallel)
-      tbb::parallel_invoke([&] { tbb::this_task_arena::isolate(f); }, [&] { tbb::this_task_arena::isolate(g); });
-    else
+    if (parallel) {
+      const auto first = [&] { tbb::this_task_arena::isolate(f); };
+      const auto second = [&] { tbb::this_task_arena::isolate(g); };
+      const numa::ScopedForkJoin fj;
+      tbb::parallel_invoke(fj.task(first), fj.task(second));
+    } else {
       f(), g();
+    }
   }
 };
 
@@ -32,9 +37,9 @@ struct TwoTasks {
 template <class F>
 void for_joint_ranges(const Schedule& schedule, int links, const F& f) {
   if (schedule.threads() <= 1) return f(0, links);
-  tbb::parallel_for(
-      tbb::blocked_range<int>(0, links), [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); },
-      tbb::static_partitioner());
+  const auto range = [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); };
+  const numa::ScopedForkJoin fj;
+  tbb::parallel_for(tbb::blocked_range<int>(0, links), fj.task(range), tbb::static_partitioner());
 }
 
 // f(j) for every joint. Each joint's block is independent of the others: any split over
