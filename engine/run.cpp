@@ -617,7 +617,14 @@ void Run::write_failed(const std::string& what) {
 // The last checkpoint, the summary and the profile. SWMR allows no new objects: the
 // profile and the summary go into the file after it is closed, and it gets its name last.
 RunResult Run::finish() {
-  const std::string stopped = g_stop_signal ? "signal" : stop_asked_ ? "callback" : wall_stop_ ? "max_wall" : stopped_;
+  // A stop asked for at the last step, or before a verdict it waited on (the next matrix
+  // rebuild), stopped nothing: the run ended, and is not continued as if cut short.
+  const bool ended = done_ == total_ || stopped_ != "t_end";
+  const bool cut = !ended && (g_stop_signal != 0 || stop_asked_ || wall_stop_);
+  const std::string stopped = !cut               ? stopped_
+                              : g_stop_signal    ? "signal"
+                              : stop_asked_      ? "callback"
+                                                 : "max_wall";
   output([&] {
     sync_writes();
     Checkpoint last = checkpoint();
@@ -632,8 +639,8 @@ RunResult Run::finish() {
   r_.steps = steps;
   r_.rejected_steps = sim_.steps_rejected() - rejected0_;
   r_.mean_step = (sim_.time() - t_start) / static_cast<double>(std::max(1L, steps));
-  r_.interrupted = g_stop_signal != 0 || stop_asked_ || wall_stop_;
-  r_.signal = g_stop_signal;
+  r_.interrupted = cut;
+  r_.signal = cut ? g_stop_signal : 0;
   r_.t_start = t_start;
   r_.model_time = sim_.time();
   r_.wall_s = step_wall_;

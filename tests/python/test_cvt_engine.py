@@ -191,6 +191,10 @@ def test_progress_reaches_the_callback_which_can_stop_the_run():
     assert r.summary["stopped"] == "callback" and r.summary["interrupted"]
     assert 0.001 <= r.summary["model_time"] < 0.0015
     assert r.channels["time"][-1] == r.summary["model_time"]
+    # A stop asked for at the last step stops nothing: the run ended, and is not continued.
+    r = cvt.run(MINI, t_end=0.003, progress=lambda p: p["step"] < p["steps"], progress_seconds=0)
+    assert r.summary["stopped"] == "t_end" and not r.summary["interrupted"]
+    assert r.summary["model_time"] == pytest.approx(0.003)
 
     def fails(p):
         raise ZeroDivisionError("from the callback")
