@@ -5,10 +5,13 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <thread>
+
+#include "engine/run.hpp"
 
 #ifdef CVT_WITH_MPI
 #define OMPI_SKIP_MPICXX 1  // the C interface only
@@ -33,29 +36,28 @@ int launched_ranks() {
 
 namespace {
 
-constexpr int kTagToRoot = 1, kTagToWorker = 2;
+// To rank 0: a worker's row (or "" when it is ready), or that its point was stopped (by
+// run.max_wall or a signal); to a worker: the next point, or -1.
+constexpr int kTagToRoot = 1, kTagToWorker = 2, kTagStopped = 3;
 
 void send_text(const std::string& s, int to, int tag) {
   MPI_Send(s.data(), static_cast<int>(s.size()), MPI_CHAR, to, tag, MPI_COMM_WORLD);
 }
 
-std::string recv_text(int from, int tag, int* source) {
-  MPI_Status st;
-  MPI_Probe(from, tag, MPI_COMM_WORLD, &st);
+std::string recv_text(const MPI_Status& st) {
   int n = 0;
   MPI_Get_count(&st, MPI_CHAR, &n);
   std::string s(static_cast<std::size_t>(n), '\0');
-  MPI_Recv(s.data(), n, MPI_CHAR, st.MPI_SOURCE, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  if (source) *source = st.MPI_SOURCE;
+  MPI_Recv(s.data(), n, MPI_CHAR, st.MPI_SOURCE, st.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
   return s;
 }
 
-// Rank 0: a message from any worker, sleeping between polls (a blocking receive would
-// spin on a core a worker needs).
-std::string wait_for_worker(int* source) {
+// Rank 0: a message from any worker (its rank and tag in *st), sleeping between polls (a
+// blocking receive would spin on a core a worker needs).
+std::string wait_for_worker(MPI_Status* st) {
   for (int flag = 0;;) {
-    MPI_Iprobe(MPI_ANY_SOURCE, kTagToRoot, MPI_COMM_WORLD, &flag, MPI_STATUS_IGNORE);
-    if (flag) return recv_text(MPI_ANY_SOURCE, kTagToRoot, source);
+    MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, st);
+    if (flag) return recv_text(*st);
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   }
 }
@@ -66,19 +68,32 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
   const long total = static_cast<long>(plan.points.size());
   log_resumed(o, ledger);
   long next = 0;
+  // Once a worker's point was stopped (run.max_wall, a signal), or rank 0 caught a signal,
+  // no point is handed out: the workers end the points they hold (on a job's limit or
+  // signal they stop them too) and the sweep stops like a serial one, its finished points
+  // in OUT.csv and each stopped point's checkpoint kept for the same command to continue.
+  std::optional<SweepInterrupted> stopped;
   for (int active = workers; active > 0;) {
-    int from = 0;
-    const std::string text = wait_for_worker(&from);
-    if (!text.empty()) {
+    MPI_Status st;
+    const std::string text = wait_for_worker(&st);
+    const int from = st.MPI_SOURCE;
+    const std::string rank = "  [rank " + std::to_string(from) + "]";
+    if (st.MPI_TAG == kTagStopped) {
+      log("  " + text.substr(1) + rank);
+      if (!stopped) stopped.emplace(text.substr(1), text[0] == 'w');
+    } else if (!text.empty()) {
       const SweepRow r = parse_sweep_csv_row(text, plan);
       ledger.add(r);
-      log("  " + sweep_point_line(plan, r, total) + "  [rank " + std::to_string(from) + "]");
+      log("  " + sweep_point_line(plan, r, total) + rank);
     }
+    if (!stopped && StopSignals::pending())
+      stopped.emplace("rank 0 stopped by signal " + std::to_string(StopSignals::pending()));
     while (next < total && ledger.done(next)) ++next;
-    const long give = next < total ? next++ : -1;
+    const long give = !stopped && next < total ? next++ : -1;
     MPI_Send(&give, 1, MPI_LONG, from, kTagToWorker, MPI_COMM_WORLD);
     if (give < 0) --active;
   }
+  if (stopped) throw *stopped;
   return close_sweep(o, ledger);
 }
 
@@ -89,9 +104,13 @@ void work(const SweepOptions& o, const SweepPlan& plan) {
     long i = -1;
     MPI_Recv(&i, 1, MPI_LONG, 0, kTagToWorker, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
     if (i < 0) return;
-    std::string row = sweep_csv_row(run_sweep_point(o, plan, i));
-    row.pop_back();  // the newline
-    send_text(row, 0, kTagToRoot);
+    try {
+      std::string row = sweep_csv_row(run_sweep_point(o, plan, i));
+      row.pop_back();  // the newline
+      send_text(row, 0, kTagToRoot);
+    } catch (const SweepInterrupted& e) {
+      send_text((e.wall_limit ? "w" : "s") + std::string(e.what()), 0, kTagStopped);
+    }
   }
 }
 
@@ -115,6 +134,8 @@ long run_sweep_mpi(const SweepOptions& o, const SweepPlan& plan, const MpiWorld&
     if (world.rank() == 0) return coordinate(o, plan, world.size() - 1);
     work(o, plan);
     return 0;
+  } catch (const SweepInterrupted&) {
+    throw;  // rank 0, once every worker has stopped
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cvt-engine: rank %d: %s\n", world.rank(), e.what());
     MPI_Abort(MPI_COMM_WORLD, 1);

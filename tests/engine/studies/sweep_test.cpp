@@ -374,7 +374,8 @@ TEST_F(SweepDir, AJobArrayOfPointsGivesTheSweepsCsv) {
 }
 
 // run.max_wall in a sweep: the point in progress stops with its checkpoint (exit 75), and the
-// same command, given again until it ends, continues it: the CSV of an uninterrupted sweep.
+// same command, given again until it ends, continues it: the CSV of an uninterrupted sweep;
+// the same under mpirun -np 3.
 TEST_F(SweepDir, ASweepStoppedByMaxWallContinuesItsPoint) {
   const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
   const std::string args = " sweep " + test::shell_quote(test::config_path("mini")) +
@@ -388,6 +389,21 @@ TEST_F(SweepDir, ASweepStoppedByMaxWallContinuesItsPoint) {
   ASSERT_GE(codes.size(), 2u) << "never stopped by --max-wall: the case is not tested\n" << log;
   EXPECT_NE(log.find("stopped before the wall-time limit (run.max_wall)"), std::string::npos) << log;
   EXPECT_EQ(without_wall(read_text(dir_ / "job.csv")), without_wall(read_text(dir_ / "whole.csv")));
+#ifdef CVT_WITH_MPI
+  // Under mpirun: the rank whose point reaches the limit says so, rank 0 hands out no more
+  // points and every rank ends (exit 75, no abort); the same command continues.
+  if (sh("command -v mpirun > /dev/null") != 0) GTEST_SKIP() << "no mpirun";
+  const std::string mpirun = "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 mpirun --oversubscribe -np 3 ";
+  codes.clear();
+  for (int k = 0; k < 40 && (codes.empty() || codes.back() == 75); ++k)
+    codes.push_back(sh(mpirun + exe + args + " --out mjob --max-wall 4 >> mjob.log 2>&1"));
+  const std::string mlog = read_text(dir_ / "mjob.log");
+  ASSERT_EQ(codes.back(), 0) << mlog;
+  ASSERT_GE(codes.size(), 2u) << "never stopped by --max-wall: the case is not tested\n" << mlog;
+  EXPECT_NE(mlog.find("stopped before the wall-time limit (run.max_wall)  [rank "), std::string::npos) << mlog;
+  EXPECT_EQ(mlog.find("MPI_ABORT"), std::string::npos) << mlog;
+  EXPECT_EQ(without_wall(read_text(dir_ / "mjob.csv")), without_wall(read_text(dir_ / "whole.csv")));
+#endif
 }
 
 // Points started from a steady state's checkpoint (sweep --from): the point at the
