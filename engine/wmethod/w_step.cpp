@@ -60,7 +60,9 @@ std::string w_step_graphviz(const Config& c, int threads) {
      << "  f1 -> stiffness;\n  factor -> fresh;\n";
   std::string prev = "fresh";
   for (int i = 1; i <= stages; ++i) {
-    const std::string f = "f" + std::to_string(i), w = "solve" + std::to_string(i);
+    // (Built with += : GCC 12 warns falsely, -Wrestrict, on "f" + std::to_string(i).)
+    std::string f = "f", w = "solve";
+    f += std::to_string(i), w += std::to_string(i);
     if (i > 1)
       os << "  " << f << " [label=\"evaluation " << i << ": the stage graph\\n(cvt-engine graph, digraph stage)\"];\n"
          << "  " << prev << " -> " << f << ";\n";

@@ -30,8 +30,12 @@ TEST(StiffnessInterval, AQuarterPitchOfTravelBoundsIt) {
         SCOPED_TRACE(std::string(speed) + " " + ratio + " hs " + std::to_string(hs) + ": every " + std::to_string(k));
         EXPECT_EQ(32 % k, 0) << "a divisor of w_k_every: checkpoints at its multiples fall on a take";
         EXPECT_EQ(k % 8, 0) << "a multiple of w_every: taken only where the matrix is rebuilt";
-        if (k > 8) EXPECT_LE(travel(m, k, hs), kStiffnessTravel);
-        if (k < 32) EXPECT_GT(travel(m, 2 * k, hs), kStiffnessTravel) << "shortened no more than needed";
+        if (k > 8) {
+          EXPECT_LE(travel(m, k, hs), kStiffnessTravel);
+        }
+        if (k < 32) {
+          EXPECT_GT(travel(m, 2 * k, hs), kStiffnessTravel) << "shortened no more than needed";
+        }
       }
   // The reference point keeps its interval; the same chain at 550 rad/s halves it, at 2000
   // rad/s it is the matrix's own; a half that is no multiple of w_every is not taken.
