@@ -566,10 +566,12 @@ std::string sweep_config_text(const SweepOptions& o) {
 }
 
 std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long total) {
+  // The label and status as strings: a point of many keys has a label longer than any buffer.
+  std::string s = "point " + std::to_string(r.point + 1) + "/" + std::to_string(total) + "  ";
+  s += plan.label(r.point);
+  s += ": ";
+  s += r.status;
   char b[256];
-  std::snprintf(b, sizeof b, "point %ld/%ld  %s: %s", r.point + 1, total, plan.label(r.point).c_str(),
-                r.status.c_str());
-  std::string s = b;
   if (r.status == "blow_up" || r.status == "error") s += " (" + r.reason.substr(0, 160) + ")";
   else {
     std::snprintf(b, sizeof b, ", speed ratio %.4f, slip %+.2f %%, efficiency %.4f, t = %.4g s", r.speed_ratio,

@@ -183,6 +183,26 @@ TEST(SweepCsvTest, ARowReadsBackToTheSameBits) {
   EXPECT_THROW(parse_sweep_csv_row("150,smooth,weird,1", p), std::runtime_error);
 }
 
+// A point's log line keeps its status and results however long its label is (a points
+// file of eleven keys makes a label of over 240 characters).
+TEST(SweepLogTest, APointLineKeepsItsStatusBehindALongLabel) {
+  std::vector<SweepAxis> axes;
+  for (const char* k : {"geometry.ratio=0.8", "controller.target_ratio=0.8", "drive.speed=300", "load.torque=4",
+                        "clamping.driving=3e3", "clamping.driven=3e3", "controller.clamping_safety=3",
+                        "controller.enabled=true", "controller.shift_kp=100", "controller.shift_ki=1000",
+                        "friction.f0=0.06"})
+    axes.push_back(parse_axis(k));
+  const SweepPlan p = SweepPlan::grid(axes);
+  ASSERT_GT(p.label(0).size(), 240u);
+  SweepRow r;
+  r.point = 0, r.values = p.points[0], r.status = "steady";
+  r.speed_ratio = 0.8059, r.slip = 0.0058, r.efficiency = 0.82, r.model_time = 0.027, r.wall_s = 74.8;
+  const std::string line = sweep_point_line(p, r, 2);
+  EXPECT_NE(line.find(p.label(0) + ": steady, speed ratio 0.8059, slip +0.58 %, efficiency 0.8200, t = 0.027 s, 74.8 s"),
+            std::string::npos)
+      << line;
+}
+
 // run.verify's errors: a column <mean>_numerical_error for each verified mean among the
 // results, read back to the same bits; a point not verified reads back without errors.
 TEST(SweepCsvTest, VerifiedMeansHaveErrorColumnsThatReadBack) {
