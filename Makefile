@@ -12,7 +12,7 @@ PACKAGES = cmake g++ make pkg-config graphviz \
   libtbb-dev libtbbbind-2-5 libeigen3-dev libhwloc-dev hwloc \
   libhdf5-dev hdf5-tools libgtest-dev libbenchmark-dev libtomlplusplus-dev libcli11-dev nlohmann-json3-dev \
   universal-ctags \
-  libopenmpi-dev openmpi-bin \
+  libopenmpi-dev openmpi-bin libsundials-dev \
   python3-h5py python3-matplotlib python3-numpy python3-dev pybind11-dev python3-pytest python3-scipy \
   python3-venv python3-pandas python3-xarray \
   chromium

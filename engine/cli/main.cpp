@@ -727,8 +727,13 @@ Command add_study_command(CLI::App& app) {
   study_int->add_option("--t-warm", si.t_warm, "RK4 run to the running state [s]")->capture_default_str();
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
-  study_int->add_option("--methods", si.methods, "rk4,dopri5,rkc,dumka3,trapezoid,trbdf2,esdirk3,ros2,ros34pw2")->delimiter(',')
-      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "dumka3", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2"}))->capture_default_str();
+  study_int->add_option("--methods", si.methods,
+                        "rk4,dopri5,rkc,dumka3,trapezoid,trbdf2,esdirk3,ros2,ros34pw2; SUNDIALS' cvode (BDF) and arkode "
+                        "(ESDIRK) with their own error control at --tols, the chain's W solver their linear solver")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "dumka3", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2",
+                             "cvode", "arkode"}))
+      ->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();

@@ -34,16 +34,19 @@ const char* to_string(OdeMethod method) {
     case OdeMethod::Ros2: return "ros2";
     case OdeMethod::Ros34pw2: return "ros34pw2";
     case OdeMethod::Dumka3: return "dumka3";
+    case OdeMethod::Cvode: return "cvode";
+    case OdeMethod::Arkode: return "arkode";
   }
   return "?";
 }
 
 OdeMethod parse_ode_method(const std::string& name) {
   for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Dumka3, OdeMethod::Trapezoid,
-                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2})
+                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2, OdeMethod::Cvode,
+                      OdeMethod::Arkode})
     if (name == to_string(m)) return m;
   throw std::invalid_argument("unknown method '" + name +
-                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2)");
+                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2, cvode, arkode)");
 }
 
 static std::string ode_error_text(double t, double h, const std::string& reason) {
@@ -240,6 +243,10 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       if (sys.time_derivative) dfdt_.setZero(n_);
       wv_.resize(n_);
       break;
+    case OdeMethod::Cvode:
+    case OdeMethod::Arkode:
+      sundials_ = std::make_unique<SundialsSolver>(sys_, method_, opt_, stats);
+      break;
   }
 }
 
@@ -306,6 +313,8 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Rk4: step_rk4_doubling(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Dumka3: step_dumka3(t, h, y, err); return Attempt::Ok;
+    case OdeMethod::Cvode:
+    case OdeMethod::Arkode: break;  // SundialsSolver takes their steps
   }
   throw std::logic_error("OdeSolver: unknown method");
 }
@@ -337,6 +346,11 @@ void OdeSolverImpl::rejected() {
   if (stabilized() && !rho_fresh_) need_rho_ = true;
 }
 
+double OdeSolverImpl::step(double t0, double t_max, Eigen::VectorXd& y) {
+  if (!sundials_) throw std::logic_error(std::string("OdeSolver::step: ") + to_string(method_) + " takes steps in integrate()");
+  return sundials_->step(t0, t_max, y);
+}
+
 void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   if (y.size() != n_) throw std::invalid_argument("OdeSolver::integrate: y has the wrong size");
   if (!(t1 > t0)) throw std::invalid_argument("OdeSolver::integrate: t1 must be greater than t0");
@@ -351,6 +365,7 @@ void OdeSolverImpl::integrate(double t0, double t1, Eigen::VectorXd& y, const Od
       atol_[i] = opt_.atol_vector[i];
     }
   }
+  if (sundials_) return sundials_->integrate(t0, t1, y, observer);
   have_prev_ = false;
   // A new call may start anywhere: the Jacobian of the last call is not to be trusted.
   if (!opt_.keep_jacobian_across_calls || !newton_ || !newton_->factored()) need_jac_ = true, faccon_ = 1;
@@ -485,6 +500,7 @@ OdeSolver::~OdeSolver() = default;
 void OdeSolver::integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer) {
   impl_->integrate(t0, t1, y, observer);
 }
+double OdeSolver::step(double t0, double t_max, Eigen::VectorXd& y) { return impl_->step(t0, t_max, y); }
 const OdeStats& OdeSolver::stats() const { return impl_->stats; }
 OdeStats& OdeSolver::stats() { return impl_->stats; }
 OdeOptions& OdeSolver::options() { return impl_->options(); }

@@ -67,6 +67,10 @@ struct OdeSystem {
   using WSolve = std::function<void(double* x)>;
   WFactor w_factor;
   WSolve w_solve;
+  // With w_factor, optional: the next evaluation records what the matrix needs and the next
+  // w_factor rebuilds all of it, whatever the system's own schedule of rebuilds. For solvers
+  // that decide themselves when their matrix is stale (SUNDIALS' linear-solver setups).
+  std::function<void()> w_refresh;
   // df/dt at (t, y), optional: writes size values and must not allocate. With it the
   // W-methods take the t-column of their matrix exactly (the terms gamma_i h^2 df/dt of
   // Hairer & Wanner II, IV.7), which keeps their order on stiff problems driven by an
@@ -82,6 +86,11 @@ struct OdeSystem {
   // sheave), a norm per group, maximized over the groups, is not diluted by the others.
   using ErrorNorm = std::function<double(const double* err, const double* y0, const double* y1)>;
   ErrorNorm error_norm;
+  // Components the right-hand side does not read (integrals of outputs, like the CVT's
+  // contact switching work), optional: a caller may add to them between integrate() calls,
+  // and a solver with a history (SUNDIALS' methods) carries the addition over instead of
+  // starting afresh.
+  std::vector<int> passive;
   // The pattern from a list of (row, column) nonzeros; duplicates are fine.
   void set_sparsity(const std::vector<std::pair<int, int>>& nonzeros);
 };
@@ -100,7 +109,17 @@ enum class OdeMethod {
   // spectral radius; real stability interval 2.5 ... 142602 (about 0.3-0.5 s^2). A fixed
   // step with h rho beyond the largest interval throws OdeError.
   Dumka3,
+  // SUNDIALS (engine/ode/sundials.hpp; only where the build found it, sundials_available()):
+  // CVODE's variable-order BDF (orders 1-5) and ARKODE's ESDIRK 3(2) (ARK324L2SA, 4 stages,
+  // L-stable), each with its own step and order control, error test (weighted RMS over
+  // rtol, atol) and Newton iteration; the system's w_factor / w_solve as their linear
+  // solver where it has them. Adaptive only.
+  Cvode,
+  Arkode,
 };
+// Whether this build has SUNDIALS' methods (OdeMethod::Cvode, OdeMethod::Arkode).
+bool sundials_available();
+inline bool is_sundials_method(OdeMethod m) { return m == OdeMethod::Cvode || m == OdeMethod::Arkode; }
 
 // The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
 // no Newton iteration; both take a system's w_factor / w_solve.
@@ -115,7 +134,8 @@ inline bool is_implicit_method(OdeMethod m) {
 
 const char* to_string(OdeMethod method);
 // The inverse of to_string: "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" |
-// "esdirk3" | "ros2" | "ros34pw2"; throws std::invalid_argument otherwise.
+// "esdirk3" | "ros2" | "ros34pw2" | "cvode" | "arkode"; throws std::invalid_argument otherwise
+// (SUNDIALS' names too are parsed in a build without it: the solver then says what is missing).
 OdeMethod parse_ode_method(const std::string& name);
 
 struct OdeOptions {
@@ -268,6 +288,12 @@ class OdeSolver {
 
   // Advances y from t0 to t1 (t1 > t0). Statistics accumulate over calls.
   void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer = {});
+  // SUNDIALS' methods (is_sundials_method): one step of their own choice from (t0, y), ending
+  // at or before t_max; returns where it ended. A call from where the last one ended goes on
+  // with their history (order, step). For callers that change something between steps (the
+  // CVT's contact statuses) without cutting the method's steps to a length of their own.
+  // Other methods throw std::logic_error.
+  double step(double t0, double t_max, Eigen::VectorXd& y);
   const OdeStats& stats() const;
   OdeStats& stats();
   // The options in use; changes (e.g. h0 between calls) apply from the next integrate().

@@ -10,6 +10,7 @@
 
 #include "engine/ode/rk4.hpp"
 #include "engine/ode/ode.hpp"
+#include "engine/ode/sundials.hpp"
 #include "engine/ode/w_stages.hpp"
 
 namespace cvt {
@@ -50,6 +51,7 @@ class OdeSolverImpl {
  public:
   OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOptions& options);
   void integrate(double t0, double t1, Eigen::VectorXd& y, const OdeObserver& observer);
+  double step(double t0, double t_max, Eigen::VectorXd& y);  // SUNDIALS' methods
   OdeStats stats;
   OdeOptions& options() { return opt_; }
 
@@ -139,6 +141,7 @@ class OdeSolverImpl {
   int steps_since_rho_ = 0;
   // implicit
   std::optional<NewtonMatrix> newton_;
+  std::unique_ptr<SundialsSolver> sundials_;  // Cvode, Arkode: the whole integration
   Eigen::VectorXd z_, zg_, fg_, psi_, delta_, scale_, f_prev_;
   bool need_jac_ = true, jac_fresh_ = false;
   double theta_max_ = 0;  // worst contraction rate seen in the current step

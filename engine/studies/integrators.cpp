@@ -532,6 +532,19 @@ void Study::driver_curve(Simulation& s, OdeMethod method, double p, int w_every,
     ro.jac.w_h_grow = ro.jac.w_h_shrink = 1.25;  // Newton contracts with a matrix for a nearby d h
   }
   if (opt_.chain_norm && !w_fixed) ro.jac.error_tol = p;
+  if (is_sundials_method(method)) {
+    // SUNDIALS' own error control over the unscaled state (a history that goes on from step
+    // to step needs the same state in every piece; the scaled system moves its offset to each
+    // piece's start): absolute tolerances p x (1 um, 1 mm/s, 1 mJ), the scaled units.
+    ModelOdeOptions units = ro.jac;
+    units.scaled = true;
+    const Eigen::VectorXd u = model_state_units(m_, units);
+    ro.jac.scaled = false;
+    ro.jac.error_tol = 0;
+    ro.ode.rtol = 0;
+    ro.ode.atol_vector.resize(u.size());
+    for (int i = 0; i < u.size(); ++i) ro.ode.atol_vector[i] = p * u[i];
+  }
   if (w_tol) {  // adaptive as `cvt-engine run` takes it
     ro.ode.h0 = m_.cfg.integrator.step;
     w_adaptive_options(ro, p, opt_.sample_dt);

@@ -85,9 +85,20 @@ long OdeDriver::advance(double t, Eigen::VectorXd& y, double t1, long first_step
   const StepClock grid = StepClock::at(t, 0);
   std::int64_t k = 0;
   const bool freeze = opt_.jac.freeze_friction && m_.cfg.friction.law == FrictionLaw::nonsmooth &&
-                      is_implicit_method(opt_.method);
+                      (is_implicit_method(opt_.method) || is_sundials_method(opt_.method));
   const bool w_blocks = asks_w_blocks();
+  const bool sundials = is_sundials_method(opt_.method);
+  if (sundials && opt_.jac.scaled)
+    throw std::invalid_argument("OdeDriver: SUNDIALS' methods run on the unscaled state (their history spans the steps)");
   schedule_.within([&] {
+    // SUNDIALS' methods: each macro step is one step of their own (OdeSolver::step), whose
+    // history goes on across the status updates; a piece cut to a proposed length would
+    // keep their step at that length (they propose the step they were cut to).
+    while (sundials && t < t1) {
+      if (freeze) ode_.record_friction_branches();
+      t = solver_.step(t, t1, y);
+      update_statuses_after_step(m_, schedule_, ws_, t, y);
+    }
     while (t < t1) {
       const double H = fixed ? opt_.ode.h0 : opt_.status_interval > 0 ? opt_.status_interval : h_next_;
       double t_end = fixed ? grid.time_after(k + 1, H) : t + H;

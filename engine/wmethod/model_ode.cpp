@@ -104,7 +104,13 @@ ModelOde::ModelOde(const Model& m, Workspace& ws, Schedule& schedule, const Mode
   if (opt.w_blocks) {  // the linear solver module's setup and solve
     sys_.w_factor = [this](double t, const double* y, double gh) { w_.factor(t, y, gh); };
     sys_.w_solve = [this](double* x) { w_.solve(x); };
+    sys_.w_refresh = [this] {
+      w_.retake();
+      w_.ask(w_.index());
+    };
   }
+  // The switching work, which update_statuses_after_step adds to between steps, is read by no force.
+  sys_.passive = {2 * m.ndof + kWorkSwitch};
   set_error_norm();
   f0_.resize(ns), f1_.resize(ns), yp_.resize(ns), delta_.resize(ns);
   shaft0_.resize(static_cast<size_t>(N) * 2 * kShaftSize), shaft1_ = shaft0_;

@@ -444,6 +444,64 @@ TEST(ModelOde, ImplicitStaysCloseToRk4) {
   EXPECT_LE(worst_f, 0.02 * (range_hi - range_lo));
 }
 
+// SUNDIALS' CVODE and ARKODE on the model (docs/integrators.md 17): through OdeDriver, one
+// step of their own per status update, their own error control over the unscaled state
+// (absolute tolerances 0.1 x (1 um, 1 mm/s, 1 mJ)), the chain's W solver as their linear
+// solver. Against RK4 at the production step over the window of ImplicitStaysCloseToRk4:
+// the pins' positions and the halves' axial forces stay close, in fewer steps than RK4's, and
+// the energy balance closes.
+TEST(ModelOde, SundialsStayCloseToRk4) {
+  if (!sundials_available()) GTEST_SKIP() << "no SUNDIALS in this build";
+  const Running& r = running();
+  const Model& m = r.m;
+  const double h = m.cfg.integrator.step, window = 2e-5;
+  for (OdeMethod method : {OdeMethod::Cvode, OdeMethod::Arkode}) {
+    auto a = at_running_state(r), b = at_running_state(r);
+    const Sample s0 = b->sample();
+    OdeRunOptions ro;
+    ro.method = method;
+    ro.ode.rtol = 0;
+    ro.ode.h0 = 1e-8;
+    ModelOdeOptions units;
+    units.scaled = true;
+    const Eigen::VectorXd u = model_state_units(m, units);
+    ro.ode.atol_vector.assign(u.data(), u.data() + u.size());
+    for (double& x : ro.ode.atol_vector) x *= 0.1;
+    OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
+    double worst_f = 0, range_lo = 1e300, range_hi = -1e300;
+    const int pins = kJointSize * m.links;
+    for (int k = 1; k <= 10; ++k) {
+      const double t = r.t + k * window / 10;
+      for (int i = 0; i < 200; ++i) a->step(h);
+      b->advance(drv, t);
+      for (int j = 0; j < m.links; ++j) {
+        const double fa = half_axial_force(m, a->state().data(), a->state().data() + m.ndof, m.half_a(j));
+        const double fb = half_axial_force(m, b->state().data(), b->state().data() + m.ndof, m.half_a(j));
+        worst_f = std::max(worst_f, std::abs(fa - fb));
+        range_lo = std::min(range_lo, fa), range_hi = std::max(range_hi, fa);
+      }
+    }
+    const double dq = (a->state().head(pins) - b->state().head(pins)).cwiseAbs().maxCoeff();
+    const Sample sb = b->sample();
+    const double flow = (sb.work_input - s0.work_input) + std::abs(sb.work_clamping - s0.work_clamping) +
+                        (sb.work_dissipated - s0.work_dissipated);
+    const double res = sb.energy_residual - s0.energy_residual;
+    const OdeStats& st = drv.stats();
+    std::printf("[model_ode] %s atol 0.1 units over %.3g s: %ld steps (rejected %ld, Newton failures %ld), %ld RHS, "
+                "%ld setups; max |dq| vs RK4 %.3g m; max |axial force difference| %.3g N (range %.1f .. %.1f N); "
+                "energy residual %.3g J of %.3g J flowing\n",
+                to_string(method), window, static_cast<long>(st.steps), static_cast<long>(st.rejected),
+                static_cast<long>(st.newton_failures), static_cast<long>(drv.rhs_evals()),
+                static_cast<long>(st.lu_factorizations), dq, worst_f, range_lo, range_hi, res, flow);
+    EXPECT_GT(st.lu_factorizations, 0) << to_string(method) << ": the W solver was not used";
+    EXPECT_LT(st.steps, 2000) << to_string(method);  // RK4 took 2000
+    EXPECT_LE(dq, 1e-5) << to_string(method);
+    EXPECT_LE(worst_f, 0.02 * (range_hi - range_lo)) << to_string(method);
+    EXPECT_GT(flow, 0.0);
+    EXPECT_LE(std::abs(res), 0.05 * flow) << to_string(method);
+  }
+}
+
 // The energy balance of docs/model.md 6 with an implicit method: the residual stays a small
 // fraction of the work that flows.
 TEST(ModelOde, EnergyBalanceWithImplicitMethod) {
