@@ -403,13 +403,38 @@ TEST(ModelOde, Rk4ThroughAdapterMatchesSimulationStep) {
   EXPECT_LE(dw, 1e-12);
 }
 
+// a stepped by RK4 at the production step and b advanced by drv, both from the running
+// state, over `window` in ten samples: the largest difference of the halves a's axial
+// forces, their range, and the pins' largest position difference at the end.
+struct BesideRk4 {
+  double dq = 0, worst_f = 0, range_lo = 1e300, range_hi = -1e300;
+};
+BesideRk4 beside_rk4(const Running& r, Simulation& a, Simulation& b, OdeDriver& drv, double window) {
+  const Model& m = r.m;
+  const double h = m.cfg.integrator.step;
+  const long per = std::lround(window / 10 / h);
+  BesideRk4 c;
+  for (int k = 1; k <= 10; ++k) {
+    for (long i = 0; i < per; ++i) a.step(h);
+    b.advance(drv, r.t + k * window / 10);
+    for (int j = 0; j < m.links; ++j) {
+      const double fa = half_axial_force(m, a.state().data(), a.state().data() + m.ndof, m.half_a(j));
+      const double fb = half_axial_force(m, b.state().data(), b.state().data() + m.ndof, m.half_a(j));
+      c.worst_f = std::max(c.worst_f, std::abs(fa - fb));
+      c.range_lo = std::min(c.range_lo, fa), c.range_hi = std::max(c.range_hi, fa);
+    }
+  }
+  const int pins = kJointSize * m.links;
+  c.dq = (a.state().head(pins) - b.state().head(pins)).cwiseAbs().maxCoeff();
+  return c;
+}
+
 // TR-BDF2 (scaled, frozen friction branch) against RK4 at the production step over a short
 // window in which the tracked pin's forces change: the pins' positions and the tracked
 // half's axial force.
 TEST(ModelOde, ImplicitStaysCloseToRk4) {
   const Running& r = running();
-  const Model& m = r.m;
-  const double h = m.cfg.integrator.step, window = 2e-5;
+  const double window = 2e-5;
   auto a = at_running_state(r), b = at_running_state(r);
   OdeRunOptions ro;
   ro.method = OdeMethod::TrBdf2;
@@ -417,20 +442,8 @@ TEST(ModelOde, ImplicitStaysCloseToRk4) {
   ro.ode.h0 = 1e-8;
   ro.jac.scaled = true;
   OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
-  double worst_f = 0, range_lo = 1e300, range_hi = -1e300;
-  const int pins = kJointSize * m.links;
-  for (int k = 1; k <= 10; ++k) {
-    const double t = r.t + k * window / 10;
-    for (int i = 0; i < 200; ++i) a->step(h);
-    b->advance(drv, t);
-    for (int j = 0; j < m.links; ++j) {
-      const double fa = half_axial_force(m, a->state().data(), a->state().data() + m.ndof, m.half_a(j));
-      const double fb = half_axial_force(m, b->state().data(), b->state().data() + m.ndof, m.half_a(j));
-      worst_f = std::max(worst_f, std::abs(fa - fb));
-      range_lo = std::min(range_lo, fa), range_hi = std::max(range_hi, fa);
-    }
-  }
-  const double dq = (a->state().head(pins) - b->state().head(pins)).cwiseAbs().maxCoeff();
+  const BesideRk4 c = beside_rk4(r, *a, *b, drv, window);
+  const double dq = c.dq, worst_f = c.worst_f, range_lo = c.range_lo, range_hi = c.range_hi;
   const OdeStats& st = drv.stats();
   std::printf("[model_ode] trbdf2 tol 1e-2 over %.3g s: %ld steps (rejected %ld, Newton failures %ld), %ld RHS, "
               "%ld Jacobians, %ld LU; max |dq| vs RK4 %.3g m; max |axial force difference| over all halves a %.3g N "
@@ -454,7 +467,7 @@ TEST(ModelOde, SundialsStayCloseToRk4) {
   if (!sundials_available()) GTEST_SKIP() << "no SUNDIALS in this build";
   const Running& r = running();
   const Model& m = r.m;
-  const double h = m.cfg.integrator.step, window = 2e-5;
+  const double window = 2e-5;
   for (OdeMethod method : {OdeMethod::Cvode, OdeMethod::Arkode}) {
     auto a = at_running_state(r), b = at_running_state(r);
     const Sample s0 = b->sample();
@@ -468,20 +481,8 @@ TEST(ModelOde, SundialsStayCloseToRk4) {
     ro.ode.atol_vector.assign(u.data(), u.data() + u.size());
     for (double& x : ro.ode.atol_vector) x *= 0.1;
     OdeDriver drv(b->model(), b->workspace(), b->schedule(), ro);
-    double worst_f = 0, range_lo = 1e300, range_hi = -1e300;
-    const int pins = kJointSize * m.links;
-    for (int k = 1; k <= 10; ++k) {
-      const double t = r.t + k * window / 10;
-      for (int i = 0; i < 200; ++i) a->step(h);
-      b->advance(drv, t);
-      for (int j = 0; j < m.links; ++j) {
-        const double fa = half_axial_force(m, a->state().data(), a->state().data() + m.ndof, m.half_a(j));
-        const double fb = half_axial_force(m, b->state().data(), b->state().data() + m.ndof, m.half_a(j));
-        worst_f = std::max(worst_f, std::abs(fa - fb));
-        range_lo = std::min(range_lo, fa), range_hi = std::max(range_hi, fa);
-      }
-    }
-    const double dq = (a->state().head(pins) - b->state().head(pins)).cwiseAbs().maxCoeff();
+    const BesideRk4 c = beside_rk4(r, *a, *b, drv, window);
+    const double dq = c.dq, worst_f = c.worst_f, range_lo = c.range_lo, range_hi = c.range_hi;
     const Sample sb = b->sample();
     const double flow = (sb.work_input - s0.work_input) + std::abs(sb.work_clamping - s0.work_clamping) +
                         (sb.work_dissipated - s0.work_dissipated);
