@@ -173,7 +173,8 @@ FULL = {
     "PYTHONPATH=build/python docs/examples/optimize_clamping.py --load 15 --json opt.json",
     "build/cvt-engine run configs/reference.toml --t-end 0.1 --scheduler flowgraph --threads 2",
     "c++ -std=c++20 -O2 -DEIGEN_MAX_ALIGN_BYTES=32 -DEIGEN_MAX_STATIC_ALIGN_BYTES=32 -I. -I/usr/include/eigen3 "
-    "tests/engine/ode/example_hires.cpp build/libcvt_ode.a -o example_hires",
+    "tests/engine/ode/example_hires.cpp build/libcvt_ode.a -o example_hires -lsundials_cvode -lsundials_arkode "
+    "-lsundials_nvecserial -lsundials_sunlinsoldense -lsundials_sunmatrixdense",
 }
 
 SUBCOMMANDS = ("run", "graph", "topology", "scale", "modes", "study", "sweep", "--version", "--help")
