@@ -67,7 +67,6 @@ struct SundialsSolver::Impl {
   std::string message;       // SUNDIALS' last error message
   // The counters of mem when the current history began (a ReInit zeroes them).
   long steps0 = 0, fails0 = 0, setups0 = 0, iters0 = 0, conv0 = 0;
-  std::int64_t setups = 0;
 
   Impl(const OdeSystem& s, OdeMethod m, const OdeOptions& o, OdeStats& st)
       : sys(s), method(m), opt(o), stats(st), n(s.size) {}
@@ -148,7 +147,7 @@ struct SundialsSolver::Impl {
     sys.rhs(t, N_VGetArrayPointer(yc), f_tmp.data());
     ++stats.rhs_evals;
     sys.w_factor(t, N_VGetArrayPointer(yc), gamma);
-    ++stats.jac_evals, ++stats.lu_factorizations, ++setups;
+    ++stats.jac_evals, ++stats.lu_factorizations;
     stats.lu_seconds += seconds_since(c0);
     gamma_f = gamma, steps_f = nst, conv_f = ncf;
   }
