@@ -38,6 +38,7 @@ struct SummaryChannels {
 struct SteadyCriteria {
   double window_fraction = 0.2;  // the window: the last 20 % of the run, after the ramp
   double drift = 0.02;           // means of the window's halves agree within 2 % (torques: of the load)
+  double force_drift = 0.005;    // with a ratio controller, its clamping forces' means within 0.5 %
   double ringing = 0.03;         // slow swing of the output torque, meshing ripple removed: 3 % of the load
                                  // (windows of fewer than two torsion periods)
   double torsion_uncertainty = 0.005;  // the output torque's mean over whole torsion periods: its standard
@@ -46,7 +47,7 @@ struct SteadyCriteria {
   double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
   double falling = 0.02;         // slip growing by 2 % points across the window's halves: slip
-  // drift and balance from run.steady_tolerance, the rest as above.
+  // drift and balance from run.steady_tolerance, force_drift a quarter of it, the rest as above.
   static SteadyCriteria of(const Config& cfg);
 };
 

@@ -871,6 +871,10 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   const SweepPlan plan = sweep_plan(o, axes, points);
   const long task = sweep_task_point(mode);
   if (mode.gather && task >= 0) throw ConfigError("--gather", "", "give either --gather or --point/--array, not both");
+  if (o.continuation && (task >= 0 || mode.gather))
+    throw ConfigError("--continue", "", "a continued point waits for its parent's steady state, which a job array's "
+                                        "separate tasks do not share: run the sweep in one job (with mpirun for "
+                                        "several nodes)");
   if (mode.gather) return cmd_sweep_gather(o, plan);
   const MpiWorld world;
   if (task >= 0 && world.size() > 1)
@@ -891,13 +895,17 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
       warn_outside_envelope(ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov),
                             "point " + std::to_string(i + 1) + " (" + plan.label(i) + "): ");
     }
-    std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady\n", CVT_VERSION,
+    long continued = 0;
+    for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) continued += plan.parent(i) >= 0;
+    std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady%s\n", CVT_VERSION,
                 o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(), [&] {
                   std::string k;
                   for (const auto& x : plan.keys) k += (k.empty() ? "" : ", ") + x;
                   return k;
                 }().c_str(),
-                world.size() > 1 ? (", " + std::to_string(world.size()) + " MPI ranks").c_str() : "");
+                world.size() > 1 ? (", " + std::to_string(world.size()) + " MPI ranks").c_str() : "",
+                o.continuation ? (", " + std::to_string(continued) + " continued from a neighbour's steady state").c_str()
+                               : "");
     std::fflush(stdout);
   }
   long unsteady = 0;
@@ -938,9 +946,14 @@ Command add_sweep_command(CLI::App& app) {
   sw->add_option("--from", a->o.from, "start every point from this checkpoint of a steady state of the same model "
                                       "(cvt-engine run CONFIG --until-steady -o base.h5 writes base.h5.ckpt); "
                                       "run.t_end then bounds each point's run beyond it");
-  sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from: a changed load.torque ramps from the checkpoint's "
-                                                "over this time [s]")
-      ->check(kNonNegative)->capture_default_str();
+  sw->add_flag("--continue", a->o.continuation,
+               "maps by continuation: a point that differs from others in load.torque only starts from the steady "
+               "state of the nearest load among them (the middle load of each such group from rest), its load ramped "
+               "over --warm-ramp (docs/studies.md, \"Maps by continuation\")");
+  sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from or --continue: a changed load.torque ramps from the "
+                                                "checkpoint's over this time [s] (default: the point's steady window, "
+                                                "two periods of the drive line's torsion mode)")
+      ->check(kNonNegative);
   sw->add_option("--set", a->o.overrides, "override a key for every point: section.key=value (repeatable)");
   sw->add_option("--point", a->mode.point, "run point I alone (0-based, the CSV's point column), its row into "
                                            "OUT.points/: a job array's task (docs/cli.md, \"On a cluster\")")

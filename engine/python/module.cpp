@@ -133,9 +133,10 @@ SweepOptions sweep_options(const std::string& config_path, const std::string& fr
 }
 
 long sweep(SweepOptions o, const std::vector<std::string>& axes, const std::string& points, bool keep_runs,
-           double warm_ramp, const py::object& log) {
+           double warm_ramp, bool continuation, const py::object& log) {
   o.keep_runs = keep_runs;
   o.warm_ramp = warm_ramp;
+  o.continuation = continuation;
   const SweepPlan plan = sweep_plan(o, axes, points);
   return released(o, log, [&] { return run_sweep(o, plan); });
 }
@@ -324,13 +325,14 @@ PYBIND11_MODULE(_core, m) {
   m.def("sweep",
         [](const std::string& config, const std::string& from, const std::vector<std::string>& overrides,
            const std::vector<std::string>& axes, const std::string& points, const std::string& out, bool keep_runs,
-           double warm_ramp, const std::string& scheduler, int threads, int grain, const py::object& log) {
+           double warm_ramp, bool continuation, const std::string& scheduler, int threads, int grain,
+           const py::object& log) {
           return sweep(sweep_options(config, from, overrides, out, scheduler, threads, grain), axes, points,
-                       keep_runs, warm_ramp, log);
+                       keep_runs, warm_ramp, continuation, log);
         },
         py::arg("config"), py::arg("from_checkpoint"), py::arg("overrides"), py::arg("axes"), py::arg("points"),
-        py::arg("out"), py::arg("keep_runs"), py::arg("warm_ramp"), py::arg("scheduler"), py::arg("threads"),
-        py::arg("grain"), py::arg("log"));
+        py::arg("out"), py::arg("keep_runs"), py::arg("warm_ramp"), py::arg("continuation"), py::arg("scheduler"),
+        py::arg("threads"), py::arg("grain"), py::arg("log"));
   m.def("study_slip",
         [](const std::string& config, const std::vector<std::string>& overrides, const std::vector<double>& clamping,
            double thrust_ratio, const std::vector<std::string>& ratios, double tolerance, const std::string& csv,

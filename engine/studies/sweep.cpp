@@ -183,17 +183,43 @@ std::string point_file(const SweepOptions& o, long i) {
   return o.out + ".runs/" + b;
 }
 
-// A point started from a steady state's checkpoint: its run bounded run.t_end beyond the
-// checkpoint, and a changed load torque ramped from the checkpoint's over warm_ramp.
-std::vector<std::string> warm_overrides(const Checkpoint& ck, const SweepOptions& o, std::vector<std::string> ov) {
-  const Config base = parse_config(ck.config_toml, {}, o.from);
-  const Config point = parse_config(ck.config_toml, ov, o.from);
+// A point started from a steady state's checkpoint (point, its configuration without
+// these keys): its run bounded run.t_end beyond the checkpoint, and a changed load torque
+// ramped from the checkpoint's over warm_ramp (< 0: the point's steady window, two periods
+// of the drive line's torsion mode, over which the half-cosine ramp leaves the mode
+// about a tenth as excited as over one period: docs/studies.md, "Maps by continuation").
+// The chain runs loaded already: no settling sub-steps (integrator.settle_time) after the
+// checkpoint.
+std::vector<std::string> warm_keys(const Checkpoint& ck, const Config& point, double warm_ramp,
+                                   std::vector<std::string> ov) {
+  const double from = parse_config(ck.config_toml, {}, "the checkpoint").load.torque;
   ov.push_back("run.t_end=" + exact_number(ck.t + point.run.t_end));
-  if (point.load.torque != base.load.torque)
-    for (const std::string& k : {"ramp.load_from=" + exact_number(base.load.torque), "ramp.load_start=" + exact_number(ck.t),
-                                 "ramp.load_time=" + exact_number(o.warm_ramp)})
+  ov.push_back("integrator.settle_time=" + exact_number(ck.t));
+  if (point.load.torque != from) {
+    const double ramp = warm_ramp >= 0 ? warm_ramp : steady_window(build_model(point));
+    for (const std::string& k : {"ramp.load_from=" + exact_number(from), "ramp.load_start=" + exact_number(ck.t),
+                                 "ramp.load_time=" + exact_number(ramp)})
       ov.push_back(k);
+  }
   return ov;
+}
+
+// --from: every point on the checkpoint's configuration.
+std::vector<std::string> warm_overrides(const Checkpoint& ck, const SweepOptions& o, const std::vector<std::string>& ov) {
+  return warm_keys(ck, parse_config(ck.config_toml, ov, o.from), o.warm_ramp, ov);
+}
+
+// With continuation: the final checkpoint of point i's parent, if the parent ended steady
+// (its run's verdict; a parent that slipped, blew up or never settled leaves the point
+// from rest).
+std::optional<Checkpoint> steady_parent(const SweepOptions& o, const SweepPlan& plan, long i) {
+  const long p = plan.parent(i);
+  if (p < 0) return std::nullopt;
+  const std::string path = point_file(o, p) + ".ckpt";
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  Checkpoint c = read_checkpoint(path);
+  if (c.stopped != "steady") return std::nullopt;
+  return c;
 }
 
 }  // namespace
@@ -284,21 +310,78 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
   for (const auto& a : axes) ax.push_back(parse_axis(a));
   SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
   if (plan.points.empty()) throw ConfigError("--points", points, "no points");
+  if (o.continuation && !o.from.empty())
+    throw ConfigError("--continue", "", "continues each point from a neighbour's steady state, and --from starts every "
+                                        "point from one checkpoint: give one of the two");
   const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
+  std::vector<std::string> resolved;
+  std::vector<double> loads;
   for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) {
     std::vector<std::string> ov = o.overrides;
     const auto own = plan.overrides(i);
     ov.insert(ov.end(), own.begin(), own.end());
     try {
-      plan.fingerprints.push_back(fingerprint(continuation_toml(
-          ck ? parse_config(ck->config_toml, ov, o.from).resolved_toml : load_config(o.config_path, ov).resolved_toml,
-          false)));
+      const Config c = ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov);
+      resolved.push_back(continuation_toml(c.resolved_toml, false));
+      loads.push_back(c.load.torque);
     } catch (const ConfigError& e) {  // named with the point's line
       throw ConfigError(e.key(), e.value(), e.reason() + " (point " + std::to_string(i + 1) + ", " +
                                                 plan.origins[static_cast<std::size_t>(i)] + ")");
     }
   }
+  if (o.continuation) plan.parents = continuation_parents(plan, loads, &plan.order);
+  // A continued point's row is the configuration and the point it continues from: a CSV of
+  // the same points from rest is another sweep.
+  for (long i = 0; i < static_cast<long>(plan.points.size()); ++i)
+    plan.fingerprints.push_back(fingerprint(resolved[static_cast<std::size_t>(i)] +
+                                            (o.continuation ? "\n# continued from point " + std::to_string(plan.parent(i))
+                                                            : std::string())));
   return plan;
+}
+
+std::vector<long> continuation_parents(const SweepPlan& plan, const std::vector<double>& loads,
+                                       std::vector<long>* order) {
+  const long n = static_cast<long>(plan.points.size());
+  const auto load_key = std::find(plan.keys.begin(), plan.keys.end(), "load.torque");
+  const auto group_of = [&](long i) {  // the point's values but its load's
+    std::vector<std::string> g = plan.points[static_cast<std::size_t>(i)];
+    if (load_key != plan.keys.end()) g.erase(g.begin() + (load_key - plan.keys.begin()));
+    return g;
+  };
+  std::vector<long> parent(static_cast<std::size_t>(n), -1), depth(static_cast<std::size_t>(n), 0);
+  std::vector<bool> seen(static_cast<std::size_t>(n), false);
+  const auto L = [&](long i) { return loads[static_cast<std::size_t>(i)]; };
+  for (long first = 0; first < n; ++first) {
+    if (seen[static_cast<std::size_t>(first)]) continue;
+    std::vector<long> g;  // the group, in point order
+    for (long i = first; i < n; ++i)
+      if (!seen[static_cast<std::size_t>(i)] && group_of(i) == group_of(first)) g.push_back(i), seen[static_cast<std::size_t>(i)] = true;
+    std::vector<long> by_load = g;
+    std::stable_sort(by_load.begin(), by_load.end(), [&](long a, long b) { return L(a) < L(b); });
+    const long root = by_load[(by_load.size() - 1) / 2];
+    // Prim: the point nearest in load to the tree joins it, below its nearest member.
+    std::vector<long> tree = {root}, rest;
+    for (long i : g)
+      if (i != root) rest.push_back(i);
+    while (!rest.empty()) {
+      std::size_t best = 0;
+      long to = -1;
+      double d_best = std::numeric_limits<double>::infinity();
+      for (std::size_t k = 0; k < rest.size(); ++k)
+        for (long t : tree) {
+          const double d = std::abs(L(rest[k]) - L(t));
+          if (d < d_best) d_best = d, best = k, to = t;  // ties: the lower index, the earlier member
+        }
+      const long i = rest[best];
+      parent[static_cast<std::size_t>(i)] = to, depth[static_cast<std::size_t>(i)] = depth[static_cast<std::size_t>(to)] + 1;
+      tree.push_back(i), rest.erase(rest.begin() + static_cast<long>(best));
+    }
+  }
+  order->resize(static_cast<std::size_t>(n));
+  for (long i = 0; i < n; ++i) (*order)[static_cast<std::size_t>(i)] = i;
+  std::stable_sort(order->begin(), order->end(),
+                   [&](long a, long b) { return depth[static_cast<std::size_t>(a)] < depth[static_cast<std::size_t>(b)]; });
+  return parent;
 }
 
 std::vector<std::string> SweepPlan::overrides(long i) const {
@@ -319,7 +402,7 @@ std::string sweep_csv_header(const SweepPlan& plan) {
   s += "status";
   for (const auto& c : result_columns()) s += std::string(",") + c.name;
   for (const auto& e : error_columns()) s += "," + e + "_numerical_error";
-  return s + ",point,reason,wall_s,config\n";
+  return s + ",point,from_point,reason,wall_s,config\n";
 }
 
 std::string sweep_csv_row(const SweepRow& r) {
@@ -328,14 +411,14 @@ std::string sweep_csv_row(const SweepRow& r) {
   s += r.status;
   for (const auto& c : result_columns()) s += "," + exact_number(r.*c.field);
   for (const auto& e : error_columns()) s += "," + exact_number(row_error(r, e));
-  return s + "," + std::to_string(r.point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "," + r.config +
+  return s + "," + std::to_string(r.point) + "," + std::to_string(r.from_point) + "," + csv_field(r.reason) + "," + exact_number(r.wall_s) + "," + r.config +
          "\n";
 }
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   const std::vector<std::string> f = split_csv(line);
   const std::size_t nk = plan.keys.size(), nr = result_columns().size() + error_columns().size();
-  if (f.size() != nk + 1 + nr + 4) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
+  if (f.size() != nk + 1 + nr + 5) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
   SweepRow r;
   r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
   r.status = f[nk];
@@ -346,6 +429,7 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   for (const auto& e : error_columns())
     if (const double x = std::stod(f[at++]); !std::isnan(x)) r.numerical_error[e] = x;
   r.point = std::stol(f[at++]);
+  r.from_point = std::stol(f[at++]);
   r.reason = f[at++];
   r.wall_s = std::stod(f[at++]);
   r.config = f[at];
@@ -385,8 +469,13 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     ov.insert(ov.end(), own.begin(), own.end());
     ov.push_back("run.until_steady=true");
     std::optional<Checkpoint> ck;
-    if (!o.from.empty()) ck = read_checkpoint(o.from), ov = warm_overrides(*ck, o, ov);
-    const Model m = build_model(ck ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov));
+    if (!o.from.empty()) {
+      ck = read_checkpoint(o.from), ov = warm_overrides(*ck, o, ov);
+    } else if ((ck = steady_parent(o, plan, i))) {
+      r.from_point = plan.parent(i);
+      ov = warm_keys(*ck, load_config(o.config_path, ov), o.warm_ramp, ov);
+    }
+    const Model m = build_model(!o.from.empty() ? parse_config(ck->config_toml, ov, o.from) : load_config(o.config_path, ov));
     // A point that a signal or run.max_wall stopped continues from its own checkpoint.
     std::optional<Checkpoint> mine = stopped_point(path + ".ckpt", m.cfg);
     RunOptions ro;
@@ -435,8 +524,12 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
   }
   r.wall_s = seconds_since(t0);
   if (!o.keep_runs) {
+    // With continuation a steady point's checkpoint stays for the points that continue from
+    // it, until the sweep ends (close_sweep).
+    const bool parent = o.continuation && r.status == "steady";
     std::error_code ec;
-    for (const std::string& f : {path, path + ".ckpt", path + ".partial"}) std::filesystem::remove(f, ec);
+    for (const std::string& f : {path, path + ".ckpt", path + ".partial"})
+      if (!parent || f != path + ".ckpt") std::filesystem::remove(f, ec);
   }
   return r;
 }
@@ -513,12 +606,13 @@ void SweepLedger::finish(const std::string& config_text) const {
     for (const auto& r : rows) v.push_back(r.values[k]);
     f.write_strings("/points/" + plan_.keys[k], v);
   }
-  std::vector<double> idx, wall;
+  std::vector<double> idx, from, wall;
   std::vector<std::string> st, why;
   for (const auto& r : rows)
-    idx.push_back(static_cast<double>(r.point)), wall.push_back(r.wall_s), st.push_back(r.status),
-        why.push_back(r.reason);
+    idx.push_back(static_cast<double>(r.point)), from.push_back(static_cast<double>(r.from_point)),
+        wall.push_back(r.wall_s), st.push_back(r.status), why.push_back(r.reason);
   f.write_vector("/results/point", idx);
+  f.write_vector("/results/from_point", from);
   f.write_strings("/results/status", st);
   f.write_strings("/results/reason", why);
   std::map<std::string, std::string> units;
@@ -578,6 +672,7 @@ std::string sweep_point_line(const SweepPlan& plan, const SweepRow& r, long tota
                   100 * r.slip, r.efficiency, r.model_time);
     s += b;
   }
+  if (r.from_point >= 0) s += ", from point " + std::to_string(r.from_point + 1);
   std::snprintf(b, sizeof b, ", %.1f s", r.wall_s);
   return s + b;
 }
@@ -588,7 +683,8 @@ long run_sweep(const SweepOptions& o, const SweepPlan& plan) {
   const auto log = sweep_log(o);
   log_resumed(o, ledger);
   std::filesystem::create_directories(o.out + ".runs");
-  for (long i = 0; i < total; ++i) {
+  for (long k = 0; k < total; ++k) {
+    const long i = plan.at(k);  // with continuation, every point after its parent
     if (ledger.done(i)) continue;
     const SweepRow r = run_sweep_point(o, plan, i);
     ledger.add(r);
@@ -607,6 +703,8 @@ long close_sweep(const SweepOptions& o, const SweepLedger& ledger) {
   ledger.finish(sweep_config_text(o));
   if (!o.keep_runs) {
     std::error_code ec;
+    if (o.continuation)  // the parents' checkpoints
+      for (long i = 0; i < ledger.points(); ++i) std::filesystem::remove(point_file(o, i) + ".ckpt", ec);
     std::filesystem::remove(o.out + ".runs", ec);  // only if empty
   }
   long unsteady = 0;

@@ -36,6 +36,13 @@ struct SweepPlan {
   // Each point's resolved configuration (base, --set and its keys) as a fingerprint
   // (sweep_plan): a restart continues only rows run with the same.
   std::vector<std::string> fingerprints;
+  // With continuation (SweepOptions::continuation): the point each point continues from
+  // (-1: from rest), and the order the points run in, every point after its parent. Empty:
+  // every point from rest, in point order.
+  std::vector<long> parents;
+  std::vector<long> order;
+  long parent(long i) const { return parents.empty() ? -1 : parents[static_cast<std::size_t>(i)]; }
+  long at(long k) const { return order.empty() ? k : order[static_cast<std::size_t>(k)]; }
   // The full grid; the first axis varies slowest.
   static SweepPlan grid(const std::vector<SweepAxis>& axes);
   // A CSV file by RFC 4180: a header of keys, then one row of values per point; a line whose
@@ -62,6 +69,8 @@ struct SweepRow {
   std::map<std::string, double> numerical_error;
   // The fingerprint of the configuration it ran (SweepPlan::fingerprints; "" none).
   std::string config;
+  // The point whose steady state it continued from; -1: from rest (or from --from).
+  long from_point = -1;
 };
 
 // The CSV (docs/studies.md): the keys, then the results, then point, reason, wall_s and
@@ -81,7 +90,11 @@ struct SweepOptions {
   // from rest; run.t_end is then the bound on each point's run beyond it. A point whose
   // load.torque differs from the checkpoint's ramps it over warm_ramp from there.
   std::string from;
-  double warm_ramp = 1e-2;  // [s]
+  double warm_ramp = -1;  // [s]; < 0: the point's steady window (two torsion periods)
+  // Maps by continuation (--continue): a point whose keys differ from another point's in
+  // load.torque only starts from that point's steady state (the nearest load; the group's
+  // middle load from rest), its load ramped over warm_ramp (continuation_parents).
+  bool continuation = false;
   ScheduleOptions schedule;
   // What run.max_wall counts from: the command's start.
   WallClock::time_point started = WallClock::now();
@@ -93,6 +106,15 @@ struct SweepOptions {
 // every point's configuration checked before the first runs, so that a typo fails at once.
 // Throws ConfigError; also when o has both or neither of config_path and from.
 SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes, const std::string& points);
+
+// The continuation tree (docs/studies.md, "Maps by continuation"): the points whose keys
+// agree but for load.torque form a group; the point of the group's middle load (the lower
+// middle, the first in point order among equals) runs from rest, every other continues from
+// the nearest load already in the tree (Prim's tree by |load difference|, ties to the lower
+// point index). loads[i] is point i's load torque. Returns each point's parent (-1: none)
+// and fills *order with the points by their depth in the tree, then by index.
+std::vector<long> continuation_parents(const SweepPlan& plan, const std::vector<double>& loads,
+                                       std::vector<long>* order);
 
 // A point stopped by a signal or by run.max_wall: the sweep stops without a row for it (a
 // restart continues it from its checkpoint).

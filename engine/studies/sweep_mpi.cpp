@@ -67,7 +67,22 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
   SweepLedger ledger(o, plan);
   const long total = static_cast<long>(plan.points.size());
   log_resumed(o, ledger);
-  long next = 0;
+  // Handed out, and the points' order (with continuation, every point after its parent,
+  // and handed out only once its parent's row is in: waiting workers idle until then).
+  std::vector<bool> given(static_cast<std::size_t>(total), false);
+  std::vector<int> idle;
+  constexpr long kWait = -2;
+  const auto next_point = [&]() -> long {
+    bool pending = false;
+    for (long k = 0; k < total; ++k) {
+      const long i = plan.at(k);
+      if (ledger.done(i) || given[static_cast<std::size_t>(i)]) continue;
+      const long p = plan.parent(i);
+      if (p < 0 || ledger.done(p)) return i;
+      pending = true;
+    }
+    return pending ? kWait : -1;
+  };
   // Once a worker's point was stopped (run.max_wall, a signal), or rank 0 caught a signal,
   // no point is handed out: the workers end the points they hold (on a job's limit or
   // signal they stop them too) and the sweep stops like a serial one, its finished points
@@ -88,10 +103,15 @@ long coordinate(const SweepOptions& o, const SweepPlan& plan, int workers) {
     }
     if (!stopped && StopSignals::pending())
       stopped.emplace("rank 0 stopped by signal " + std::to_string(StopSignals::pending()));
-    while (next < total && ledger.done(next)) ++next;
-    const long give = !stopped && next < total ? next++ : -1;
-    MPI_Send(&give, 1, MPI_LONG, from, kTagToWorker, MPI_COMM_WORLD);
-    if (give < 0) --active;
+    idle.push_back(from);
+    while (!idle.empty()) {
+      const long give = stopped ? -1 : next_point();
+      if (give == kWait) break;  // until a running parent's row comes in
+      if (give >= 0) given[static_cast<std::size_t>(give)] = true;
+      MPI_Send(&give, 1, MPI_LONG, idle.back(), kTagToWorker, MPI_COMM_WORLD);
+      idle.pop_back();
+      if (give < 0) --active;
+    }
   }
   if (stopped) throw *stopped;
   return close_sweep(o, ledger);

@@ -417,7 +417,8 @@ def _log(log, quiet):
 
 
 def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, from_checkpoint=None,
-          keep_runs=False, warm_ramp=1e-2, threads=1, scheduler=None, grain=4, quiet=True, log=None):
+          keep_runs=False, warm_ramp=None, continuation=False, threads=1, scheduler=None, grain=4, quiet=True,
+          log=None):
     """Operating points, each run until steady (as `cvt-engine sweep`); returns OUT.csv's rows
     as dicts (the keys, status, speed_ratio [1], input_torque [N m], input_speed [rad/s],
     clamping_force_driving [N], efficiency [1], model_time [s], ...: docs/studies.md; OUT.h5's
@@ -425,6 +426,10 @@ def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, f
 
     axes: {key: [values]} (a full grid, the first key slowest); points: a CSV file of points.
     from_checkpoint: start every point from a steady state's checkpoint (then config is None).
+    continuation: maps by continuation (as --continue): a point that differs from others in
+    load.torque only starts from the steady state of the nearest load among them, its
+    load ramped over warm_ramp [s] (None: the point's steady window, two torsion periods; also
+    for from_checkpoint); the row's from_point names it.
     A sweep started again with the same out skips the points OUT.csv holds.
     log: a callable given each progress line (default: silent when quiet, else print).
     """
@@ -439,7 +444,8 @@ def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, f
     log = _callable_or_none("log", log)
     _core.sweep(_path("config", config, True) or "", _path("from_checkpoint", from_checkpoint, True) or "",
                 _overrides(overrides), ax, _path("points", points, True) or "", _path("out", out),
-                _flag("keep_runs", keep_runs), _nonnegative("warm_ramp", warm_ramp), scheduler, threads, grain,
+                _flag("keep_runs", keep_runs), -1.0 if warm_ramp is None else _nonnegative("warm_ramp", warm_ramp),
+                _flag("continuation", continuation), scheduler, threads, grain,
                 _log(log, _flag("quiet", quiet)))
     return _rows(os.fspath(out) + ".csv")
 

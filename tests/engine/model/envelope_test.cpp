@@ -61,6 +61,41 @@ TEST(EnvelopeTest, EveryPointOfTheEnvelopeStudyLiesInsideIt) {
   }
 }
 
+// The shipped 50-point map (configs/map-reference.csv) with its recipe's keys: every point
+// inside the envelope; 5 ratios x 2 speeds x 5 loads; with --continue one point per ratio and
+// speed from rest (its 100 N m), the other 40 continued, each from a load of its own ratio
+// and speed.
+TEST(EnvelopeTest, TheShippedMapLiesInsideItAndContinuesAlongTheLoads) {
+  const SweepPlan plan = SweepPlan::from_file(std::string(CVT_SOURCE_DIR) + "/configs/map-reference.csv");
+  ASSERT_EQ(plan.points.size(), 50u);
+  const std::vector<std::string> recipe = {"controller.enabled=true", "controller.clamping_safety=2",
+                                           "controller.shift_kp=100", "controller.shift_ki=1000",
+                                           "clamping.driving=12.3e3", "clamping.driven=1e4"};
+  std::vector<double> loads;
+  for (long i = 0; i < 50; ++i) {
+    std::vector<std::string> ov = recipe;
+    for (const auto& o : plan.overrides(i)) ov.push_back(o);
+    const Config c = config("reference-steady", ov);
+    const auto w = envelope_warnings(c);
+    EXPECT_TRUE(w.empty()) << "point " << i + 1 << " (" << plan.label(i) << "): " << (w.empty() ? "" : w[0]);
+    loads.push_back(c.load.torque);
+  }
+  std::vector<long> order;
+  const std::vector<long> parent = continuation_parents(plan, loads, &order);
+  long roots = 0;
+  for (long i = 0; i < 50; ++i) {
+    const long p = parent[static_cast<std::size_t>(i)];
+    if (p < 0) {
+      ++roots;
+      EXPECT_EQ(loads[static_cast<std::size_t>(i)], 100.0) << "point " << i + 1;
+      continue;
+    }
+    EXPECT_EQ(plan.points[static_cast<std::size_t>(p)][0], plan.points[static_cast<std::size_t>(i)][0]);
+    EXPECT_EQ(plan.points[static_cast<std::size_t>(p)][2], plan.points[static_cast<std::size_t>(i)][2]);
+  }
+  EXPECT_EQ(roots, 10);
+}
+
 // The study spreads over the envelope: both ends of the ratios, light and heavy loads, low
 // and high speeds, on each model.
 TEST(EnvelopeTest, TheEnvelopeStudySpreadsOverBothModelsRatiosLoadsAndSpeeds) {

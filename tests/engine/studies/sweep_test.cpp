@@ -82,6 +82,33 @@ TEST(SweepPlanTest, GridIsTheFullProductFirstAxisSlowest) {
   EXPECT_THROW(SweepPlan::grid({parse_axis("load.torque=1"), parse_axis("load.torque=2")}), ConfigError);
 }
 
+// The continuation tree: points that agree but for load.torque form a group; its middle
+// load (the lower middle) runs from rest, every other point continues from the nearest load
+// in the tree; no point continues across groups; the order puts every parent first.
+TEST(SweepPlanTest, ContinuationGrowsEachGroupFromItsMiddleLoadToTheNearest) {
+  const SweepPlan p = SweepPlan::grid({parse_axis("geometry.ratio=0.8,1.2"), parse_axis("load.torque=200,50,100,150,25")});
+  std::vector<double> loads;
+  for (const auto& v : p.points) loads.push_back(std::stod(v[1]));
+  std::vector<long> order;
+  const std::vector<long> parent = continuation_parents(p, loads, &order);
+  // Group ratio 0.8 is points 0..4 (loads 200, 50, 100, 150, 25): root 100 (point 2);
+  // 50 and 150 from 100, 25 from 50, 200 from 150.
+  EXPECT_EQ(parent, (std::vector<long>{3, 2, -1, 2, 1, 8, 7, -1, 7, 6}));
+  ASSERT_EQ(order.size(), 10u);
+  std::vector<int> rank(10);
+  for (int k = 0; k < 10; ++k) rank[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])] = k;
+  for (long i = 0; i < 10; ++i) {
+    if (parent[static_cast<std::size_t>(i)] < 0) continue;
+    EXPECT_LT(rank[static_cast<std::size_t>(parent[static_cast<std::size_t>(i)])], rank[static_cast<std::size_t>(i)]);
+    EXPECT_EQ(p.points[static_cast<std::size_t>(parent[static_cast<std::size_t>(i)])][0], p.points[static_cast<std::size_t>(i)][0]);
+  }
+  EXPECT_EQ(order[0], 2);  // the roots first, in point order
+  EXPECT_EQ(order[1], 7);
+  // Without a load axis every point is its own group: all from rest.
+  const SweepPlan q = SweepPlan::grid({parse_axis("geometry.ratio=0.8,1.2")});
+  EXPECT_EQ(continuation_parents(q, {150, 150}, &order), (std::vector<long>{-1, -1}));
+}
+
 TEST_F(SweepDir, PointsFileHasAHeaderOfKeysAndARowPerPoint) {
   std::ofstream(dir_ / "points.csv") << "# operating points\nload.torque, friction.law\n50, smooth\n\n100,\"none\"\n";
   const SweepPlan p = SweepPlan::from_file((dir_ / "points.csv").string());
@@ -458,6 +485,55 @@ TEST_F(SweepDir, WarmStartFromASteadyState) {
             0)
       << read_text(dir_ / "mpi.log");
   EXPECT_EQ(without_wall(read_text(dir_ / "warm-mpi.csv")), without_wall(read_text(dir_ / "warm.csv")));
+#endif
+}
+
+// Maps by continuation (sweep --continue): the middle load runs from rest, the others start
+// from the steady state of the nearest load (from_point), ramp their load and need two windows
+// of their own after the ramp; a continued point lands on the point from rest within the
+// ratio's spread under fixed clamping; mpirun -np 3 hands a point out only after its parent
+// and gives the serial CSV; --continue with --from or a job array's task is refused.
+TEST_F(SweepDir, ContinuedPointsStartFromTheNearestLoadsSteadyState) {
+  const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
+  const std::string base = " sweep " + test::shell_quote(test::config_path("mini")) +
+                           " --set clamping.driving=1.13e4 --set run.steady_window=4e-3 --set run.t_end=0.05";
+  const std::string args = base + " --axis load.torque=9,10,11 --continue --warm-ramp 2e-3";
+  ASSERT_EQ(sh(exe + args + " --out cont > cont.log 2>&1"), 0) << read_text(dir_ / "cont.log");
+  const std::string csv = read_text(dir_ / "cont.csv");
+  EXPECT_FALSE(fs::exists(dir_ / "cont.runs")) << "the parents' checkpoints go with the sweep's end";
+  const SweepPlan plan = SweepPlan::grid({parse_axis("load.torque=9,10,11")});
+  const auto rows = lines(csv);
+  ASSERT_EQ(rows.size(), 4u) << csv;
+  const SweepRow lo = parse_sweep_csv_row(rows[1], plan), mid = parse_sweep_csv_row(rows[2], plan),
+                 hi = parse_sweep_csv_row(rows[3], plan);
+  EXPECT_EQ(mid.from_point, -1);
+  EXPECT_EQ(lo.from_point, 1);
+  EXPECT_EQ(hi.from_point, 1);
+  for (const SweepRow* r : {&lo, &mid, &hi}) EXPECT_EQ(r->status, "steady") << r->reason;
+  for (const SweepRow* r : {&lo, &hi}) {
+    EXPECT_GE(r->model_time, mid.model_time + 2e-3 + 2 * 4e-3 - 1e-9);  // the ramp, then two windows
+    EXPECT_NEAR(r->output_torque, r->load_torque, 0.02 * r->load_torque);  // the torque balance
+  }
+  EXPECT_NEAR(lo.load_torque, 9, 1e-9);
+  EXPECT_NEAR(hi.load_torque, 11, 1e-9);
+  EXPECT_NE(read_text(dir_ / "cont.log").find("from point 2"), std::string::npos) << read_text(dir_ / "cont.log");
+  // The point at 9 N m from rest: the same operating point, up to where the ratio settles
+  // under fixed clamping forces (it depends on the path).
+  ASSERT_EQ(sh(exe + base + " --axis load.torque=9 --out rest > rest.log 2>&1"), 0) << read_text(dir_ / "rest.log");
+  const SweepRow rest = parse_sweep_csv_row(lines(read_text(dir_ / "rest.csv"))[1], SweepPlan::grid({parse_axis("load.torque=9")}));
+  EXPECT_EQ(rest.from_point, -1);
+  EXPECT_NEAR(lo.efficiency, rest.efficiency, 0.005);
+  EXPECT_NEAR(lo.speed_ratio, rest.speed_ratio, 0.005);
+  EXPECT_EQ(sh(exe + args + " --from cont.csv --out x > from.log 2>&1"), 78);
+  EXPECT_EQ(sh(exe + args + " --point 0 --out x > task.log 2>&1"), 78);
+  EXPECT_NE(read_text(dir_ / "task.log").find("job array"), std::string::npos) << read_text(dir_ / "task.log");
+#ifdef CVT_WITH_MPI
+  if (sh("command -v mpirun > /dev/null") != 0) GTEST_SKIP() << "no mpirun";
+  ASSERT_EQ(sh("OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 mpirun --oversubscribe -np 3 " + exe + args +
+               " --out cont-mpi > mpi.log 2>&1"),
+            0)
+      << read_text(dir_ / "mpi.log");
+  EXPECT_EQ(without_wall(read_text(dir_ / "cont-mpi.csv")), without_wall(csv));
 #endif
 }
 
