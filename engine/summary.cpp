@@ -158,14 +158,14 @@ class Judge {
     const auto drift = [&](const char* name, const char* unit, const std::vector<double>& v, double scale,
                            double limit, double shown = 1) {
       const double x = mean(v, a_, mid_), y = mean(v, mid_, b_);
-      std::string text = std::string(name) + fmt(" %.4g -> %.4g", shown * x, shown * y) + (*unit ? " " : "") + unit;
-      if (limit != c_.drift) text += fmt(" (within %.2g %%)", 100 * limit);
+      const std::string text =
+          std::string(name) + fmt(" %.4g -> %.4g", shown * x, shown * y) + (*unit ? " " : "") + unit;
       if (std::abs(y - x) > limit * scale) {
         unsteady.push_back("drift of the means: " + text + " over the window's halves (limit " +
                            fmt("%.2g", 100 * limit) + " %)");
         held = false;
       } else {
-        agree += (agree.empty() ? "" : ", ") + text;
+        agree += (agree.empty() ? "" : ", ") + text + (limit != c_.drift ? fmt(" (within %.2g %%)", 100 * limit) : "");
       }
     };
     drift("output torque", "N m", ch_.output_torque, torque_scale_, c_.drift);

@@ -1175,6 +1175,13 @@ def cmd_sweep(a):
         r["thrust_ratio"] = _num(r.get("clamping_force_driving")) / f2 if f2 else float("nan")
     if a.column not in rows[0]:
         raise UserError(f"{a.file}: no column {a.column}")
+    for w in a.where or []:  # a slice of a map over more than two keys
+        key, sep, value = w.partition("=")
+        if not sep or key not in keys:
+            raise UserError(f"--where {w}: give KEY=VALUE with KEY one of {', '.join(keys)}")
+        rows = [r for r in rows if _num(r[key]) == _num(value)]
+        if not rows:
+            raise UserError(f"--where {w}: no point of {a.file} has {key} = {value}")
     x_key = a.x or keys[0]
     y_key = a.y or (keys[1] if len(keys) > 1 and keys[1] != x_key else None)
     steady = [r for r in rows if r["status"] == "steady" or (a.all and r["status"] == "not_steady")]
@@ -1201,7 +1208,8 @@ def cmd_sweep(a):
                 ax.plot([_num(r[x_key]) for r in rs], [_num(r[y_key]) for r in rs], m, color=c, mec="k", label=st)
         ax.set_xlabel(x_key), ax.set_ylabel(y_key), ax.legend(loc="best", fontsize=8)
     n_steady = sum(r["status"] == "steady" for r in rows)
-    ax.set_title(f"{a.column} over {len(rows)} points ({n_steady} steady): {os.path.basename(a.file)}")
+    where = "".join(f", {w}" for w in a.where or [])
+    ax.set_title(f"{a.column} over {len(rows)} points ({n_steady} steady): {os.path.basename(a.file)}{where}")
     save(fig, a.out)
 
 
@@ -1310,6 +1318,8 @@ def build_parser():
     p.add_argument("--x", default=None, metavar="KEY", help="the x axis key (default the first)")
     p.add_argument("--y", default=None, metavar="KEY", help="the y axis key (default the second, if any)")
     p.add_argument("--all", action="store_true", help="contour the not_steady points too (default: steady only)")
+    p.add_argument("--where", action="append", metavar="KEY=VALUE",
+                   help="only the points with this value of a key (repeatable): a slice of a map over more keys")
     p.add_argument("-o", "--out", default="sweep.png", help="output image (default sweep.png)")
     p.set_defaults(func=cmd_sweep)
 

@@ -872,7 +872,7 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
   const long task = sweep_task_point(mode);
   if (mode.gather && task >= 0) throw ConfigError("--gather", "", "give either --gather or --point/--array, not both");
   if (o.continuation && (task >= 0 || mode.gather))
-    throw ConfigError("--continue", "", "a continued point waits for its parent's steady state, which a job array's "
+    throw ConfigError("--continuation", "", "a continued point waits for its parent's steady state, which a job array's "
                                         "separate tasks do not share: run the sweep in one job (with mpirun for "
                                         "several nodes)");
   if (mode.gather) return cmd_sweep_gather(o, plan);
@@ -946,11 +946,11 @@ Command add_sweep_command(CLI::App& app) {
   sw->add_option("--from", a->o.from, "start every point from this checkpoint of a steady state of the same model "
                                       "(cvt-engine run CONFIG --until-steady -o base.h5 writes base.h5.ckpt); "
                                       "run.t_end then bounds each point's run beyond it");
-  sw->add_flag("--continue", a->o.continuation,
+  sw->add_flag("--continuation", a->o.continuation,
                "maps by continuation: a point that differs from others in load.torque only starts from the steady "
                "state of the nearest load among them (the middle load of each such group from rest), its load ramped "
                "over --warm-ramp (docs/studies.md, \"Maps by continuation\")");
-  sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from or --continue: a changed load.torque ramps from the "
+  sw->add_option("--warm-ramp", a->o.warm_ramp, "with --from or --continuation: a changed load.torque ramps from the "
                                                 "checkpoint's over this time [s] (default: the point's steady window, "
                                                 "two periods of the drive line's torsion mode)")
       ->check(kNonNegative);

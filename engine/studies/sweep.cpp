@@ -311,7 +311,7 @@ SweepPlan sweep_plan(const SweepOptions& o, const std::vector<std::string>& axes
   SweepPlan plan = points.empty() ? SweepPlan::grid(ax) : SweepPlan::from_file(points);
   if (plan.points.empty()) throw ConfigError("--points", points, "no points");
   if (o.continuation && !o.from.empty())
-    throw ConfigError("--continue", "", "continues each point from a neighbour's steady state, and --from starts every "
+    throw ConfigError("--continuation", "", "continues each point from a neighbour's steady state, and --from starts every "
                                         "point from one checkpoint: give one of the two");
   const std::optional<Checkpoint> ck = o.from.empty() ? std::nullopt : std::optional(read_checkpoint(o.from));
   std::vector<std::string> resolved;

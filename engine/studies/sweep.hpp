@@ -91,7 +91,7 @@ struct SweepOptions {
   // load.torque differs from the checkpoint's ramps it over warm_ramp from there.
   std::string from;
   double warm_ramp = -1;  // [s]; < 0: the point's steady window (two torsion periods)
-  // Maps by continuation (--continue): a point whose keys differ from another point's in
+  // Maps by continuation (--continuation): a point whose keys differ from another point's in
   // load.torque only starts from that point's steady state (the nearest load; the group's
   // middle load from rest), its load ramped over warm_ramp (continuation_parents).
   bool continuation = false;

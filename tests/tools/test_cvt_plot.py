@@ -597,6 +597,29 @@ class StudyFiguresTest(unittest.TestCase):
         rows = mod._read_csv(path, mod.SWEEP_RESULTS)
         self.assertEqual(len(rows), 9)
 
+    def test_sweep_where_slices_a_map_over_more_keys(self):
+        path = self.sweep_csv()
+        out = os.path.join(self.dir, "slice.png")
+        p = self.plot("sweep", path, "--where", "clamping.driving=1.2e4", "-o", out)  # load.torque alone
+        self.assertEqual(p.returncode, 0, p.stderr)
+        self.assertIn("over 3 points", self.plot_title(path, "clamping.driving=12000"))
+        for bad, why in (("clamping.driving=9e9", "no point"), ("nokey=1", "KEY=VALUE"), ("load.torque", "KEY=VALUE")):
+            p = self.plot("sweep", path, "--where", bad, "-o", out)
+            self.assertEqual(p.returncode, 2, bad)
+            self.assertIn(why, p.stderr)
+
+    def plot_title(self, path, where):
+        mod = load_tool()
+        captured = {}
+        real = mod.save
+        mod.save = lambda fig, out: captured.setdefault("title", fig.axes[0].get_title())
+        try:
+            mod.cmd_sweep(mod.argparse.Namespace(file=path, column="efficiency", x=None, y=None, all=False,
+                                                 where=[where], out="unused.png"))
+        finally:
+            mod.save = real
+        return captured["title"]
+
     def test_sweep_over_one_key_and_bad_column(self):
         one = self.write("one.csv", self.SWEEP_HEAD.replace("load.torque,", "") +
                          "1.1e4,steady,1,1,0,1,1,0.9,1,1,1,1.1e4,1e4,0.1,0,,1\n"

@@ -426,7 +426,7 @@ def sweep(config=None, *, axes=None, points=None, out="sweep", overrides=None, f
 
     axes: {key: [values]} (a full grid, the first key slowest); points: a CSV file of points.
     from_checkpoint: start every point from a steady state's checkpoint (then config is None).
-    continuation: maps by continuation (as --continue): a point that differs from others in
+    continuation: maps by continuation (as --continuation): a point that differs from others in
     load.torque only starts from the steady state of the nearest load among them, its
     load ramped over warm_ramp [s] (None: the point's steady window, two torsion periods; also
     for from_checkpoint); the row's from_point names it.

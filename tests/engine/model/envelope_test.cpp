@@ -62,7 +62,7 @@ TEST(EnvelopeTest, EveryPointOfTheEnvelopeStudyLiesInsideIt) {
 }
 
 // The shipped 50-point map (configs/map-reference.csv) with its recipe's keys: every point
-// inside the envelope; 5 ratios x 2 speeds x 5 loads; with --continue one point per ratio and
+// inside the envelope; 5 ratios x 2 speeds x 5 loads; with --continuation one point per ratio and
 // speed from rest (its 100 N m), the other 40 continued, each from a load of its own ratio
 // and speed.
 TEST(EnvelopeTest, TheShippedMapLiesInsideItAndContinuesAlongTheLoads) {
@@ -261,7 +261,7 @@ TEST(EnvelopeTest, SlowMiniPointsAreSteadyOrSlip) {
   }
   const std::string cmd = "cd " + test::shell_quote(dir.string()) + " && " + test::shell_quote(CVT_ENGINE_EXE) +
                           " sweep " + test::shell_quote(test::config_path("mini")) +
-                          " --points points.csv --set run.t_end=0.08 --out sub --threads 2 >stdout.txt 2>stderr.txt";
+                          " --points points.csv --set run.t_end=0.2 --out sub --threads 2 >stdout.txt 2>stderr.txt";
   const int status = std::system(cmd.c_str());
   std::ifstream log(dir / "stdout.txt"), csv(dir / "sub.csv");
   std::stringstream text;

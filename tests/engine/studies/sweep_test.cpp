@@ -488,16 +488,16 @@ TEST_F(SweepDir, WarmStartFromASteadyState) {
 #endif
 }
 
-// Maps by continuation (sweep --continue): the middle load runs from rest, the others start
+// Maps by continuation (sweep --continuation): the middle load runs from rest, the others start
 // from the steady state of the nearest load (from_point), ramp their load and need two windows
 // of their own after the ramp; a continued point lands on the point from rest within the
 // ratio's spread under fixed clamping; mpirun -np 3 hands a point out only after its parent
-// and gives the serial CSV; --continue with --from or a job array's task is refused.
+// and gives the serial CSV; --continuation with --from or a job array's task is refused.
 TEST_F(SweepDir, ContinuedPointsStartFromTheNearestLoadsSteadyState) {
   const std::string exe = test::shell_quote(CVT_ENGINE_EXE);
   const std::string base = " sweep " + test::shell_quote(test::config_path("mini")) +
                            " --set clamping.driving=1.13e4 --set run.steady_window=4e-3 --set run.t_end=0.05";
-  const std::string args = base + " --axis load.torque=9,10,11 --continue --warm-ramp 2e-3";
+  const std::string args = base + " --axis load.torque=9,10,11 --continuation --warm-ramp 2e-3";
   ASSERT_EQ(sh(exe + args + " --out cont > cont.log 2>&1"), 0) << read_text(dir_ / "cont.log");
   const std::string csv = read_text(dir_ / "cont.csv");
   EXPECT_FALSE(fs::exists(dir_ / "cont.runs")) << "the parents' checkpoints go with the sweep's end";
