@@ -93,6 +93,9 @@ void write_summary(H5File& f, const RunSummary& s) {
     // A verified mean's numerical error beside it (run.verify).
     if (e.verify.verified && i < s.numerical_error.size())
       f.set_double_attribute("/summary", name + "_numerical_error", s.numerical_error[i]);
+    // And its statistical uncertainty (NaN: fewer than two spans).
+    if (e.verify.verified && i < s.uncertainty.size())
+      f.set_double_attribute("/summary", name + "_uncertainty", s.uncertainty[i]);
     std::visit(
         [&](auto m) {
           const auto& x = s.*m;

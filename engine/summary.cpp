@@ -111,6 +111,7 @@ class Judge {
       a_ = b_ - 2 * half * k_torsion_, mid_ = b_ - half * k_torsion_;
   }
   void all(bool ramping, double ramp_end) {
+    span_means();
     if (ramping)
       unsteady.push_back(fmt("load ramp: the loads and clamping forces ramp up until t = %.4g s, and the run "
                              "ends at %.4g s",
@@ -126,6 +127,7 @@ class Judge {
     drift_check();
     shift();
     ringing();
+    settled_efficiency();
     balance();
   }
   std::vector<std::string> slip, unsteady, held;
@@ -194,9 +196,34 @@ class Judge {
     else
       held.push_back(fmt("ratio held: the geometric ratio moves %+.2g %% per 10 ms (limit %.2g)", rate, c_.shift));
   }
+  // The statistical uncertainty of every verified mean: its means over each whole span of
+  // the lowest torsion mode's period (t_torsion_) in the window, the last `periods_` of
+  // them, and how far those scatter: the window's mean is uncertain by their standard
+  // error (NaN with fewer than two spans).
+  void span_means() {
+    const auto& fields = summary_fields();
+    s_.uncertainty.assign(fields.size(), std::numeric_limits<double>::quiet_NaN());
+    periods_ = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
+    s_.uncertainty_spans = periods_ >= 2 ? static_cast<long>(periods_) : 0;
+    s_.uncertainty_span = periods_ >= 2 ? t_torsion_ : 0;
+    if (periods_ < 2) return;
+    const std::size_t first = b_ - periods_ * k_torsion_;
+    std::vector<RunSummary> span(periods_);
+    for (std::size_t p = 0; p < periods_; ++p)
+      fill_means(ch_, first + p * k_torsion_, first + (p + 1) * k_torsion_, span[p]);
+    const double n = static_cast<double>(periods_);
+    for (std::size_t i = 0; i < fields.size(); ++i) {
+      if (!fields[i].verify.verified) continue;
+      const auto member = std::get<double RunSummary::*>(fields[i].member);
+      double sum = 0, sum2 = 0;
+      for (const RunSummary& x : span) sum += x.*member, sum2 += x.*member * (x.*member);
+      const double avg = sum / n, sd = std::sqrt(std::max(0.0, (sum2 - n * avg * avg) / (n - 1)));
+      s_.uncertainty[i] = sd / std::sqrt(n);
+    }
+  }
   // The torsion modes of shafts and load: the output torque's mean over each whole span of
-  // the lowest mode's period (t_torsion_) in the window, and how far those means scatter: the
-  // window's mean is uncertain by their standard error, which the criterion bounds. A mode
+  // the lowest mode's period in the window, and how far those means scatter (span_means):
+  // the criterion bounds the window mean's standard error. A mode
   // that rings on at a steady amplitude (a light load whose meshing keeps it going) leaves
   // the period means alone; one that is still decaying, or a drive line still winding up,
   // scatters them. The swing (a moving average over one meshing period, the time a link takes
@@ -210,8 +237,7 @@ class Judge {
       if (i + 1 >= a_ + k_) lo = std::min(lo, run / k_), hi = std::max(hi, run / k_);
     }
     const double swing = 0.5 * (hi - lo);
-    const std::size_t periods = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
-    if (periods < 2) {
+    if (periods_ < 2) {
       if (swing > c_.ringing * torque_scale_)
         unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
                                "load) with the meshing ripple removed",
@@ -221,26 +247,39 @@ class Judge {
                            swing, 100 * swing / torque_scale_, 100 * c_.ringing));
       return;
     }
-    // The last `periods` whole periods of the window.
-    const std::size_t first = b_ - periods * k_torsion_;
-    double sum = 0, sum2 = 0;
-    for (std::size_t p = 0; p < periods; ++p) {
-      const double x = mean(ch_.output_torque, first + p * k_torsion_, first + (p + 1) * k_torsion_);
-      sum += x, sum2 += x * x;
-    }
-    const double n = static_cast<double>(periods), avg = sum / n;
-    const double sd = std::sqrt(std::max(0.0, (sum2 - n * avg * avg) / (n - 1))), se = sd / std::sqrt(n);
+    const double se = uncertainty(s_, "output_torque"), sd = se * std::sqrt(static_cast<double>(periods_));
     char text[512];
     std::snprintf(text, sizeof text,
                   "the output torque's means over %zu spans of %.3g s (a torsion period in whole meshing periods) "
                   "scatter by %.3g N m: the mean is "
                   "uncertain by +-%.3g N m (%.2f %% of the load; limit %.3g %%); it swings +-%.3g N m with the "
                   "meshing ripple removed",
-                  periods, t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
+                  periods_, t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
     if (se > c_.torsion_uncertainty * torque_scale_)
       unsteady.push_back(std::string("torsion mode not settled: ") + text);
     else
       held.push_back(std::string("torsion settled: ") + text);
+  }
+  // The efficiency against the energy balance. The ratio of the mean powers over a window
+  // carries the change of the kinetic and elastic energy between input and output (the
+  // pulleys, the chain, the springs) from the window's start to its end, over the input
+  // work: an oscillation of the drive line that the window does not hold whole periods of
+  // leaves it there, most at light loads and high speeds. 1 - dissipated / input work does
+  // not see that energy: where the run is steady the two agree, and the check holds the
+  // window to it, and the losses' own scatter over the spans (the standard error of
+  // loss_efficiency's span means).
+  void settled_efficiency() {
+    if (periods_ < 2) return;
+    const double gap = s_.efficiency - s_.loss_efficiency, se = uncertainty(s_, "loss_efficiency");
+    const std::string text = fmt("the power ratio %.4f against 1 - dissipated / input work %.4f (%+.2g; limit %.2g), ",
+                                 s_.efficiency, s_.loss_efficiency, gap, c_.efficiency_uncertainty) +
+                             fmt("the latter uncertain by +-%.2g over %.0f spans", se, static_cast<double>(periods_));
+    if (!(std::abs(gap) <= c_.efficiency_uncertainty && se <= c_.efficiency_uncertainty))
+      unsteady.push_back("efficiency not settled: " + text +
+                         ": energy swinging in and out of the drive line across the window's ends; a later window "
+                         "(run.until_steady, a later run.t_end) holds it");
+    else
+      held.push_back("efficiency settled: " + text);
   }
   void balance() {
     if (!(std::abs(s_.load_torque) > 0)) return;
@@ -261,6 +300,7 @@ class Judge {
   std::size_t k_torsion_ = 0;  // its samples (0: none)
   double t_mesh_ = 0;
   std::size_t k_ = 1;
+  std::size_t periods_ = 0;  // the whole spans in [a_, b_) (span_means)
 };
 
 }  // namespace
@@ -269,6 +309,7 @@ SteadyCriteria SteadyCriteria::of(const Config& cfg) {
   SteadyCriteria c;
   c.drift = c.balance = cfg.run.steady_tolerance;
   c.force_drift = 0.25 * cfg.run.steady_tolerance;
+  c.efficiency_uncertainty = 0.05 * cfg.run.steady_tolerance;
   return c;
 }
 
@@ -408,6 +449,11 @@ const std::vector<SummaryField>& summary_fields() {
       {"verify_step", "s", "run.verify: the step of the window's second integration (integrator.step / 2); 0: not verified",
        &S::verify_step},
       {"verify_wall_s", "s", "run.verify: wall time of the window's second integration", &S::verify_wall_s},
+      {"uncertainty_spans", "",
+       "the whole torsion spans in the window whose means give each mean's statistical uncertainty (0: fewer than "
+       "two)",
+       &S::uncertainty_spans},
+      {"uncertainty_span", "s", "the length of each of those spans (0: none)", &S::uncertainty_span},
       {"energy_residual", "J", "the energy balance's residual at the end", &S::energy_residual},
       {"energy_turnover", "J", "|W_in| + |W_out| + |W_diss| + |W_clamp| + |W_switch| at the end", &S::energy_turnover},
       {"residual_fraction", "1", "|energy_residual| / energy_turnover (printed in %)", &S::residual_fraction},
@@ -447,12 +493,20 @@ void set_numerical_errors(RunSummary& s, const RunSummary& tight, double tight_s
   }
 }
 
-double numerical_error(const RunSummary& s, std::string_view name) {
+namespace {
+
+double by_name(const std::vector<double>& v, std::string_view name) {
   const auto& fields = summary_fields();
-  for (std::size_t i = 0; i < fields.size() && i < s.numerical_error.size(); ++i)
-    if (fields[i].name == name) return s.numerical_error[i];
+  for (std::size_t i = 0; i < fields.size() && i < v.size(); ++i)
+    if (fields[i].name == name) return v[i];
   return std::numeric_limits<double>::quiet_NaN();
 }
+
+}  // namespace
+
+double numerical_error(const RunSummary& s, std::string_view name) { return by_name(s.numerical_error, name); }
+
+double uncertainty(const RunSummary& s, std::string_view name) { return by_name(s.uncertainty, name); }
 
 namespace {
 
@@ -572,6 +626,16 @@ std::string format_summary(const RunSummary& s) {
     line("    (+- numerical error: |mean - the same window's mean with the step %.4g s| (run.verify); %.3g s wall "
          "time)\n",
          verify_step, verify_wall);
+  const long spans = e.count("uncertainty_spans");
+  const double span = e.num("uncertainty_span");
+  if (spans >= 2) {
+    const auto u = [&](std::string_view name, const char* f, double scale = 1) { return fmt(f, scale * uncertainty(s, name)); };
+    line("    (statistical uncertainty, the standard error of the means over %ld whole spans of %.3g s: efficiency "
+         "+-%s, slip +-%s %%, torques +-%s / %s N m, forces +-%s / %s kN)\n",
+         spans, span, u("efficiency", "%.2g").c_str(), u("slip", "%.2g", 100).c_str(), u("input_torque", "%.2g").c_str(),
+         u("output_torque", "%.2g").c_str(), u("clamping_force_driving", "%.2g", 1e-3).c_str(),
+         u("clamping_force_driven", "%.2g", 1e-3).c_str());
+  }
   line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", e.num("energy_residual"),
        100 * e.num("residual_fraction"), e.num("energy_turnover"));
   const long halvings = e.count("step_halvings");
@@ -600,7 +664,8 @@ Json summary_units() {
   for (const SummaryField& f : summary_fields()) {
     if (f.unit.empty()) continue;
     u[std::string(f.name)] = std::string(f.unit);
-    if (f.verify.verified) u[std::string(f.name) + "_numerical_error"] = std::string(f.unit);
+    if (f.verify.verified) u[std::string(f.name) + "_numerical_error"] = u[std::string(f.name) + "_uncertainty"] =
+        std::string(f.unit);
   }
   return u;
 }
@@ -624,6 +689,9 @@ std::string summary_json(const RunSummary& s) {
     // A verified mean's numerical error beside it (run.verify).
     if (f.verify.verified && i < s.numerical_error.size())
       j[std::string(f.name) + "_numerical_error"] = json_number(s.numerical_error[i]);
+    // And its statistical uncertainty (null: fewer than two spans).
+    if (f.verify.verified && i < s.uncertainty.size())
+      j[std::string(f.name) + "_uncertainty"] = json_number(s.uncertainty[i]);
   }
   j["units"] = summary_units();  // after the table's entries
   return json_text(j);

@@ -43,11 +43,15 @@ struct SteadyCriteria {
                                  // (windows of fewer than two torsion periods)
   double torsion_uncertainty = 0.005;  // the output torque's mean over whole torsion periods: its standard
                                        // error within 0.5 % of the load
+  double efficiency_uncertainty = 0.001;  // where the window holds two or more torsion spans: the efficiency
+                                          // (power ratio) and 1 - dissipated / input work agree within 0.1
+                                          // points, and the latter's standard error over the spans too
   double balance = 0.02;         // mean output torque against the mean load torque: 2 %
   double shift = 0.1;            // geometric ratio moving by less than 0.1 % per 10 ms [1/s]
   double gross_slip = 0.05;      // slip 1 - geometric ratio / speed ratio above 5 %: gross slip
   double falling = 0.02;         // slip growing by 2 % points across the window's halves: slip
-  // drift and balance from run.steady_tolerance, force_drift a quarter of it, the rest as above.
+  // drift and balance from run.steady_tolerance, force_drift a quarter of it,
+  // efficiency_uncertainty a twentieth of it, the rest as above.
   static SteadyCriteria of(const Config& cfg);
 };
 
@@ -95,6 +99,14 @@ struct RunSummary {
   // verified). numerical_error() reads it by name.
   double verify_step = 0, verify_wall_s = 0;
   std::vector<double> numerical_error;
+  // Each verified mean's statistical uncertainty: the standard error of the means over the
+  // window's whole torsion spans (uncertainty_spans of them, each uncertainty_span long),
+  // one entry per summary_fields() entry (NaN for those that are not a verified mean, and
+  // for every entry when the window holds fewer than two spans). uncertainty() reads it by
+  // name.
+  long uncertainty_spans = 0;
+  double uncertainty_span = 0;
+  std::vector<double> uncertainty;
 };
 
 // One entry of the summary: its key in /summary and in the JSON, its unit ("1": a ratio;
@@ -117,7 +129,8 @@ struct SummaryField {
                               std::vector<std::string> RunSummary::*>;
   std::string_view name, unit, meaning;
   Member member;
-  VerifiedMean verify = {};  // run.verify: this mean's numerical error, as <name>_numerical_error
+  VerifiedMean verify = {};  // run.verify: this mean's numerical error, as <name>_numerical_error;
+                             // and its statistical uncertainty, as <name>_uncertainty
 };
 
 // Every entry of the summary, in the order of the JSON: the text, /summary and the JSON are
@@ -152,6 +165,9 @@ void set_numerical_errors(RunSummary& s, const RunSummary& tight, double tight_s
 // The numerical error of the entry `name` (NaN when s is not verified or the entry is not a
 // verified mean).
 double numerical_error(const RunSummary& s, std::string_view name);
+// The statistical uncertainty of the entry `name` (NaN when the window holds fewer than two
+// whole spans or the entry is not a verified mean).
+double uncertainty(const RunSummary& s, std::string_view name);
 
 // The summary as text (the end of `cvt-engine run`) and as JSON (--summary-json). The text
 // shows every entry of the table: those its lines do not place, on its last line as

@@ -828,6 +828,12 @@ long sweep_task_point(const SweepMode& m) {
   return i;
 }
 
+// The sweep's last line: where its table is, and how many of its points are not steady.
+void print_sweep_written(const std::string& out, std::size_t points, long unsteady) {
+  std::printf("wrote %s.csv and %s.h5 (%zu point%s, %ld not steady)\n", out.c_str(), out.c_str(), points,
+              points == 1 ? "" : "s", unsteady);
+}
+
 // cvt-engine sweep --point I / --array: one point, its row into OUT.points/.
 int cmd_sweep_task(const cvt::SweepOptions& o, const cvt::SweepPlan& plan, long i) {
   using namespace cvt;
@@ -856,8 +862,7 @@ int cmd_sweep_gather(const cvt::SweepOptions& o, const cvt::SweepPlan& plan) {
                  o.out.c_str());
     return kExitWallLimit;
   }
-  std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
-              plan.points.size(), unsteady);
+  print_sweep_written(o.out, plan.points.size(), unsteady);
   return kExitOk;
 }
 
@@ -897,8 +902,9 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
     }
     long continued = 0;
     for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) continued += plan.parent(i) >= 0;
-    std::printf("cvt-engine %s sweep: %s, %zu points over %s%s; each until steady%s\n", CVT_VERSION,
-                o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(), [&] {
+    std::printf("cvt-engine %s sweep: %s, %zu point%s over %s%s; each until steady%s\n", CVT_VERSION,
+                o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(),
+                plan.points.size() == 1 ? "" : "s", [&] {
                   std::string k;
                   for (const auto& x : plan.keys) k += (k.empty() ? "" : ", ") + x;
                   return k;
@@ -917,8 +923,7 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
     return e.wall_limit ? kExitWallLimit : kExitInterrupted;
   }
   if (world.rank() == 0) {
-    std::printf("wrote %s.csv and %s.h5 (%zu points, %ld not steady)\n", o.out.c_str(), o.out.c_str(),
-                plan.points.size(), unsteady);
+    print_sweep_written(o.out, plan.points.size(), unsteady);
   }
   return kExitOk;
 }

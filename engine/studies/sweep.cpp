@@ -131,6 +131,7 @@ const std::vector<Column>& result_columns() {
       {"input_torque", &SweepRow::input_torque, "N m"},
       {"output_torque", &SweepRow::output_torque, "N m"},
       {"efficiency", &SweepRow::efficiency, "1"},
+      {"loss_efficiency", &SweepRow::loss_efficiency, "1"},
       {"input_speed", &SweepRow::input_speed, "rad/s"},
       {"output_speed", &SweepRow::output_speed, "rad/s"},
       {"load_torque", &SweepRow::load_torque, "N m"},
@@ -145,7 +146,7 @@ const std::vector<Column>& result_columns() {
 }
 
 // The result columns that are verified means of the summary (run.verify, summary_fields()):
-// each has a column <name>_numerical_error after the results.
+// each has a column <name>_numerical_error after the results, and then <name>_uncertainty.
 const std::vector<std::string>& error_columns() {
   static const std::vector<std::string> cols = [] {
     std::vector<std::string> out;
@@ -157,10 +158,14 @@ const std::vector<std::string>& error_columns() {
   return cols;
 }
 
-double row_error(const SweepRow& r, const std::string& name) {
-  const auto it = r.numerical_error.find(name);
-  return it == r.numerical_error.end() ? std::numeric_limits<double>::quiet_NaN() : it->second;
+double row_value(const std::map<std::string, double>& m, const std::string& name) {
+  const auto it = m.find(name);
+  return it == m.end() ? std::numeric_limits<double>::quiet_NaN() : it->second;
 }
+
+double row_error(const SweepRow& r, const std::string& name) { return row_value(r.numerical_error, name); }
+
+double row_uncertainty(const SweepRow& r, const std::string& name) { return row_value(r.uncertainty, name); }
 
 const std::vector<std::string>& statuses() {
   static const std::vector<std::string> s = {"steady", "not_steady", "slip", "blow_up", "error"};
@@ -402,6 +407,7 @@ std::string sweep_csv_header(const SweepPlan& plan) {
   s += "status";
   for (const auto& c : result_columns()) s += std::string(",") + c.name;
   for (const auto& e : error_columns()) s += "," + e + "_numerical_error";
+  for (const auto& e : error_columns()) s += "," + e + "_uncertainty";
   return s + ",point,from_point,reason,wall_s,config\n";
 }
 
@@ -412,6 +418,7 @@ std::string sweep_csv_row(const SweepRow& r) {
   // Appended one by one (+= only: GCC 12 warns falsely, -Wrestrict, on "," + a string here).
   for (const auto& c : result_columns()) s += ',', s += exact_number(r.*c.field);
   for (const auto& e : error_columns()) s += ',', s += exact_number(row_error(r, e));
+  for (const auto& e : error_columns()) s += ',', s += exact_number(row_uncertainty(r, e));
   for (const std::string& f : {std::to_string(r.point), std::to_string(r.from_point), csv_field(r.reason),
                                exact_number(r.wall_s), r.config}) {
     s += ',';
@@ -423,7 +430,7 @@ std::string sweep_csv_row(const SweepRow& r) {
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   const std::vector<std::string> f = split_csv(line);
-  const std::size_t nk = plan.keys.size(), nr = result_columns().size() + error_columns().size();
+  const std::size_t nk = plan.keys.size(), nr = result_columns().size() + 2 * error_columns().size();
   if (f.size() != nk + 1 + nr + 5) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
   SweepRow r;
   r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
@@ -434,6 +441,8 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   for (const auto& c : result_columns()) r.*c.field = std::stod(f[at++]);
   for (const auto& e : error_columns())
     if (const double x = std::stod(f[at++]); !std::isnan(x)) r.numerical_error[e] = x;
+  for (const auto& e : error_columns())
+    if (const double x = std::stod(f[at++]); !std::isnan(x)) r.uncertainty[e] = x;
   r.point = std::stol(f[at++]);
   r.from_point = std::stol(f[at++]);
   r.reason = f[at++];
@@ -503,12 +512,15 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     for (const auto& x : s.reasons) r.reason += (r.reason.empty() ? "" : "; ") + x;
     r.speed_ratio = s.speed_ratio, r.geometric_ratio = s.geometric_ratio, r.slip = s.slip;
     r.input_torque = s.input_torque, r.output_torque = s.output_torque, r.efficiency = s.efficiency;
+    r.loss_efficiency = s.loss_efficiency;
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
     r.model_time = s.model_time, r.steady_window = s.steady_window;
     r.step = s.step, r.energy_leak = s.energy_leak;
     if (s.verify_step > 0)
       for (const auto& e : error_columns()) r.numerical_error[e] = numerical_error(s, e);
+    for (const auto& e : error_columns())
+      if (const double u = uncertainty(s, e); !std::isnan(u)) r.uncertainty[e] = u;
   } catch (const SweepInterrupted&) {
     throw;
   } catch (const OutputError& e) {
@@ -634,6 +646,12 @@ void SweepLedger::finish(const std::string& config_text) const {
     for (const auto& r : rows) v.push_back(row_error(r, e));
     f.write_vector("/results/" + e + "_numerical_error", v);
     f.set_string_attribute("/results/" + e + "_numerical_error", "unit", units[e]);
+  }
+  for (const auto& e : error_columns()) {
+    std::vector<double> v;
+    for (const auto& r : rows) v.push_back(row_uncertainty(r, e));
+    f.write_vector("/results/" + e + "_uncertainty", v);
+    f.set_string_attribute("/results/" + e + "_uncertainty", "unit", units[e]);
   }
   f.write_vector("/results/wall_s", wall);
   f.set_string_attribute("/results/wall_s", "unit", "s");

@@ -150,6 +150,85 @@ TEST(SummaryTest, TorsionModeIsJudgedByItsMeanOverWholePeriods) {
   EXPECT_TRUE(has_reason(beat, "torsion mode not settled")) << reasons(beat);
 }
 
+// Every verified mean carries its statistical uncertainty, the standard error of its means
+// over the window's whole torsion spans: none for a steady signal, one that follows
+// sd / sqrt(n) for a swing the spans miss. The losses' is a criterion: input and output
+// torque swinging by +-1 % of the load at a frequency the spans miss (1.37 times the
+// torsion mode's) leave 1 - dissipated / input work uncertain by more than 0.1 points; and
+// energy stored across the window's ends (the dissipated work short of input minus output
+// work by a swinging store) parts the power ratio from it.
+TEST(SummaryTest, EveryMeanCarriesItsStatisticalUncertaintyOverWholeSpans) {
+  const Model m = test::model("reference");
+  const double W = steady_window(m), T = torsion_period(m);
+  const double t_end = ramps_end(m.cfg) + 2 * W + 1e-3;
+  const auto summary = [&](const Synthetic& x) {
+    RunSummary s;
+    summarize(m, x.ch, s, SteadyCriteria{}, t_end - 2 * W);
+    return s;
+  };
+  const RunSummary still = summary(Synthetic({}, t_end));
+  EXPECT_EQ(still.status, "steady") << reasons(still);
+  EXPECT_EQ(still.uncertainty_spans, 4);
+  EXPECT_NEAR(still.uncertainty_span, 0.5 * W, 1e-12);
+  EXPECT_LT(uncertainty(still, "efficiency"), 1e-5) << "the meshing ripple, whole periods of which each span holds";
+  EXPECT_LT(uncertainty(still, "slip"), 1e-12);
+  EXPECT_TRUE(std::isnan(uncertainty(still, "model_time"))) << "not a verified mean";
+
+  const auto swing = [T](double a) {
+    return [T, a](double t, Sample& x) {
+      x.input_torque *= 1 + a * std::sin(2 * M_PI * t * 1.37 / T);
+      x.output_torque *= 1 - a * std::sin(2 * M_PI * t * 1.37 / T);
+    };
+  };
+  const Synthetic swung(swing(0.01), t_end);
+  const RunSummary s = summary(swung);
+  // The spans' own means, as the summary takes them: the last four whole spans.
+  const std::size_t n = swung.ch.size(), k = static_cast<std::size_t>(std::floor(0.5 * W / 1e-5 * (1 + 1e-9)));
+  std::vector<double> eff;
+  for (std::size_t p = 0; p < 4; ++p) {
+    double pin = 0, pout = 0;
+    for (std::size_t i = n - (4 - p) * k; i < n - (3 - p) * k; ++i)
+      pin += swung.ch.input_torque[i] * swung.ch.input_speed[i], pout += swung.ch.output_torque[i] * swung.ch.output_speed[i];
+    eff.push_back(pout / pin);
+  }
+  double avg = 0, var = 0;
+  for (double e : eff) avg += e / 4;
+  for (double e : eff) var += (e - avg) * (e - avg) / 3;
+  EXPECT_NEAR(uncertainty(s, "efficiency"), std::sqrt(var / 4), 1e-9);
+  EXPECT_GT(uncertainty(s, "loss_efficiency"), 1e-3);
+  EXPECT_EQ(s.status, "not_steady");
+  EXPECT_TRUE(has_reason(s, "efficiency not settled: the power ratio")) << reasons(s);
+  EXPECT_NE(format_summary(s).find("(statistical uncertainty, the standard error of the means over 4 whole spans"),
+            std::string::npos)
+      << format_summary(s);
+  const nlohmann::json j = nlohmann::json::parse(summary_json(s));
+  EXPECT_EQ(j.at("efficiency_uncertainty").get<double>(), uncertainty(s, "efficiency"));
+  EXPECT_EQ(j.at("units").at("efficiency_uncertainty"), "1");
+  // A tenth of the swing passes.
+  const RunSummary small = summary(Synthetic(swing(0.001), t_end));
+  EXPECT_LT(uncertainty(small, "efficiency"), 1e-3);
+  EXPECT_FALSE(has_reason(small, "efficiency not settled")) << reasons(small);
+  // A store of +-8 J swinging at the same frequency: no effect on the powers, but the
+  // dissipated work misses what it holds at the window's ends.
+  Synthetic stored({}, t_end);
+  for (std::size_t i = 0; i < stored.ch.size(); ++i)
+    stored.ch.work_dissipated[i] -= 8 * std::sin(2 * M_PI * stored.ch.t[i] * 1.37 / T);
+  const RunSummary e = summary(stored);
+  EXPECT_GT(std::abs(e.efficiency - e.loss_efficiency), 1e-3) << "the store's swing across the window's ends";
+  EXPECT_NEAR(e.efficiency, still.efficiency, 1e-12);
+  EXPECT_EQ(e.status, "not_steady");
+  EXPECT_TRUE(has_reason(e, "efficiency not settled: the power ratio")) << reasons(e);
+  bool held = false;
+  for (const auto& c : still.criteria) held |= c.rfind("efficiency settled: the power ratio", 0) == 0;
+  EXPECT_TRUE(held);
+  // A window of fewer than two spans has none.
+  RunSummary short_window;
+  summarize(m, swung.ch, short_window, SteadyCriteria{}, t_end - 0.6 * W);
+  EXPECT_EQ(short_window.uncertainty_spans, 0);
+  EXPECT_TRUE(std::isnan(uncertainty(short_window, "efficiency")));
+  EXPECT_TRUE(nlohmann::json::parse(summary_json(short_window)).at("efficiency_uncertainty").is_null());
+}
+
 // run.until_steady judges the last two steady windows, and longer pairs (2, 4, ... times)
 // where those do not settle: a swing whose period whole torsion spans miss (a mode at 1.37
 // times the estimated frequency, +-20 N m) moves the means of spans of W / 2 by more than

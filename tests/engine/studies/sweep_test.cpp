@@ -201,7 +201,7 @@ TEST(SweepCsvTest, ARowReadsBackToTheSameBits) {
   // The header: the keys under their exact names, then status and the results.
   const std::string h = sweep_csv_header(p);
   EXPECT_EQ(h.rfind("load.torque,friction.law,status,speed_ratio,geometric_ratio,slip,input_torque,output_torque,"
-                    "efficiency,input_speed,",
+                    "efficiency,loss_efficiency,input_speed,",
                     0),
             0u)
       << h;
@@ -231,7 +231,8 @@ TEST(SweepLogTest, APointLineKeepsItsStatusBehindALongLabel) {
 }
 
 // run.verify's errors: a column <mean>_numerical_error for each verified mean among the
-// results, read back to the same bits; a point not verified reads back without errors.
+// results, and one <mean>_uncertainty (the statistical uncertainty, after all the errors),
+// read back to the same bits; a point not verified reads back without errors.
 TEST(SweepCsvTest, VerifiedMeansHaveErrorColumnsThatReadBack) {
   const SweepPlan p = SweepPlan::grid({parse_axis("load.torque=150")});
   const std::string h = sweep_csv_header(p);
@@ -239,12 +240,17 @@ TEST(SweepCsvTest, VerifiedMeansHaveErrorColumnsThatReadBack) {
                         "clamping_force_driven"})
     EXPECT_NE(h.find(std::string(",") + c + "_numerical_error,"), std::string::npos) << c << " in " << h;
   EXPECT_EQ(h.find("model_time_numerical_error"), std::string::npos) << h;
+  EXPECT_LT(h.find("clamping_force_driven_numerical_error,"), h.find("speed_ratio_uncertainty,")) << h;
+  EXPECT_NE(h.find(",efficiency_uncertainty,"), std::string::npos) << h;
   SweepRow r;
   r.point = 0, r.values = p.points[0], r.status = "steady";
   r.numerical_error["efficiency"] = 1.0 / 3.0 * 1e-4;
   r.numerical_error["slip"] = 2.5e-17;
+  r.uncertainty["efficiency"] = 2.0 / 3.0 * 1e-3;
   const std::string line = sweep_csv_row(r);
   const SweepRow b = parse_sweep_csv_row(line.substr(0, line.size() - 1), p);
+  EXPECT_EQ(b.uncertainty.at("efficiency"), r.uncertainty.at("efficiency"));
+  EXPECT_EQ(b.uncertainty.count("slip"), 0u);
   EXPECT_EQ(b.numerical_error.at("efficiency"), r.numerical_error.at("efficiency"));
   EXPECT_EQ(b.numerical_error.at("slip"), r.numerical_error.at("slip"));
   EXPECT_EQ(b.numerical_error.count("output_torque"), 0u);
@@ -336,8 +342,14 @@ TEST_F(SweepDir, MiniSerialMpiAndKilledGiveTheSameCsv) {
   // runs the same point to steady).
   EXPECT_NE(rows[1].find(",not_steady,"), std::string::npos) << rows[1];
   EXPECT_NE(rows[1].find(",0.0080000000000000002,"), std::string::npos) << rows[1];
-  // Not verified (run.verify off): its error columns nan, then the point's index.
-  EXPECT_NE(rows[1].find(",nan,0,"), std::string::npos) << rows[1];
+  // Not verified (run.verify off): its error columns nan, then its uncertainties (a window of
+  // four spans: finite), then the point's index.
+  EXPECT_NE(rows[1].find(",nan,nan,"), std::string::npos) << rows[1];
+  const SweepRow r1 = parse_sweep_csv_row(
+      rows[1], SweepPlan::grid({parse_axis("integrator.step=8.333333333333333e-7,1e-5"), parse_axis("geometry.ratio=1.0,3.5")}));
+  EXPECT_TRUE(r1.numerical_error.empty());
+  EXPECT_GT(r1.uncertainty.at("efficiency"), 0.0) << rows[1];
+  EXPECT_EQ(r1.point, 0);
   EXPECT_NE(rows[2].find(",error,"), std::string::npos) << rows[2];
   EXPECT_NE(rows[2].find("impossible ratio"), std::string::npos) << rows[2];
   EXPECT_NE(rows[3].find(",blow_up,"), std::string::npos) << rows[3];
