@@ -828,10 +828,13 @@ long sweep_task_point(const SweepMode& m) {
   return i;
 }
 
+// "1 point", "3 points".
+std::string count_of_points(std::size_t n) { return std::to_string(n) + (n == 1 ? " point" : " points"); }
+
 // The sweep's last line: where its table is, and how many of its points are not steady.
 void print_sweep_written(const std::string& out, std::size_t points, long unsteady) {
-  std::printf("wrote %s.csv and %s.h5 (%zu point%s, %ld not steady)\n", out.c_str(), out.c_str(), points,
-              points == 1 ? "" : "s", unsteady);
+  std::printf("wrote %s.csv and %s.h5 (%s, %ld not steady)\n", out.c_str(), out.c_str(),
+              count_of_points(points).c_str(), unsteady);
 }
 
 // cvt-engine sweep --point I / --array: one point, its row into OUT.points/.
@@ -902,9 +905,9 @@ int cmd_sweep(cvt::SweepOptions o, const std::vector<std::string>& axes, const s
     }
     long continued = 0;
     for (long i = 0; i < static_cast<long>(plan.points.size()); ++i) continued += plan.parent(i) >= 0;
-    std::printf("cvt-engine %s sweep: %s, %zu point%s over %s%s; each until steady%s\n", CVT_VERSION,
-                o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(), plan.points.size(),
-                plan.points.size() == 1 ? "" : "s", [&] {
+    std::printf("cvt-engine %s sweep: %s, %s over %s%s; each until steady%s\n", CVT_VERSION,
+                o.from.empty() ? o.config_path.c_str() : ("from " + o.from).c_str(),
+                count_of_points(plan.points.size()).c_str(), [&] {
                   std::string k;
                   for (const auto& x : plan.keys) k += (k.empty() ? "" : ", ") + x;
                   return k;

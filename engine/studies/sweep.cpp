@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -158,14 +159,21 @@ const std::vector<std::string>& error_columns() {
   return cols;
 }
 
-double row_value(const std::map<std::string, double>& m, const std::string& name) {
+// The two columns of each verified mean, in this order: its numerical error and its
+// statistical uncertainty, each a suffix and the row's map that holds them by mean.
+struct PerMean {
+  const char* suffix;
+  std::map<std::string, double> SweepRow::*values;
+};
+constexpr std::array<PerMean, 2> kPerMean = {{{"_numerical_error", &SweepRow::numerical_error},
+                                              {"_uncertainty", &SweepRow::uncertainty}}};
+
+// A row's entry of one mean in one of those maps (NaN: none).
+double row_value(const SweepRow& r, const PerMean& c, const std::string& name) {
+  const auto& m = r.*c.values;
   const auto it = m.find(name);
   return it == m.end() ? std::numeric_limits<double>::quiet_NaN() : it->second;
 }
-
-double row_error(const SweepRow& r, const std::string& name) { return row_value(r.numerical_error, name); }
-
-double row_uncertainty(const SweepRow& r, const std::string& name) { return row_value(r.uncertainty, name); }
 
 const std::vector<std::string>& statuses() {
   static const std::vector<std::string> s = {"steady", "not_steady", "slip", "blow_up", "error"};
@@ -406,8 +414,8 @@ std::string sweep_csv_header(const SweepPlan& plan) {
   for (const auto& k : plan.keys) s += csv_field(k) + ",";
   s += "status";
   for (const auto& c : result_columns()) s += std::string(",") + c.name;
-  for (const auto& e : error_columns()) s += "," + e + "_numerical_error";
-  for (const auto& e : error_columns()) s += "," + e + "_uncertainty";
+  for (const PerMean& c : kPerMean)
+    for (const auto& e : error_columns()) s += "," + e + c.suffix;
   return s + ",point,from_point,reason,wall_s,config\n";
 }
 
@@ -417,8 +425,8 @@ std::string sweep_csv_row(const SweepRow& r) {
   s += r.status;
   // Appended one by one (+= only: GCC 12 warns falsely, -Wrestrict, on "," + a string here).
   for (const auto& c : result_columns()) s += ',', s += exact_number(r.*c.field);
-  for (const auto& e : error_columns()) s += ',', s += exact_number(row_error(r, e));
-  for (const auto& e : error_columns()) s += ',', s += exact_number(row_uncertainty(r, e));
+  for (const PerMean& c : kPerMean)
+    for (const auto& e : error_columns()) s += ',', s += exact_number(row_value(r, c, e));
   for (const std::string& f : {std::to_string(r.point), std::to_string(r.from_point), csv_field(r.reason),
                                exact_number(r.wall_s), r.config}) {
     s += ',';
@@ -430,7 +438,7 @@ std::string sweep_csv_row(const SweepRow& r) {
 
 SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
   const std::vector<std::string> f = split_csv(line);
-  const std::size_t nk = plan.keys.size(), nr = result_columns().size() + 2 * error_columns().size();
+  const std::size_t nk = plan.keys.size(), nr = result_columns().size() + kPerMean.size() * error_columns().size();
   if (f.size() != nk + 1 + nr + 5) throw std::runtime_error("a row of " + std::to_string(f.size()) + " fields");
   SweepRow r;
   r.values.assign(f.begin(), f.begin() + static_cast<long>(nk));
@@ -439,10 +447,9 @@ SweepRow parse_sweep_csv_row(const std::string& line, const SweepPlan& plan) {
     throw std::runtime_error("unknown status '" + r.status + "'");
   std::size_t at = nk + 1;
   for (const auto& c : result_columns()) r.*c.field = std::stod(f[at++]);
-  for (const auto& e : error_columns())
-    if (const double x = std::stod(f[at++]); !std::isnan(x)) r.numerical_error[e] = x;
-  for (const auto& e : error_columns())
-    if (const double x = std::stod(f[at++]); !std::isnan(x)) r.uncertainty[e] = x;
+  for (const PerMean& c : kPerMean)
+    for (const auto& e : error_columns())
+      if (const double x = std::stod(f[at++]); !std::isnan(x)) (r.*c.values)[e] = x;
   r.point = std::stol(f[at++]);
   r.from_point = std::stol(f[at++]);
   r.reason = f[at++];
@@ -641,18 +648,13 @@ void SweepLedger::finish(const std::string& config_text) const {
     f.set_string_attribute(std::string("/results/") + c.name, "unit", c.unit);
     units[c.name] = c.unit;
   }
-  for (const auto& e : error_columns()) {
-    std::vector<double> v;
-    for (const auto& r : rows) v.push_back(row_error(r, e));
-    f.write_vector("/results/" + e + "_numerical_error", v);
-    f.set_string_attribute("/results/" + e + "_numerical_error", "unit", units[e]);
-  }
-  for (const auto& e : error_columns()) {
-    std::vector<double> v;
-    for (const auto& r : rows) v.push_back(row_uncertainty(r, e));
-    f.write_vector("/results/" + e + "_uncertainty", v);
-    f.set_string_attribute("/results/" + e + "_uncertainty", "unit", units[e]);
-  }
+  for (const PerMean& c : kPerMean)
+    for (const auto& e : error_columns()) {
+      std::vector<double> v;
+      for (const auto& r : rows) v.push_back(row_value(r, c, e));
+      f.write_vector("/results/" + e + c.suffix, v);
+      f.set_string_attribute("/results/" + e + c.suffix, "unit", units[e]);
+    }
   f.write_vector("/results/wall_s", wall);
   f.set_string_attribute("/results/wall_s", "unit", "s");
   write_provenance(f);
