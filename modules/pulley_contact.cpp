@@ -11,46 +11,6 @@
 namespace cvt {
 namespace {
 
-// Geometry of one pin end against the face of pulley k on side sigma (4.5.1-4.5.3).
-struct EndGeometry {
-  double cx, cy, cz;      // sphere centre (global)
-  double dx, dy, dz;      // c - O - u
-  double pen;             // Delta
-  double gdx, gdy, gdz;   // dDelta/dc (= -dDelta/du)
-  double gtx, gty;        // dDelta/dtheta_x, dDelta/dtheta_y
-  double gw;              // dDelta/dw (moving sheave), 0 on the fixed face
-};
-
-inline EndGeometry end_geometry(const Model& m, const double* hq, int e, int k, const double* sh) {
-  const double sigma = e == 0 ? -1.0 : 1.0;
-  const double R = m.cfg.pulley_contact.end_radius;
-  const double* p = hq + e * half::kEnd;
-  EndGeometry g;
-  g.cx = p[half::kX] - sigma * R * p[half::kSx];
-  g.cy = p[half::kY] - sigma * R * p[half::kSy];
-  g.cz = p[half::kZ] - sigma * R;
-  const Pulley& pu = m.pulley[k];
-  g.dx = g.cx - pu.centre.x() - sh[kUx];
-  g.dy = g.cy - pu.centre.y() - sh[kUy];
-  g.dz = g.cz - sh[kUz];
-  const double tx = sh[kTx], ty = sh[kTy];
-  // Shaft frame, small tilt: l = d - theta x d.
-  const double lx = g.dx - ty * g.dz, ly = g.dy + tx * g.dz, lz = g.dz - tx * g.dy + ty * g.dx;
-  const double r = std::sqrt(lx * lx + ly * ly);
-  const bool moving = (e == 0 ? -1 : 1) == pu.moving_side;
-  const double w = moving ? sh[kW] : 0.0;
-  const double Zs = pu.face_z[e];
-  g.pen = R + sigma * (lz - Zs - w) * m.cos_beta - r * m.sin_beta;
-  const double glx = -m.sin_beta * lx / r, gly = -m.sin_beta * ly / r, glz = sigma * m.cos_beta;
-  g.gdx = glx + ty * glz;
-  g.gdy = gly - tx * glz;
-  g.gdz = -ty * glx + tx * gly + glz;
-  g.gtx = gly * g.dz - glz * g.dy;
-  g.gty = -glx * g.dz + glz * g.dx;
-  g.gw = moving ? -sigma * m.cos_beta : 0.0;
-  return g;
-}
-
 // dDelta/dt from the pin end's and the shaft's velocities (4.5.3).
 inline double penetration_rate(const Model& m, const EndGeometry& g, const double* hv, int e, const double* shv) {
   const double sigma = e == 0 ? -1.0 : 1.0;
@@ -61,11 +21,6 @@ inline double penetration_rate(const Model& m, const EndGeometry& g, const doubl
          g.gtx * shv[kTx] + g.gty * shv[kTy] + g.gw * shv[kW];
 }
 
-inline bool near_pulley(const Model& m, const double* hq, int k) {
-  const double x = mid(hq, 0) - m.pulley[k].centre.x(), y = mid(hq, 1) - m.pulley[k].centre.y();
-  const double rmax = m.cfg.sheave.outer_radius;
-  return x * x + y * y < rmax * rmax;
-}
 
 // What FrictionJacobian asks of one pin end with friction (docs/integrators.md 12): u as a
 // function of the two halves of the link that this half turns with (the sheave's velocity

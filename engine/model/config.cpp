@@ -170,6 +170,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
+      CVT_KEY(integrator, w_analytic_stiffness, boolean, "", Range{}),
       CVT_KEY(integrator, w_fresh, real, "1", nonneg),
       CVT_KEY(integrator, w_fresh_max, integer, "", (Range{1, false, 1000, false})),
       CVT_KEY(integrator, w_shafts, boolean, "", Range{}),

@@ -184,6 +184,9 @@ struct Config {
     int w_every = 8;       // ros2: rebuild its matrix (friction blocks) every this many steps
     int w_k_every = 32;    // ros2: and its stiffness blocks (finite differences) every this many
     bool w_secant = true;  // ros2: secant friction slope along the sliding direction (else the exact one)
+    // W-methods: the chain's stiffness blocks as the analytic Hessian of its elastic energy
+    // (modules/elastic_hessian) instead of finite differences of its forces.
+    bool w_analytic_stiffness = false;
     // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
     // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
     // (ModelOdeOptions::w_fresh, docs/integrators.md 12.4); 0: off. w_fresh_max such contacts

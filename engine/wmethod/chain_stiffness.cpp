@@ -14,8 +14,8 @@
 
 namespace cvt {
 
-ChainStiffness::ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule)
-    : m_(m), ws_(ws), schedule_(schedule) {
+ChainStiffness::ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule, bool analytic)
+    : m_(m), ws_(ws), schedule_(schedule), analytic_(analytic) {
   const int N = m.links;
   coord_.resize(static_cast<size_t>(N) * kLinkDim);
   for (int l = 0; l < N; ++l)
@@ -38,7 +38,8 @@ ChainStiffness::ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule
   diag_.assign(N, LinkBlock::Zero()), sub_ = diag_, super_ = diag_;
   packed_.resize(N);
   delta_.assign(N, 0.0);
-  if (schedule_.threads() > 1) {  // the second workspace, sized before any step
+  if (analytic_) joints_.resize(N);
+  if (schedule_.threads() > 1 && !analytic_) {  // the second workspace, sized before any step
     ws2_ = std::make_unique<Workspace>(ws_);
     yp2_.resize(m.nstate);
     delta2_.assign(N, 0.0);
@@ -55,6 +56,16 @@ void ChainStiffness::take(double t, const double* y) {
   // serial loop leaves it (the assembly reads its link directions), and every column is
   // the same number whichever thread takes it.
   const auto t0 = std::chrono::steady_clock::now();
+  if (analytic_) {
+    hessian(t, y);
+    for_joints(schedule_, m_.links, [this](int l) {
+      pack_columns(sub_[l], packed_[l][0]);
+      pack_columns(super_[l], packed_[l][1]);
+    });
+    ++takes_;
+    seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return;
+  }
   yp_ = Eigen::Map<const Eigen::VectorXd>(y, m_.nstate);
   ys_ = yp_;
   forces(ws_, t, ys_.data(), -1, schedule_.threads() > 1);
@@ -146,6 +157,22 @@ void ChainStiffness::forces(Workspace& w, double t, const double* y, int color, 
     }
   });
   run_stages(stage_set(StageId::gather), a, ranges);
+}
+
+void ChainStiffness::hessian(double t, const double* y) {
+  // K(l, l) = link l's own elements + the link-l parts of joints l and l+1; K(l, l-1) is
+  // joint l's cross block and K(l-1, l) its transpose (a Hessian). Each block is written by
+  // one thread: the same numbers for any thread count.
+  const auto ranges = [this](const auto& f) { for_joint_ranges(schedule_, m_.links, f); };
+  set_stage_input(m_, ws_, t, y);
+  run_stages(stage_set(StageId::link_kinematics), StageArgs{m_, ws_}, ranges);
+  for_joints(schedule_, m_.links, [this, y](int j) { joint_hessian(m_, y, ws_.status, j, joints_[j]); });
+  for_joints(schedule_, m_.links, [this, y](int l) {
+    link_hessian(m_, y, ws_.status, l, diag_[l]);
+    diag_[l] += joints_[l].own + joints_[m_.wrap(l + 1)].prev;
+    sub_[l] = joints_[l].cross;
+    super_[l] = sub_[l].transpose();
+  });
 }
 
 void ChainStiffness::pack_columns(const LinkBlock& b, PackedColumns& p) {

@@ -1,6 +1,7 @@
 // The chain's stiffness K = -dF/dq for the W-method's matrix (docs/integrators.md 12.2):
-// finite differences of the generalized forces over link colours, per link the diagonal
-// block and the couplings to its neighbours, in the link order of WSolver.
+// finite differences of the generalized forces over link colours, or the analytic Hessian
+// of the chain's elastic energy (modules/elastic_hessian); per link the diagonal block and
+// the couplings to its neighbours, in the link order of WSolver.
 #pragma once
 
 #include <array>
@@ -10,11 +11,11 @@
 
 #include "engine/ode/block_cyclic.hpp"
 #include "graph/schedule.hpp"
+#include "modules/elastic_hessian.hpp"
 
 namespace cvt {
 
-// A link's coordinates in W's link order: b_l, a_{l+1}, then the plate pack s_l.
-inline constexpr int kLinkDim = 2 * half::kSize + 1;
+// A link's coordinates in W's link order (kLinkDim): b_l, a_{l+1}, then the plate pack s_l.
 using LinkBlock = CyclicBlockLU<kLinkDim>::Mat;
 using LinkVector = CyclicBlockLU<kLinkDim>::Vec;
 using LinkBlocks = std::vector<LinkBlock, Eigen::aligned_allocator<LinkBlock>>;
@@ -29,9 +30,11 @@ class ChainStiffness {
  public:
   // Over the schedule's workspace ws (the differences leave it as one evaluation at the
   // unperturbed state does: the assembly reads its link directions).
-  ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule);
-  // K at the physical state y: 21 evaluations per colour (63 for 3 colours), in two halves on
-  // two workspaces when the schedule has threads.
+  // analytic: the Hessian of the elastic energy, else the differences.
+  ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule, bool analytic = false);
+  // K at the physical state y. The differences: 21 evaluations per colour (63 for 3
+  // colours), in two halves on two workspaces when the schedule has threads. The Hessian:
+  // per joint, then per link, over the schedule's threads.
   void take(double t, const double* y);
   // K's blocks of link l: M(l, l), M(l, l-1) (sub) and M(l-1, l) (super).
   const LinkBlock& diag(int l) const { return diag_[l]; }
@@ -46,7 +49,8 @@ class ChainStiffness {
     LinkBlock cols;
   };
   const std::array<PackedColumns, 2>& packed(int l) const { return packed_[l]; }
-  // The force evaluations taken (each about 3/4 of an RHS), the stiffnesses and their wall time.
+  // The force evaluations taken (each about 3/4 of an RHS; none for the Hessian), the
+  // stiffnesses and their wall time.
   std::int64_t evaluations() const { return evaluations_; }
   std::int64_t takes() const { return takes_; }
   double seconds() const { return seconds_; }
@@ -60,12 +64,16 @@ class ChainStiffness {
   // evaluation that perturbs that colour's links (only the joints next to them are computed).
   // Serially on the calling thread or (threads) over the schedule's threads.
   void forces(Workspace& w, double t, const double* y, int color, bool threads);
+  // K as the Hessian of the elastic energy at y (ws_ left with y's link kinematics).
+  void hessian(double t, const double* y);
   static void pack_columns(const LinkBlock& b, PackedColumns& p);
   int coord(int l, int i) const { return coord_[l * kLinkDim + i]; }
 
   const Model& m_;
   Workspace& ws_;
   Schedule& schedule_;
+  bool analytic_;
+  std::vector<JointHessian, Eigen::aligned_allocator<JointHessian>> joints_;  // the Hessian's per joint
   std::vector<int> coord_;  // [l * kLinkDim + i]: link_coordinate(m, l, i)
   std::vector<int> color_;  // link colours: links within two of each other differ
   int colors_ = 0;

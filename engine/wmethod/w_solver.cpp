@@ -27,7 +27,7 @@ Eigen::MatrixXd a0_shaft_inverse(const Model& m) {
 WSolver::WSolver(const Model& m, Workspace& ws, Schedule& schedule, const ModelOdeOptions& opt,
                  const Eigen::VectorXd& unit, const Eigen::VectorXd& offset)
     : m_(m), ws_(ws), schedule_(schedule), opt_(opt), unit_(unit), offset_(offset), fjac_(m),
-      stiffness_(m, ws, schedule), fresh_(m, opt_, *this, fjac_, fresh_on()) {
+      stiffness_(m, ws, schedule, opt_.w_analytic_stiffness), fresh_(m, opt_, *this, fjac_, fresh_on()) {
   const int N = m.links;
   fjac_.secant = opt.w_secant;
   // A0 of a link's coordinates: two halves (bending per plane, axial bar), the pack's axial mass.

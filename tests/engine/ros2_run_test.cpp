@@ -27,17 +27,28 @@ bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
 // Both W-methods; with threads the block LU's two sweeps run concurrently (CyclicBlockLU).
 // The third case keeps the friction current between rebuilds for nearly every contact
 // (integrator.w_fresh 1e-6, at most 4 contacts: the forced rebuilds too), so its run must
-// differ from the same run without.
+// differ from the same run without. The fourth takes the analytic stiffness (the Hessian
+// per joint and per link over the threads), which must change the run too.
 TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
-  for (const char* fresh : {"ros2:5", "ros34pw2:5", "ros34pw2:1e-6"}) {
+  for (const char* fresh : {"ros2:5", "ros34pw2:5", "ros34pw2:1e-6", "ros34pw2:5:analytic"}) {
     const std::string method(fresh, std::strchr(fresh, ':'));
-    const std::string w_fresh(std::strchr(fresh, ':') + 1);
+    const char* rest = std::strchr(fresh, ':') + 1;
+    const char* third = std::strchr(rest, ':');
+    const std::string w_fresh = third ? std::string(rest, third) : std::string(rest);
+    const bool analytic = third != nullptr;
     const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
                                          "integrator.w_k_every=6", "integrator.startup_time=0",
-                                         "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4"});
+                                         "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4",
+                                         std::string("integrator.w_analytic_stiffness=") + (analytic ? "true" : "false")});
     const Eigen::VectorXd ref = run(m, {}, 300, 1e-7);
     Simulation start(m);
     EXPECT_GT((ref - start.state()).norm(), 1e-6) << "the run must move";
+    if (analytic) {
+      const Model fd = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
+                                            "integrator.w_k_every=6", "integrator.startup_time=0",
+                                            "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4"});
+      EXPECT_FALSE(same_bits(run(fd, {}, 300, 1e-7), ref)) << "the analytic stiffness must change the run";
+    }
     if (w_fresh != "5") {
       const Model plain = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
                                                "integrator.w_k_every=6", "integrator.startup_time=0",

@@ -244,12 +244,12 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   Eigen::VectorXd dy(m.nstate), yp = r.y;
   rhs_serial(m, ws, r.t, r.y.data(), dy.data());
   const std::vector<double> F0(ws.force.begin(), ws.force.begin() + n);
-  Eigen::MatrixXd K(tail, tail);
+  Eigen::MatrixXd Kd(tail, tail);
   for (int c = 0; c < tail; ++c) {
     const double d = std::sqrt(std::numeric_limits<double>::epsilon() * std::max(1e-5, std::abs(r.y[c])));
     yp[c] = r.y[c] + d;
     rhs_serial(m, ws, r.t, yp.data(), dy.data());
-    for (int i = 0; i < tail; ++i) K(i, c) = -(ws.force[i] - F0[i]) / d;
+    for (int i = 0; i < tail; ++i) Kd(i, c) = -(ws.force[i] - F0[i]) / d;
     yp[c] = r.y[c];
   }
   const Eigen::MatrixXd A = dense_inertia(m, r.y.data()).topLeftCorner(tail, tail);
@@ -257,10 +257,30 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   ModelOdeOptions opt;
   opt.w_every = 1;
   opt.w_fresh = 0;
-  for (int variant = 0; variant < 3; ++variant) {
+  // The analytic stiffness (variant 3) is the Hessian of the elastic energy: the forces'
+  // differences at this state's positions with no velocity (central, with steps below the
+  // contacts' kinks).
+  Eigen::MatrixXd Ke(tail, tail);
+  {
+    Eigen::VectorXd y0 = r.y;
+    y0.segment(n, n).setZero();
+    for (int c = 0; c < tail; ++c) {
+      const int i = c % kJointSize, e = (i % half::kSize) % half::kEnd;
+      const double d = i < 2 * half::kSize && (e == half::kSx || e == half::kSy) ? 3e-8 : 3e-10;
+      Eigen::VectorXd yp0 = y0, ym0 = y0;
+      yp0[c] += d, ym0[c] -= d;
+      rhs_serial(m, ws, r.t, yp0.data(), dy.data());
+      const Eigen::VectorXd Fp = ws.force.head(tail);
+      rhs_serial(m, ws, r.t, ym0.data(), dy.data());
+      Ke.col(c) = -(Fp - ws.force.head(tail)) / (2 * d);
+    }
+  }
+  for (int variant = 0; variant < 4; ++variant) {
     const bool stiffness = variant > 0;
     opt.w_stiffness = stiffness;
-    opt.w_shafts = variant == 2;
+    opt.w_shafts = variant >= 2;
+    opt.w_analytic_stiffness = variant == 3;
+    const Eigen::MatrixXd& K = variant == 3 ? Ke : Kd;
     ModelOde ode(m, ws, *sched, opt);
     ode.ask_friction_jacobian(0);
     ode.system().rhs(r.t, r.y.data(), dy.data());
