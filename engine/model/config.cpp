@@ -162,7 +162,6 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(ramp, load_time, real, "s", nonneg),
       CVT_KEY(ramp, load_start, real, "s", nonneg),
       CVT_KEY(ramp, load_from, real, "N m", nonneg),
-
       CVT_KEY(damping, scale, real, "1", nonneg),
 
       CVT_KEY(integrator, method, method, "", Range{}),
