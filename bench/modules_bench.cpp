@@ -11,6 +11,7 @@
 #include "modules/other_forces.hpp"
 #include "modules/pulley_contact.hpp"
 #include "bench/bench_fixture.hpp"
+#include "engine/wmethod/chain_stiffness.hpp"
 
 namespace {
 
@@ -95,6 +96,20 @@ void BM_Rk4Step(benchmark::State& st) {
                                                        benchmark::Counter::kIsRate);
 }
 
+// One take of the W matrix's chain stiffness on the serial schedule: the 63 differences of
+// the forces (arg 0) or the analytic Hessian of the elastic energy (arg 1);
+// docs/integrators.md 12.2, "The analytic stiffness".
+void BM_ChainStiffness(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  const auto schedule = make_schedule(f.m, ws, {});
+  ChainStiffness k(f.m, ws, *schedule, st.range(0) == 1);
+  for (auto _ : st) k.take(3e-4, f.y.data());
+  benchmark::DoNotOptimize(k.diag(0).data());
+  st.SetLabel(st.range(0) == 1 ? "analytic Hessian" : "differences");
+}
+
+BENCHMARK(BM_ChainStiffness)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ChainForces)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PulleyContact)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_OtherForces)->Unit(benchmark::kMicrosecond);

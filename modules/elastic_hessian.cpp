@@ -73,15 +73,16 @@ struct Lin {
   }
 };
 
-// H += A^T Hz A for the intermediates z (A's rows: z[r]).
-template <int N, class Out>
-void add_mapped(Out& H, const Eigen::Matrix<double, N, N>& Hz, const Lin* z) {
-  for (int r = 0; r < N; ++r)
-    for (int s = 0; s < N; ++s) {
+// H += A_r^T Hz A_c for the intermediates zr (A_r's rows) and zc (A_c's rows); put(i, k, v)
+// adds v at coordinates (i, k).
+template <class Mat, class Put>
+void add_mapped(const Mat& Hz, const Lin* zr, const Lin* zc, const Put& put) {
+  for (int r = 0; r < Hz.rows(); ++r)
+    for (int s = 0; s < Hz.cols(); ++s) {
       const double h = Hz(r, s);
       if (h == 0) continue;
-      for (int a = 0; a < z[r].n; ++a)
-        for (int b = 0; b < z[s].n; ++b) H(z[r].idx[a], z[s].idx[b]) += h * z[r].w[a] * z[s].w[b];
+      for (int a = 0; a < zr[r].n; ++a)
+        for (int b = 0; b < zc[s].n; ++b) put(zr[r].idx[a], zc[s].idx[b], h * zr[r].w[a] * zc[s].w[b]);
     }
 }
 
@@ -167,15 +168,19 @@ void add_pin_ends(const Model& m, const double* q, const ContactStatus& status, 
 
 // 4.2: the plates of link l between b_l (offset 0) and a_{l+1} (offset 10) and the pack
 // s_l (20). A plate's ends P_b, P_n lie on the halves' centre lines at xi = xi0 + zeta / L0
-// with xi0 = 1/2 + (s - z_mid) / L0 (linear in the coordinates). Over the intermediates z
-// (b's 8 lateral dofs, n's 8, xi0_b, xi0_n), shared by every plate of the link: with D =
-// P_n - P_b, d = |D|, u = D / d and T = k (d - l0) where stretched,
-// H_z = J^T (k u u^T + T/d (I - u u^T)) J + T sum_c u_c d2D_c/dz2, J = dD/dz, and a point's
-// d2P_c/dz2 = its weights' slopes dw (lateral dofs) x xi0 and back, plus P_c'' at (xi0, xi0).
-// Then H += A^T H_z A (A: one coordinate per lateral dof, s and the half's two z for xi0).
+// with xi0 = 1/2 + (s - z_mid) / L0 (linear in the coordinates). With D = P_n - P_b, d = |D|,
+// u = D / d and T = k (d - l0) where stretched, over intermediates z shared by every plate
+// of the link (each half's lateral dofs, xi0_b, xi0_n):
+// H_z = J^T (k u u^T + T/d (I - u u^T)) J + T sum_c u_c d2D_c/dz2, J = dD/dz; a point's
+// d2P_c/dz2 = its weights' slopes dw (lateral dofs of plane c) x xi0 and back, plus P_c'' at
+// (xi0, xi0). Row c of J reaches plane c's lateral dofs of both halves and the two xi0: ten
+// intermediates per plane (b's 4, n's 4, xi0_b, xi0_n), so H_z is kept as the three 10 x 10
+// blocks of the plane pairs (x x, x y, y y), summed over the plates, then mapped onto the
+// coordinates (A: one coordinate per lateral dof, s and the half's two z for xi0).
 void add_plates(const Model& m, const double* q, int l, LinkHessian& H) {
-  constexpr int kZ = 18, kXi = 16;  // z: b's x dofs 0..3, y 4..7; n's 8..15; xi0_b 16, xi0_n 17
-  Eigen::Matrix<double, kZ, kZ> Hz = Eigen::Matrix<double, kZ, kZ>::Zero();
+  using V10 = Eigen::Matrix<double, 10, 1>;
+  using M10 = Eigen::Matrix<double, 10, 10>;
+  M10 S[3] = {M10::Zero(), M10::Zero(), M10::Zero()};  // (x, x), (x, y), (y, y)
   const double L = m.L0, invL = 1.0 / L, kpl = m.cfg.chain.plate_stiffness;
   const double sq = q[m.pack(l)];
   const double* hq[2] = {q + m.half_b(l), q + m.half_a(l + 1)};
@@ -201,46 +206,47 @@ void add_plates(const Model& m, const double* q, int l, LinkHessian& H) {
     if (!(stretch > 0)) continue;
     const double u[2] = {Dx / dist, Dy / dist};
     const double T = kpl * stretch, g = T / dist;
-    const double C[2][2] = {{kpl * u[0] * u[0] + g * (1 - u[0] * u[0]), (kpl - g) * u[0] * u[1]},
-                            {(kpl - g) * u[0] * u[1], kpl * u[1] * u[1] + g * (1 - u[1] * u[1])}};
-    // J's rows over their nonzeros: each half's four weights in plane c, and the slopes at xi0.
-    int ji[2][10];
-    double jv[2][10];
-    for (int c = 0; c < 2; ++c)
+    const double cxx = kpl * u[0] * u[0] + g * (1 - u[0] * u[0]), cxy = (kpl - g) * u[0] * u[1];
+    const double cyy = kpl * u[1] * u[1] + g * (1 - u[1] * u[1]);
+    V10 J[2];
+    for (int c = 0; c < 2; ++c) {
       for (int s = 0; s < 2; ++s) {
-        for (int i = 0; i < 4; ++i) ji[c][s * 4 + i] = s * 8 + c * 4 + i, jv[c][s * 4 + i] = sign[s] * hw[s].w[i];
-        ji[c][8 + s] = kXi + s, jv[c][8 + s] = sign[s] * P1[s][c];
+        for (int i = 0; i < 4; ++i) J[c][4 * s + i] = sign[s] * hw[s].w[i];
+        J[c][8 + s] = sign[s] * P1[s][c];
       }
-    for (int c = 0; c < 2; ++c)
-      for (int e = 0; e < 2; ++e)
-        for (int a = 0; a < 10; ++a) {
-          const double x = C[c][e] * jv[c][a];
-          for (int b = 0; b < 10; ++b) Hz(ji[c][a], ji[e][b]) += x * jv[e][b];
-        }
-    for (int s = 0; s < 2; ++s)
-      for (int c = 0; c < 2; ++c) {
+    }
+    S[0].noalias() += cxx * J[0] * J[0].transpose();
+    S[1].noalias() += cxy * J[0] * J[1].transpose();
+    S[2].noalias() += cyy * J[1] * J[1].transpose();
+    for (int c = 0; c < 2; ++c) {
+      M10& B = S[2 * c];
+      for (int s = 0; s < 2; ++s) {
         const double t = T * u[c] * sign[s];
         for (int i = 0; i < 4; ++i) {
-          const int r = s * 8 + c * 4 + i;
-          Hz(r, kXi + s) += t * hw[s].dw[i];
-          Hz(kXi + s, r) += t * hw[s].dw[i];
+          B(4 * s + i, 8 + s) += t * hw[s].dw[i];
+          B(8 + s, 4 * s + i) += t * hw[s].dw[i];
         }
-        Hz(kXi + s, kXi + s) += t * P2[s][c];
+        B(8 + s, 8 + s) += t * P2[s][c];
       }
-  }
-  // z -> coordinates: lateral dof i of half s at s * 10 + plane_dofs; xi0 at s (1/L) and the
-  // half's two z (-1/(2 L)).
-  Lin z[kZ];
-  for (int s = 0; s < 2; ++s) {
-    for (int c = 0; c < 2; ++c) {
-      const auto d = plane_dofs(c);
-      for (int i = 0; i < 4; ++i) z[s * 8 + c * 4 + i].add(s * half::kSize + d[i], 1.0, 0.0);
     }
-    z[kXi + s].add(2 * half::kSize, invL, 0.0);
-    z[kXi + s].add(s * half::kSize + half::kZ, -0.5 * invL, 0.0);
-    z[kXi + s].add(s * half::kSize + half::kEnd + half::kZ, -0.5 * invL, 0.0);
   }
-  add_mapped<kZ>(H, Hz, z);
+  // Plane c's ten intermediates -> coordinates.
+  Lin z[2][10];
+  for (int c = 0; c < 2; ++c) {
+    const auto d = plane_dofs(c);
+    for (int s = 0; s < 2; ++s) {
+      for (int i = 0; i < 4; ++i) z[c][4 * s + i].add(s * half::kSize + d[i], 1.0, 0.0);
+      Lin& x = z[c][8 + s];
+      x.add(2 * half::kSize, invL, 0.0);
+      x.add(s * half::kSize + half::kZ, -0.5 * invL, 0.0);
+      x.add(s * half::kSize + half::kEnd + half::kZ, -0.5 * invL, 0.0);
+    }
+  }
+  const auto put = [&H](int i, int k, double v) { H(i, k) += v; };
+  add_mapped(S[0], z[0], z[0], put);
+  add_mapped(S[1], z[0], z[1], put);
+  add_mapped(S[1].transpose(), z[1], z[0], put);
+  add_mapped(S[2], z[1], z[1], put);
 }
 
 }  // namespace
@@ -288,8 +294,6 @@ void joint_hessian(const Model& m, const double* q, const ContactStatus& status,
   G.leftCols<2>().setIdentity();
   G.middleCols<2>(2) = -m.kappa * Ep;
   G.rightCols<2>() = -m.kappa * Ec;
-  Map6 A = Map6::Zero();
-  A(2, kDp) = A(3, kDp + 1) = A(4, kDc) = A(5, kDc + 1) = 1;
   for (int st = 0; st < nst; ++st) {
     if (!status.rocker[j * nst + st]) continue;
     const HermiteWeights hw = hermite(m.station_xi[st], m.L0);
@@ -304,9 +308,26 @@ void joint_hessian(const Model& m, const double* q, const ContactStatus& status,
     H2.block<2, 2>(4, 4) += m.kappa * curvature(mu, ec, Lc);
     const double sp = std::sqrt(pen);
     const Mat6 Hz = 1.5 * crk * sp * grad * grad.transpose() + crk * pen * sp * H2;
-    for (int cc = 0; cc < 2; ++cc)
-      for (int i = 0; i < 4; ++i) A(cc, 4 * cc + i) = hw.w[i], A(cc, 8 + 4 * cc + i) = -hw.w[i];
-    Hw.noalias() += A.transpose() * Hz * A;
+    // X_c = sum_i w_i (a's dof 4 c + i) - w_i (b's 8 + 4 c + i): its weights x (8) per plane.
+    Eigen::Matrix<double, 8, 1> x;
+    x << hw.w[0], hw.w[1], hw.w[2], hw.w[3], -hw.w[0], -hw.w[1], -hw.w[2], -hw.w[3];
+    const Eigen::Matrix<double, 8, 8> xx = x * x.transpose();
+    for (int r = 0; r < 2; ++r) {
+      for (int cc = 0; cc < 2; ++cc) {
+        const double h = Hz(r, cc);
+        for (int a = 0; a < 8; ++a)
+          for (int b = 0; b < 8; ++b) Hw(4 * r + a % 4 + 8 * (a / 4), 4 * cc + b % 4 + 8 * (b / 4)) += h * xx(a, b);
+      }
+      for (int k = 0; k < 4; ++k) {
+        const double h = Hz(r, 2 + k);
+        for (int a = 0; a < 8; ++a) {
+          const int i = 4 * r + a % 4 + 8 * (a / 4);
+          Hw(i, kDp + k) += h * x[a];
+          Hw(kDp + k, i) += h * x[a];
+        }
+      }
+    }
+    Hw.bottomRightCorner<4, 4>() += Hz.bottomRightCorner<4, 4>();
   }
   // 4.3 the keeper: (k/2) s^2, s = nbar . (mid(a_j) - mid(b_j)), nbar normal to the
   // bisector e_{j-1} + e_j; over (mid(a_j) - mid(b_j), D_{j-1}, D_j) by second-order forward
@@ -337,12 +358,16 @@ void joint_hessian(const Model& m, const double* q, const ContactStatus& status,
     w[kDp + cc] = Dp[cc];
     w[kDc + cc] = Dc[cc];
   }
-  Eigen::Matrix<double, 2 * kLinkDim, 2 * kLinkDim> H;
-  H.setZero();
-  add_mapped<kW>(H, Hw, w);
-  out.prev = H.topLeftCorner<kLinkDim, kLinkDim>();
-  out.own = H.bottomRightCorner<kLinkDim, kLinkDim>();
-  out.cross = H.bottomLeftCorner<kLinkDim, kLinkDim>();
+  out.prev.setZero(), out.own.setZero(), out.cross.setZero();
+  const auto put = [&out](int i, int k, double v) {
+    if (i < kLinkDim && k < kLinkDim)
+      out.prev(i, k) += v;
+    else if (i >= kLinkDim && k >= kLinkDim)
+      out.own(i - kLinkDim, k - kLinkDim) += v;
+    else if (i >= kLinkDim)
+      out.cross(i - kLinkDim, k) += v;  // the upper-right block is its transpose
+  };
+  add_mapped(Hw, w, w, put);
 }
 
 void link_hessian(const Model& m, const double* q, const ContactStatus& status, int l, LinkHessian& out) {
