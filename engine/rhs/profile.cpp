@@ -17,7 +17,7 @@ double clock_s() {
 
 const char* const kSectionNames[kSections] = {"chain forces",        "pulley contact",    "other forces",
                                               "inertia decomposition", "accelerations",     "integrator update",
-                                              "contact status",      "W stiffness (FD)",  "W assembly",
+                                              "contact status",      "W stiffness",       "W assembly",
                                               "W factorization",     "W solves"};
 
 
