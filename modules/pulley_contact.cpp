@@ -192,6 +192,101 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
   }
 }
 
+void add_pulley_friction_stiffness(const Model& m, const Workspace& ws, int l,
+                                   Eigen::Matrix<double, 2 * half::kSize + 1, 2 * half::kSize + 1>& K) {
+  const Config& c = m.cfg;
+  const FrictionLaw law = c.friction.law;
+  if (law == FrictionLaw::none) return;
+  const double cn = c.pulley_contact.stiffness, R = c.pulley_contact.end_radius;
+  const double f0 = c.friction.f0, v0 = c.friction.v0;
+  const LinkKinematics& kin = ws.kin;
+  for (int side = 0; side < 2; ++side) {
+    // b_l is joint l's half b (h = 1), a_{l+1} joint l+1's half a (h = 0); at block offsets
+    // 0 and 10, each with the link's other half at the other offset.
+    const int h = side == 0 ? 1 : 0, j = side == 0 ? l : m.wrap(l + 1);
+    const int off = side * half::kSize, other = (1 - side) * half::kSize;
+    const int o = h == 0 ? m.half_a(j) : m.half_b(j);
+    const double* hq = ws.q + o;
+    const double* hv = ws.v + o;
+    for (int k = 0; k < 2; ++k) {
+      if (!near_pulley(m, hq, k)) continue;
+      const double* sh = ws.q + m.shaft(k);
+      const double* shv = ws.v + m.shaft(k);
+      for (int e = 0; e < 2; ++e) {
+        if (!ws.status.pulley[ContactStatus::pulley_index(j, h, e, k)]) continue;
+        const EndGeometry g = end_geometry(m, hq, e, k, sh);
+        const double Nel = hertz_force(cn, g.pen);
+        if (!(Nel > 0)) continue;
+        // The slip u at the contact point, as pulley_contact_joint forms it.
+        const double sigma = e == 0 ? -1.0 : 1.0;
+        const double* pv = hv + e * half::kEnd;
+        const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
+        const double n[3] = {g.gdx / gnorm, g.gdy / gnorm, g.gdz / gnorm};
+        const double ox = R * n[0], oy = R * n[1], oz = R * n[2];
+        const double rs[3] = {g.dx + ox, g.dy + oy, g.dz + oz};
+        const double psid = kin.psi_dot[l];
+        const double vp[3] = {pv[half::kX] - sigma * R * pv[half::kSx] - psid * oy + pv[half::kSx] * oz,
+                              pv[half::kY] - sigma * R * pv[half::kSy] + psid * ox + pv[half::kSy] * oz,
+                              pv[half::kZ] - pv[half::kSx] * ox - pv[half::kSy] * oy};
+        const double w[3] = {shv[kTx], shv[kTy], shv[kPhi]};
+        const double vs[3] = {shv[kUx] + w[1] * rs[2] - w[2] * rs[1], shv[kUy] + w[2] * rs[0] - w[0] * rs[2],
+                              shv[kUz] + w[0] * rs[1] - w[1] * rs[0] + (g.gw != 0 ? shv[kW] : 0.0)};
+        double u[3] = {vp[0] - vs[0], vp[1] - vs[1], vp[2] - vs[2]};
+        const double un = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
+        for (int i = 0; i < 3; ++i) u[i] -= un * n[i];
+        const double speed = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        double Rv[3];
+        contact_friction(FrozenBranch{}, law, f0, v0, Nel, u, speed, n, Rv);
+        // D = -dR/du at fixed N (the exact slope along the sliding direction).
+        const double mu = Nel * friction_over_speed(law, f0, v0, speed), mu_t = Nel * friction_slope(law, f0, v0, speed);
+        const FrictionAxes ax(n, u, speed);
+        // The generalized forces are G^T R over the block's coordinates (u = G v): the end's
+        // point and cap, and the link's spin through both its halves (pin_end_friction_jacobian).
+        double G[2 * half::kSize][3] = {};
+        const int b = off + e * half::kEnd;
+        G[b + half::kX][0] = 1, G[b + half::kY][1] = 1, G[b + half::kZ][2] = 1;
+        G[b + half::kSx][0] = -sigma * R + oz, G[b + half::kSx][2] = -ox;
+        G[b + half::kSy][1] = -sigma * R + oz, G[b + half::kSy][2] = -oy;
+        const double cp = (h == 0 ? 0.5 : -0.5) * kin.inv_len[l];
+        add_spin_columns(G + off, cp, -kin.ey[l], kin.ex[l], -oy, ox);
+        add_spin_columns(G + other, -cp, -kin.ey[l], kin.ex[l], -oy, ox);
+        // Columns: the end's x, y, z, sx, sy move the sphere centre c by A_k.
+        const int cols[5] = {half::kX, half::kY, half::kZ, half::kSx, half::kSy};
+        const double A[5][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-sigma * R, 0, 0}, {0, -sigma * R, 0}};
+        const double dN = 1.5 * cn * std::sqrt(g.pen);
+        for (int q = 0; q < 5; ++q) {
+          const double* a = A[q];
+          // dR/dq = R / N dN/dq + D (omega x A_q).
+          const double gN = dN * (g.gdx * a[0] + g.gdy * a[1] + g.gdz * a[2]);
+          const double wa[3] = {w[1] * a[2] - w[2] * a[1], w[2] * a[0] - w[0] * a[2], w[0] * a[1] - w[1] * a[0]};
+          const double tw = ax.t[0] * wa[0] + ax.t[1] * wa[1] + ax.t[2] * wa[2];
+          const double sw = ax.s[0] * wa[0] + ax.s[1] * wa[1] + ax.s[2] * wa[2];
+          double dR[3];
+          for (int i = 0; i < 3; ++i) dR[i] = Rv[i] / Nel * gN + mu_t * tw * ax.t[i] + mu * sw * ax.s[i];
+          for (int r = 0; r < 2 * half::kSize; ++r)
+            K(r, b + cols[q]) -= G[r][0] * dR[0] + G[r][1] * dR[1] + G[r][2] * dR[2];
+        }
+        // The cap turns with the link, psi_dot (-o_y, o_x, 0), and psi_dot = (D x D')_z / |D|^2
+        // with D = mid(a_{l+1}) - mid(b_l) moves with the four ends' x and y:
+        // dpsi_dot/dD = (D'_y - 2 D_x psi_dot, -D'_x - 2 D_y psi_dot) / |D|^2; dR/dq = -D_f du/dq.
+        const double il2 = kin.inv_len[l] * kin.inv_len[l];
+        const double dpsi[2] = {(kin.ddy[l] - 2 * kin.dx[l] * psid) * il2, (-kin.ddx[l] - 2 * kin.dy[l] * psid) * il2};
+        const double lever[3] = {-oy, ox, 0};
+        const double tl = ax.t[0] * lever[0] + ax.t[1] * lever[1], sl = ax.s[0] * lever[0] + ax.s[1] * lever[1];
+        for (int c2 = 0; c2 < 2; ++c2)
+          for (int hs = 0; hs < 2; ++hs)
+            for (int end = 0; end < 2; ++end) {
+              const double d = (hs == 0 ? -0.5 : 0.5) * dpsi[c2];  // b_l at 0 (-), a_{l+1} at 10 (+)
+              double dR[3];
+              for (int i = 0; i < 3; ++i) dR[i] = -d * (mu_t * tl * ax.t[i] + mu * sl * ax.s[i]);
+              const int col = hs * half::kSize + end * half::kEnd + half::kX + c2;
+              for (int r = 0; r < 2 * half::kSize; ++r) K(r, col) -= G[r][0] * dR[0] + G[r][1] * dR[1] + G[r][2] * dR[2];
+            }
+      }
+    }
+  }
+}
+
 void pulley_contact(const Model& m, Workspace& ws, int begin, int end, const FrictionExtras& x) {
   for (int j = begin; j < end; ++j) pulley_contact_joint(m, ws, j, ws.pulley_slots[j], nullptr, x);
 }

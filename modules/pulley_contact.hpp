@@ -5,6 +5,8 @@
 
 #include <cmath>
 
+#include <Eigen/Core>
+
 #include "engine/model/state.hpp"
 #include "modules/beam.hpp"
 
@@ -74,6 +76,14 @@ void pulley_contact(const Model& m, Workspace& ws, int begin, int end, const Fri
 // One joint; fills `report` when given.
 void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, PinContactReport* report,
                           const FrictionExtras& x = {});
+
+// The stiffness (-dF/dq at fixed velocities) of the pin ends' friction within link l's
+// block (halves b_l, a_{l+1}, which both turn with link l), added to K: the friction force
+// R = N rho follows the Hertz force's change, rho dN/dq, and the slip follows the sheave's
+// spin at the moving contact point, du/dq = -omega x dc/dq (docs/integrators.md 12.2, "The
+// analytic stiffness"). Reads ws's positions, velocities, link kinematics and statuses.
+void add_pulley_friction_stiffness(const Model& m, const Workspace& ws, int l,
+                                   Eigen::Matrix<double, 2 * half::kSize + 1, 2 * half::kSize + 1>& K);
 
 // Hertz energy of the pin ends (with `status`, only the active pairs).
 double pulley_energy(const Model& m, const double* q, const ContactStatus* status = nullptr);

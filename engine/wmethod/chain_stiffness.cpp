@@ -160,15 +160,17 @@ void ChainStiffness::forces(Workspace& w, double t, const double* y, int color, 
 }
 
 void ChainStiffness::hessian(double t, const double* y) {
-  // K(l, l) = link l's own elements + the link-l parts of joints l and l+1; K(l, l-1) is
-  // joint l's cross block and K(l-1, l) its transpose (a Hessian). Each block is written by
-  // one thread: the same numbers for any thread count.
+  // K(l, l) = link l's own elements + the link-l parts of joints l and l+1 + the friction of
+  // its pin ends (at y's velocities); K(l, l-1) is joint l's cross block and K(l-1, l) its
+  // transpose (a Hessian). Each block is written by one thread: the same numbers for any
+  // thread count.
   const auto ranges = [this](const auto& f) { for_joint_ranges(schedule_, m_.links, f); };
   set_stage_input(m_, ws_, t, y);
   run_stages(stage_set(StageId::link_kinematics), StageArgs{m_, ws_}, ranges);
   for_joints(schedule_, m_.links, [this, y](int j) { joint_hessian(m_, y, ws_.status, j, joints_[j]); });
   for_joints(schedule_, m_.links, [this, y](int l) {
     link_hessian(m_, y, ws_.status, l, diag_[l]);
+    add_pulley_friction_stiffness(m_, ws_, l, diag_[l]);
     diag_[l] += joints_[l].own + joints_[m_.wrap(l + 1)].prev;
     sub_[l] = joints_[l].cross;
     super_[l] = sub_[l].transpose();

@@ -49,9 +49,10 @@ struct ModelOdeOptions {
   // 21 evaluations per colour: 63 for 3 colours), taken at every w_k_every-th step's rebuild
   // (the elastic forces change slowly; the friction blocks, every w_every steps).
   bool w_stiffness = true;
-  // true: K as the analytic Hessian of the chain's elastic energy (modules/elastic_hessian:
-  // the conservative forces; the velocity-dependent forces' change with position left out),
-  // a fraction of one evaluation; false: the finite differences of all its forces.
+  // true: K as the analytic Hessian of the chain's elastic energy (modules/elastic_hessian)
+  // and the pin ends' friction's change with position (add_pulley_friction_stiffness; the
+  // rocker's friction and the damping's change left out); false: the finite differences of
+  // all the chain's forces.
   bool w_analytic_stiffness = Config::Integrator{}.w_analytic_stiffness;
   int w_k_every = Config::Integrator{}.w_k_every;
   // true: a change of the contact statuses (after a step) makes the next step rebuild the

@@ -12,7 +12,9 @@
 #include <vector>
 
 #include "engine/rhs/rhs.hpp"
+#include "engine/simulation.hpp"
 #include "modules/chain_forces.hpp"
+#include "modules/inertia.hpp"
 #include "modules/elastic_hessian.hpp"
 #include "modules/pulley_contact.hpp"
 #include "tests/test_util.hpp"
@@ -37,7 +39,7 @@ struct Blocks {
 };
 
 // -dF/dq by 4th-order central differences over link l's coordinates, into the blocks of
-// links l-1, l, l+1.
+// links l-1, l, l+1, at the velocities of y.
 Blocks differences(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y) {
   Blocks k;
   k.diag.assign(m.links, LinkHessian::Zero());
@@ -112,6 +114,67 @@ TEST_P(ElasticHessianTest, EveryLinkBlockIsTheDifferenceOfTheForcesAtRest) {
   std::printf("%s seed %u: %d closed rocker joints, %d stretched plates; max |K - K_fd| / max |K_fd| = %.3g (max %.3g)\n",
               cs.model.c_str(), cs.seed, rockers, plates, worst / scale, scale);
   EXPECT_LE(worst / scale, 1e-6) << "worst link " << worst_link;
+}
+
+// The generalized forces of the pin ends' contacts alone (the pulley kernel and the
+// gather, the chain's and the inertia's slots empty) at (t, y).
+Eigen::VectorXd pulley_forces(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y) {
+  set_stage_input(m, ws, t, y.data());
+  link_kinematics(m, ws, 0, m.links);
+  pulley_contact(m, ws, 0, m.links);
+  for (int j = 0; j < m.links; ++j) ws.chain_slots[j].clear(), ws.inertia_slots[j].clear();
+  gather_joints(m, ws, 0, m.links);
+  return ws.force;
+}
+
+// The pin ends' friction stiffness (add_pulley_friction_stiffness) against the part of the
+// pulley contacts' force differences that the velocities add, in a running chain: the
+// friction's change with the Hertz force, with the sheave's spin and with the link's spin
+// at the contact point. Without damping, so that this part is the friction's alone; what is
+// left out (the contact normal's and the levers' turning) is below 1e-3 of it.
+TEST(PulleyFrictionStiffnessTest, CarriesWhatTheVelocitiesAddToThePinEndsStiffness) {
+  const Model run = test::model("mini", {"ramp.time=1e-4"});
+  Simulation sim(run);
+  for (int k = 0; k < 6000; ++k) sim.step(run.cfg.integrator.step);
+  const Model m = test::model("mini", {"ramp.time=1e-4", "damping.scale=0"});
+  const double t = sim.time();
+  const Eigen::VectorXd y = sim.state();
+  Eigen::VectorXd y0 = y;
+  y0.segment(m.ndof, m.ndof).setZero();
+  Workspace ws(m);
+  ws.status = sim.workspace().status;
+  double err = 0, part = 0, none = 0;
+  int columns = 0;
+  for (int l = 0; l < m.links; ++l) {
+    LinkHessian V = LinkHessian::Zero();
+    for (int i = 0; i < 2 * half::kSize; ++i) {
+      const int c = coordinate(m, l, i);
+      const int r = i % half::kEnd;
+      const double h = r == half::kSx || r == half::kSy ? 3e-8 : 3e-10;
+      const auto col = [&](const Eigen::VectorXd& at) {
+        Eigen::VectorXd p = at, q = at;
+        p[c] += h, q[c] -= h;
+        return Eigen::VectorXd(-(pulley_forces(m, ws, t, p) - pulley_forces(m, ws, t, q)) / (2 * h));
+      };
+      const Eigen::VectorXd dv = col(y) - col(y0);
+      for (int row = 0; row < kLinkDim; ++row) V(row, i) = dv[coordinate(m, l, row)];
+    }
+    set_stage_input(m, ws, t, y.data());
+    link_kinematics(m, ws, 0, m.links);
+    LinkHessian K = LinkHessian::Zero();
+    add_pulley_friction_stiffness(m, ws, l, K);
+    for (int c = 0; c < kLinkDim; ++c) {
+      if (V.col(c).cwiseAbs().maxCoeff() == 0) continue;
+      ++columns;
+      err += (V.col(c) - K.col(c)).squaredNorm();
+      none += V.col(c).squaredNorm();
+    }
+    part += V.squaredNorm();
+  }
+  std::printf("%d columns: |velocities' part - K_f| / |velocities' part| = %.3g (|part| = %.3g N/m)\n", columns,
+              std::sqrt(err / none), std::sqrt(part));
+  ASSERT_GT(columns, 20);
+  EXPECT_LT(std::sqrt(err / none), 1e-3);
 }
 
 INSTANTIATE_TEST_SUITE_P(States, ElasticHessianTest,

@@ -10,10 +10,12 @@
 
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
+#include "engine/wmethod/chain_stiffness.hpp"
 #include "engine/wmethod/driver.hpp"
 #include "engine/rhs/rhs.hpp"
 #include "modules/chain_forces.hpp"
 #include "modules/inertia.hpp"
+#include "modules/pulley_contact.hpp"
 #include <memory>
 #include <algorithm>
 #include <cstdlib>
@@ -257,9 +259,11 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   ModelOdeOptions opt;
   opt.w_every = 1;
   opt.w_fresh = 0;
-  // The analytic stiffness (variant 3) is the Hessian of the elastic energy: the forces'
+  // The analytic stiffness (variant 3) is the Hessian of the elastic energy, the forces'
   // differences at this state's positions with no velocity (central, with steps below the
-  // contacts' kinks).
+  // contacts' kinks), plus the pin ends' friction part within each link's block
+  // (add_pulley_friction_stiffness, checked against the differences in
+  // PulleyFrictionStiffnessTest).
   Eigen::MatrixXd Ke(tail, tail);
   {
     Eigen::VectorXd y0 = r.y;
@@ -273,6 +277,14 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
       const Eigen::VectorXd Fp = ws.force.head(tail);
       rhs_serial(m, ws, r.t, ym0.data(), dy.data());
       Ke.col(c) = -(Fp - ws.force.head(tail)) / (2 * d);
+    }
+    set_stage_input(m, ws, r.t, r.y.data());
+    link_kinematics(m, ws, 0, m.links);
+    for (int l = 0; l < m.links; ++l) {
+      LinkHessian Kf = LinkHessian::Zero();
+      add_pulley_friction_stiffness(m, ws, l, Kf);
+      for (int a = 0; a < kLinkDim; ++a)
+        for (int b = 0; b < kLinkDim; ++b) Ke(link_coordinate(m, l, a), link_coordinate(m, l, b)) += Kf(a, b);
     }
   }
   for (int variant = 0; variant < 4; ++variant) {
