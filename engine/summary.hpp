@@ -26,7 +26,7 @@ inline double slip_of(double speed_ratio, double geometric_ratio) {
 struct SummaryChannels {
   std::vector<double> t, input_speed, output_speed, input_torque, output_torque, load_torque, speed_ratio,
       geometric_ratio, clamp_driving, clamp_driven, sheave_driving, sheave_driven, work_input, work_output,
-      work_dissipated;
+      work_dissipated, work_clamping;
   void push(const Sample& s);
   std::size_t size() const { return t.size(); }
   // The earliest time a window may start besides the ramps' end: the run's last change of

@@ -221,6 +221,20 @@ TEST(SummaryTest, EveryMeanCarriesItsStatisticalUncertaintyOverWholeSpans) {
   bool held = false;
   for (const auto& c : still.criteria) held |= c.rfind("efficiency settled: the power ratio", 0) == 0;
   EXPECT_TRUE(held);
+  // A clamping that takes 1 % of the input work out (a ratio controller whose force follows
+  // its sheave's motion): the power ratio lies 0.01 below 1 - dissipated / input work, and
+  // the energy balance, which counts the clamping's work, still holds it.
+  Synthetic clamped({}, t_end);
+  for (std::size_t i = 0; i < clamped.ch.size(); ++i) {
+    clamped.ch.work_clamping[i] = -0.01 * clamped.ch.work_input[i];
+    clamped.ch.work_dissipated[i] -= 0.01 * clamped.ch.work_input[i];
+  }
+  const RunSummary cl = summary(clamped);
+  EXPECT_NEAR(cl.efficiency, still.efficiency, 1e-12);
+  EXPECT_NEAR(cl.loss_efficiency - still.loss_efficiency, 0.01, 1e-9);
+  EXPECT_GT(cl.loss_efficiency - cl.efficiency, 0.009);
+  EXPECT_EQ(cl.status, still.status) << reasons(cl);
+  EXPECT_FALSE(has_reason(cl, "efficiency not settled")) << reasons(cl);
   // A window of fewer than two spans has none.
   RunSummary short_window;
   summarize(m, swung.ch, short_window, SteadyCriteria{}, t_end - 0.6 * W);
