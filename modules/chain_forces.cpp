@@ -648,6 +648,117 @@ double half_axial_force(const Model& m, const double* q, const double* v, int o)
   return m.cfg.pin.ea / m.L0 * (eps + m.beam_beta * rate);
 }
 
+void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, JointHessian& J) {
+  const ChainConstants k(m);
+  if (k.law == FrictionLaw::none) return;
+  const LinkKinematics& kin = ws.kin;
+  const int lp = m.wrap(j - 1), lc = j, nst = k.nst;
+  const double *qa = ws.q + m.half_a(j), *va = ws.v + m.half_a(j);
+  const double *qb = ws.q + m.half_b(j), *vb = ws.v + m.half_b(j);
+  const double *qbp = ws.q + m.half_b(lp), *qn = ws.q + m.half_a(j + 1);
+  const double kap = m.kappa, Rr = m.cfg.rocker.radius;
+  // Intermediates w (20), as joint_hessian: a_j's lateral dofs (4 c + i), b_j's (8 + 4 c + i),
+  // D_{j-1} (16, 17), D_j (18, 19); local coordinates: link j-1's block, then link j's (+21).
+  constexpr int kW = 20, kA = half::kSize, kB = kLinkDim, kN = kLinkDim + half::kSize;
+  using Row = Eigen::Matrix<double, 1, kW>;
+  // The link vectors, their directions' derivatives E = (I - e e^T) / |D|, and dpsi_dot/dD =
+  // (D'_y - 2 D_x psi_dot, -D'_x - 2 D_y psi_dot) / |D|^2.
+  const auto link = [&](int l, Eigen::Vector2d& e, Eigen::Matrix2d& E, Eigen::Vector2d& dpsi) {
+    e = Eigen::Vector2d(kin.ex[l], kin.ey[l]);
+    E = (Eigen::Matrix2d::Identity() - e * e.transpose()) * kin.inv_len[l];
+    const double il2 = kin.inv_len[l] * kin.inv_len[l];
+    dpsi = Eigen::Vector2d((kin.ddy[l] - 2 * kin.dx[l] * kin.psi_dot[l]) * il2,
+                           (-kin.ddx[l] - 2 * kin.dy[l] * kin.psi_dot[l]) * il2);
+  };
+  Eigen::Vector2d ep, ec, dpp, dpc;
+  Eigen::Matrix2d Ep, Ec;
+  link(lp, ep, Ep, dpp);
+  link(lc, ec, Ec, dpc);
+  // w -> local coordinates (42).
+  struct Map {
+    int n = 0, idx[4];
+    double wt[4];
+  } map[kW];
+  for (int c = 0; c < 2; ++c) {
+    const auto d = plane_dofs(c);
+    for (int i = 0; i < 4; ++i) {
+      map[4 * c + i] = {1, {kA + d[i]}, {1.0}};
+      map[8 + 4 * c + i] = {1, {kB + d[i]}, {1.0}};
+    }
+    map[16 + c] = {4, {kA + c, kA + half::kEnd + c, c, half::kEnd + c}, {0.5, 0.5, -0.5, -0.5}};
+    map[18 + c] = {4, {kN + c, kN + half::kEnd + c, kB + c, kB + half::kEnd + c}, {0.5, 0.5, -0.5, -0.5}};
+  }
+  const auto put = [&J](int r, int c, double v) {
+    if (r < kLinkDim) (c < kLinkDim ? J.prev(r, c) : J.up(r, c - kLinkDim)) += v;
+    else (c < kLinkDim ? J.cross(r - kLinkDim, c) : J.own(r - kLinkDim, c - kLinkDim)) += v;
+  };
+  for (int st = 0; st < nst; ++st) {
+    if (!ws.status.rocker[j * nst + st]) continue;
+    const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], k.sh[st]);
+    const double Nel = hertz_force(k.crk, r.pen);
+    if (!(Nel > 0)) continue;
+    // The slip as rocker_stations forms it.
+    const double px = r.pbx + kap * kin.ex[lc] + Rr * r.mx, py = r.pby + kap * kin.ey[lc] + Rr * r.my;
+    const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby, xi = r.xi;
+    const double psp = kin.psi_dot[lp], psc = kin.psi_dot[lc];
+    double wx = (r.lvax - psp * ray) - (r.lvbx - psc * rby), wy = (r.lvay + psp * rax) - (r.lvby + psc * rbx);
+    const double wz = ((1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ]) -
+                      ((1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ]);
+    const double wn = wx * r.mx + wy * r.my;
+    wx -= wn * r.mx, wy -= wn * r.my;
+    const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
+    const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
+    double Rv[3];
+    contact_friction(FrozenBranch{}, k.law, k.f0, k.v0, Nel, u, speed, nrm, Rv);
+    const double mu = Nel * friction_over_speed(k.law, k.f0, k.v0, speed);
+    const double mu_t = Nel * friction_slope(k.law, k.f0, k.v0, speed);
+    const FrictionAxes ax(nrm, u, speed);
+    // d/dw of X = P_a - P_b (row c: the station's weights), of Delta = X - kappa (e_p + e_c),
+    // of m = Delta / |Delta|, and of pen = 2 R_r - |Delta|.
+    Eigen::Matrix<double, 2, kW> dX = Eigen::Matrix<double, 2, kW>::Zero();
+    for (int c = 0; c < 2; ++c)
+      for (int i = 0; i < 4; ++i) dX(c, 4 * c + i) = r.h.w[i], dX(c, 8 + 4 * c + i) = -r.h.w[i];
+    Eigen::Matrix<double, 2, kW> dDelta = dX;
+    dDelta.middleCols<2>(16) -= kap * Ep;
+    dDelta.middleCols<2>(18) -= kap * Ec;
+    const Eigen::Vector2d mv(r.mx, r.my);
+    const double dist = 2 * Rr - r.pen;
+    const Eigen::Matrix<double, 2, kW> dm = (Eigen::Matrix2d::Identity() - mv * mv.transpose()) / dist * dDelta;
+    const Row dpen = -mv.transpose() * dDelta;
+    // The slip's xy part moves by: psi_dot_p's change times ra_perp, psi_dot_c's times -rb_perp,
+    // and the levers' turning: psi_p d(ra)_perp - psi_c d(rb)_perp, ra = rb - X, rb = kappa e_c + R_r m.
+    Eigen::Matrix<double, 2, kW> drb = Rr * dm;
+    drb.middleCols<2>(18) += kap * Ec;
+    const Eigen::Matrix<double, 2, kW> dra = drb - dX;
+    const auto perp = [](const Eigen::Matrix<double, 2, kW>& a) {
+      Eigen::Matrix<double, 2, kW> p;
+      p.row(0) = -a.row(1), p.row(1) = a.row(0);
+      return p;
+    };
+    Eigen::Matrix<double, 2, kW> du = psp * perp(dra) - psc * perp(drb);
+    du.middleCols<2>(16) += Eigen::Vector2d(-ray, rax) * dpp.transpose();
+    du.middleCols<2>(18) -= Eigen::Vector2d(-rby, rbx) * dpc.transpose();
+    // dR/dw = rho dN/dw - D du/dw, D = mu_t t t^T + mu s s^T (u's z part does not move).
+    const Row dN = 1.5 * k.crk * std::sqrt(r.pen) * dpen;
+    const Eigen::Vector3d t(ax.t[0], ax.t[1], ax.t[2]), s(ax.s[0], ax.s[1], ax.s[2]);
+    Eigen::Matrix<double, 3, kW> dR = Eigen::Vector3d(Rv[0] / Nel, Rv[1] / Nel, Rv[2] / Nel) * dN;
+    dR -= mu_t * t * (t.head<2>().transpose() * du) + mu * s * (s.head<2>().transpose() * du);
+    // K = -G^T dR over the joint's 40 half coordinates (b_{j-1}, a_j, b_j, a_{j+1}).
+    double G[FrictionJacobian::kDim][3] = {};
+    rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
+    for (int row = 0; row < FrictionJacobian::kDim; ++row) {
+      const Eigen::Vector3d g(G[row][0], G[row][1], G[row][2]);
+      if (g.squaredNorm() == 0) continue;
+      const Row kr = -(g.transpose() * dR);
+      const int lr = row < 2 * half::kSize ? row : row + 1;  // link j's rows after link j-1's pack
+      for (int c = 0; c < kW; ++c) {
+        if (kr[c] == 0) continue;
+        for (int a = 0; a < map[c].n; ++a) put(lr, map[c].idx[a], kr[c] * map[c].wt[a]);
+      }
+    }
+  }
+}
+
 void update_rocker_status(const Model& m, Workspace& ws, int begin, int end) {
   const int nst = m.cfg.rocker.stations;
   const double crk = m.cfg.rocker.stiffness, brk = damping(m).rocker;

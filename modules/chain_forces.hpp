@@ -4,6 +4,7 @@
 #pragma once
 
 #include "engine/model/state.hpp"
+#include "modules/elastic_hessian.hpp"
 
 namespace cvt {
 
@@ -15,6 +16,14 @@ void chain_forces(const Model& m, Workspace& ws, int begin, int end, const Frict
 // coordinates) to f; returns the dissipated power. Public for the modal tests, which take
 // a single half's stiffness from it.
 double beam(const Model& m, const double* q, const double* v, double* f);
+
+// The stiffness (-dF/dq at fixed velocities) of joint j's rocker friction, added to its
+// blocks (J.prev, own, cross, up): the friction R = N rho follows the Hertz force's change,
+// rho dN/dq, and the faces' slip follows the links' spins: psi_dot (the lever to the contact
+// point) changes with the link vectors, and the levers turn with the halves (docs/
+// integrators.md 12.2, "The analytic stiffness"). Reads ws's positions, velocities, link
+// kinematics and statuses.
+void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, JointHessian& J);
 
 // Potential energy of the chain's elastic elements (beams, plates, packs, rocker Hertz;
 // with `status`, only the active rocker pairs count).

@@ -368,6 +368,7 @@ void joint_hessian(const Model& m, const double* q, const ContactStatus& status,
       out.cross(i - kLinkDim, k) += v;  // the upper-right block is its transpose
   };
   add_mapped(Hw, w, w, put);
+  out.up = out.cross.transpose();
 }
 
 void link_hessian(const Model& m, const double* q, const ContactStatus& status, int l, LinkHessian& out) {

@@ -15,10 +15,12 @@ inline constexpr int kLinkDim = 2 * half::kSize + 1;
 using LinkHessian = Eigen::Matrix<double, kLinkDim, kLinkDim>;
 
 // Joint j's rocker stations (the active ones) and keeper couple links j-1 and j: their
-// Hessian over link j-1's coordinates (prev), link j's (own), and the cross block (rows of
-// link j, columns of link j-1). Written, not added to.
+// Hessian over link j-1's coordinates (prev), link j's (own), the cross block (rows of link
+// j, columns of link j-1) and its counterpart up (rows of link j-1, columns of link j):
+// cross^T for the Hessian, which a friction part (add_rocker_friction_stiffness) makes
+// unsymmetric. Written, not added to.
 struct JointHessian {
-  LinkHessian prev, own, cross;
+  LinkHessian prev, own, cross, up;
 };
 void joint_hessian(const Model& m, const double* q, const ContactStatus& status, int j, JointHessian& out);
 

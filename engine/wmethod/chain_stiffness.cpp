@@ -167,13 +167,16 @@ void ChainStiffness::hessian(double t, const double* y) {
   const auto ranges = [this](const auto& f) { for_joint_ranges(schedule_, m_.links, f); };
   set_stage_input(m_, ws_, t, y);
   run_stages(stage_set(StageId::link_kinematics), StageArgs{m_, ws_}, ranges);
-  for_joints(schedule_, m_.links, [this, y](int j) { joint_hessian(m_, y, ws_.status, j, joints_[j]); });
+  for_joints(schedule_, m_.links, [this, y](int j) {
+    joint_hessian(m_, y, ws_.status, j, joints_[j]);
+    add_rocker_friction_stiffness(m_, ws_, j, joints_[j]);
+  });
   for_joints(schedule_, m_.links, [this, y](int l) {
     link_hessian(m_, y, ws_.status, l, diag_[l]);
     add_pulley_friction_stiffness(m_, ws_, l, diag_[l]);
     diag_[l] += joints_[l].own + joints_[m_.wrap(l + 1)].prev;
     sub_[l] = joints_[l].cross;
-    super_[l] = sub_[l].transpose();
+    super_[l] = joints_[l].up;
   });
 }
 

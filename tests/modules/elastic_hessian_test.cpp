@@ -116,65 +116,99 @@ TEST_P(ElasticHessianTest, EveryLinkBlockIsTheDifferenceOfTheForcesAtRest) {
   EXPECT_LE(worst / scale, 1e-6) << "worst link " << worst_link;
 }
 
-// The generalized forces of the pin ends' contacts alone (the pulley kernel and the
-// gather, the chain's and the inertia's slots empty) at (t, y).
-Eigen::VectorXd pulley_forces(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y) {
+// The generalized forces of one kernel alone at (t, y): the pin ends' contacts or the
+// chain's (rockers, plates, beams), the other's and the inertia's slots empty.
+Eigen::VectorXd kernel_forces(const Model& m, Workspace& ws, double t, const Eigen::VectorXd& y, bool pulley) {
   set_stage_input(m, ws, t, y.data());
   link_kinematics(m, ws, 0, m.links);
-  pulley_contact(m, ws, 0, m.links);
-  for (int j = 0; j < m.links; ++j) ws.chain_slots[j].clear(), ws.inertia_slots[j].clear();
+  if (pulley)
+    pulley_contact(m, ws, 0, m.links);
+  else
+    chain_forces(m, ws, 0, m.links);
+  for (int j = 0; j < m.links; ++j) (pulley ? ws.chain_slots : ws.pulley_slots)[j].clear(), ws.inertia_slots[j].clear();
   gather_joints(m, ws, 0, m.links);
   return ws.force;
 }
 
-// The pin ends' friction stiffness (add_pulley_friction_stiffness) against the part of the
-// pulley contacts' force differences that the velocities add, in a running chain: the
-// friction's change with the Hertz force, with the sheave's spin and with the link's spin
-// at the contact point. Without damping, so that this part is the friction's alone; what is
-// left out (the contact normal's and the levers' turning) is below 1e-3 of it.
-TEST(PulleyFrictionStiffnessTest, CarriesWhatTheVelocitiesAddToThePinEndsStiffness) {
-  const Model run = test::model("mini", {"ramp.time=1e-4"});
-  Simulation sim(run);
-  for (int k = 0; k < 6000; ++k) sim.step(run.cfg.integrator.step);
-  const Model m = test::model("mini", {"ramp.time=1e-4", "damping.scale=0"});
-  const double t = sim.time();
-  const Eigen::VectorXd y = sim.state();
-  Eigen::VectorXd y0 = y;
-  y0.segment(m.ndof, m.ndof).setZero();
-  Workspace ws(m);
-  ws.status = sim.workspace().status;
-  double err = 0, part = 0, none = 0;
-  int columns = 0;
-  for (int l = 0; l < m.links; ++l) {
-    LinkHessian V = LinkHessian::Zero();
-    for (int i = 0; i < 2 * half::kSize; ++i) {
-      const int c = coordinate(m, l, i);
-      const int r = i % half::kEnd;
-      const double h = r == half::kSx || r == half::kSy ? 3e-8 : 3e-10;
-      const auto col = [&](const Eigen::VectorXd& at) {
-        Eigen::VectorXd p = at, q = at;
-        p[c] += h, q[c] -= h;
-        return Eigen::VectorXd(-(pulley_forces(m, ws, t, p) - pulley_forces(m, ws, t, q)) / (2 * h));
-      };
-      const Eigen::VectorXd dv = col(y) - col(y0);
-      for (int row = 0; row < kLinkDim; ++row) V(row, i) = dv[coordinate(m, l, row)];
-    }
+// A running mini chain (6000 steps from rest), judged without damping so that what the
+// velocities add to a kernel's force differences is its friction's alone: that part, by
+// central differences at the state and at its positions with no velocity, in link blocks;
+// ws is left with the state's link kinematics.
+struct RunningFriction {
+  Model m = test::model("mini", {"ramp.time=1e-4", "damping.scale=0"});
+  Workspace ws{m};
+  double t = 0;
+  Eigen::VectorXd y;
+  std::vector<LinkHessian> diag, sub, super;  // K(l, l), K(l, l-1), K(l-1, l)
+  explicit RunningFriction(bool pulley) {
+    const Model run = test::model("mini", {"ramp.time=1e-4"});
+    Simulation sim(run);
+    for (int k = 0; k < 6000; ++k) sim.step(run.cfg.integrator.step);
+    t = sim.time(), y = sim.state();
+    ws.status = sim.workspace().status;
+    Eigen::VectorXd y0 = y;
+    y0.segment(m.ndof, m.ndof).setZero();
+    diag.assign(m.links, LinkHessian::Zero()), sub = diag, super = diag;
+    for (int l = 0; l < m.links; ++l)
+      for (int i = 0; i < kLinkDim; ++i) {
+        const int c = coordinate(m, l, i);
+        const int r = (i % half::kSize) % half::kEnd;
+        const double h = i < 2 * half::kSize && (r == half::kSx || r == half::kSy) ? 3e-8 : 3e-10;
+        const auto col = [&](const Eigen::VectorXd& at) {
+          Eigen::VectorXd p = at, q = at;
+          p[c] += h, q[c] -= h;
+          return Eigen::VectorXd(-(kernel_forces(m, ws, t, p, pulley) - kernel_forces(m, ws, t, q, pulley)) / (2 * h));
+        };
+        const Eigen::VectorXd dv = col(y) - col(y0);
+        for (int row = 0; row < kLinkDim; ++row) {
+          diag[l](row, i) = dv[coordinate(m, l, row)];
+          super[l](row, i) = dv[coordinate(m, l - 1, row)];
+          sub[m.wrap(l + 1)](row, i) = dv[coordinate(m, l + 1, row)];
+        }
+      }
     set_stage_input(m, ws, t, y.data());
     link_kinematics(m, ws, 0, m.links);
-    LinkHessian K = LinkHessian::Zero();
-    add_pulley_friction_stiffness(m, ws, l, K);
-    for (int c = 0; c < kLinkDim; ++c) {
-      if (V.col(c).cwiseAbs().maxCoeff() == 0) continue;
-      ++columns;
-      err += (V.col(c) - K.col(c)).squaredNorm();
-      none += V.col(c).squaredNorm();
-    }
-    part += V.squaredNorm();
   }
-  std::printf("%d columns: |velocities' part - K_f| / |velocities' part| = %.3g (|part| = %.3g N/m)\n", columns,
-              std::sqrt(err / none), std::sqrt(part));
-  ASSERT_GT(columns, 20);
-  EXPECT_LT(std::sqrt(err / none), 1e-3);
+};
+
+// The pin ends' friction stiffness (add_pulley_friction_stiffness) against that part of
+// the pulley contacts' differences: the friction's change with the Hertz force, with the
+// sheave's spin and with the link's spin at the contact point, within each link's block.
+// What it leaves out (the contact normal's and the levers' turning) is below 1e-3 of it.
+TEST(PulleyFrictionStiffnessTest, CarriesWhatTheVelocitiesAddToThePinEndsStiffness) {
+  RunningFriction r(true);
+  double err = 0, part = 0;
+  for (int l = 0; l < r.m.links; ++l) {
+    LinkHessian K = LinkHessian::Zero();
+    add_pulley_friction_stiffness(r.m, r.ws, l, K);
+    err += (r.diag[l] - K).squaredNorm() + r.sub[l].squaredNorm() + r.super[l].squaredNorm();
+    part += r.diag[l].squaredNorm() + r.sub[l].squaredNorm() + r.super[l].squaredNorm();
+  }
+  std::printf("|velocities' part - K_f| / |velocities' part| = %.3g (|part| = %.3g N/m)\n", std::sqrt(err / part),
+              std::sqrt(part));
+  ASSERT_GT(part, 1e10);
+  EXPECT_LT(std::sqrt(err / part), 1e-3);
+}
+
+// The rocker's friction stiffness (add_rocker_friction_stiffness) against that part of the
+// chain kernel's differences: every link's diagonal block and both couplings.
+TEST(RockerFrictionStiffnessTest, CarriesWhatTheVelocitiesAddToTheRockersStiffness) {
+  RunningFriction r(false);
+  std::vector<JointHessian> J(r.m.links);
+  for (int j = 0; j < r.m.links; ++j) {
+    J[j].prev.setZero(), J[j].own.setZero(), J[j].cross.setZero(), J[j].up.setZero();
+    add_rocker_friction_stiffness(r.m, r.ws, j, J[j]);
+  }
+  double err = 0, part = 0;
+  for (int l = 0; l < r.m.links; ++l) {
+    const LinkHessian d = J[l].own + J[r.m.wrap(l + 1)].prev;
+    err += (r.diag[l] - d).squaredNorm() + (r.sub[l] - J[l].cross).squaredNorm() + (r.super[l] - J[l].up).squaredNorm();
+    part += r.diag[l].squaredNorm() + r.sub[l].squaredNorm() + r.super[l].squaredNorm();
+  }
+  std::printf("|velocities' part - K_f| / |velocities' part| = %.3g (|part| = %.3g N/m)\n", std::sqrt(err / part),
+              std::sqrt(part));
+  ASSERT_GT(part, 1e10);
+  EXPECT_LT(std::sqrt(err / part), 1e-3);
 }
 
 INSTANTIATE_TEST_SUITE_P(States, ElasticHessianTest,

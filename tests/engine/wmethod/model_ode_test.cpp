@@ -261,9 +261,10 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
   opt.w_fresh = 0;
   // The analytic stiffness (variant 3) is the Hessian of the elastic energy, the forces'
   // differences at this state's positions with no velocity (central, with steps below the
-  // contacts' kinks), plus the pin ends' friction part within each link's block
-  // (add_pulley_friction_stiffness, checked against the differences in
-  // PulleyFrictionStiffnessTest).
+  // contacts' kinks), plus the pin ends' friction part within each link's block and the
+  // rockers' across the joints (add_pulley_friction_stiffness, add_rocker_friction_stiffness,
+  // checked against the differences in PulleyFrictionStiffnessTest and
+  // RockerFrictionStiffnessTest).
   Eigen::MatrixXd Ke(tail, tail);
   {
     Eigen::VectorXd y0 = r.y;
@@ -285,6 +286,15 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
       add_pulley_friction_stiffness(m, ws, l, Kf);
       for (int a = 0; a < kLinkDim; ++a)
         for (int b = 0; b < kLinkDim; ++b) Ke(link_coordinate(m, l, a), link_coordinate(m, l, b)) += Kf(a, b);
+      JointHessian J;
+      J.prev.setZero(), J.own.setZero(), J.cross.setZero(), J.up.setZero();
+      add_rocker_friction_stiffness(m, ws, l, J);  // joint l: links l-1 and l
+      for (int a = 0; a < kLinkDim; ++a)
+        for (int b = 0; b < kLinkDim; ++b) {
+          const int p = link_coordinate(m, l - 1, a), o = link_coordinate(m, l, a);
+          const int pb = link_coordinate(m, l - 1, b), ob = link_coordinate(m, l, b);
+          Ke(p, pb) += J.prev(a, b), Ke(o, ob) += J.own(a, b), Ke(o, pb) += J.cross(a, b), Ke(p, ob) += J.up(a, b);
+        }
     }
   }
   for (int variant = 0; variant < 4; ++variant) {
