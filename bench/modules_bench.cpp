@@ -97,7 +97,8 @@ void BM_Rk4Step(benchmark::State& st) {
 }
 
 // One take of the W matrix's chain stiffness on the serial schedule: the 63 differences of
-// the forces (arg 0) or the analytic Hessian of the elastic energy (arg 1);
+// the forces (arg 0) or the analytic stiffness (arg 1: the Hessian of the elastic energy
+// and the friction parts);
 // docs/integrators.md 12.2, "The analytic stiffness".
 void BM_ChainStiffness(benchmark::State& st) {
   auto& f = reference();
@@ -106,7 +107,7 @@ void BM_ChainStiffness(benchmark::State& st) {
   ChainStiffness k(f.m, ws, *schedule, st.range(0) == 1);
   for (auto _ : st) k.take(3e-4, f.y.data());
   benchmark::DoNotOptimize(k.diag(0).data());
-  st.SetLabel(st.range(0) == 1 ? "analytic Hessian" : "differences");
+  st.SetLabel(st.range(0) == 1 ? "analytic" : "differences");
 }
 
 BENCHMARK(BM_ChainStiffness)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);

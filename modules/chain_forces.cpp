@@ -692,6 +692,8 @@ void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, J
     if (r < kLinkDim) (c < kLinkDim ? J.prev(r, c) : J.up(r, c - kLinkDim)) += v;
     else (c < kLinkDim ? J.cross(r - kLinkDim, c) : J.own(r - kLinkDim, c - kLinkDim)) += v;
   };
+  // -G^T dR of every station over (half coordinates, w), mapped onto the blocks at the end.
+  Eigen::Matrix<double, FrictionJacobian::kDim, kW> Kw = Eigen::Matrix<double, FrictionJacobian::kDim, kW>::Zero();
   for (int st = 0; st < nst; ++st) {
     if (!ws.status.rocker[j * nst + st]) continue;
     const RockerEval r = rocker_eval(m, kin, qa, va, qb, vb, lp, lc, m.station_xi[st], k.sh[st]);
@@ -746,15 +748,14 @@ void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, J
     // K = -G^T dR over the joint's 40 half coordinates (b_{j-1}, a_j, b_j, a_{j+1}).
     double G[FrictionJacobian::kDim][3] = {};
     rocker_slip_columns(kin, r, lp, lc, rax, ray, rbx, rby, G);
-    for (int row = 0; row < FrictionJacobian::kDim; ++row) {
-      const Eigen::Vector3d g(G[row][0], G[row][1], G[row][2]);
-      if (g.squaredNorm() == 0) continue;
-      const Row kr = -(g.transpose() * dR);
-      const int lr = row < 2 * half::kSize ? row : row + 1;  // link j's rows after link j-1's pack
-      for (int c = 0; c < kW; ++c) {
-        if (kr[c] == 0) continue;
-        for (int a = 0; a < map[c].n; ++a) put(lr, map[c].idx[a], kr[c] * map[c].wt[a]);
-      }
+    Kw.noalias() -= Eigen::Map<const Eigen::Matrix<double, FrictionJacobian::kDim, 3, Eigen::RowMajor>>(&G[0][0]) * dR;
+  }
+  for (int row = 0; row < FrictionJacobian::kDim; ++row) {
+    const int lr = row < 2 * half::kSize ? row : row + 1;  // link j's rows after link j-1's pack
+    for (int c = 0; c < kW; ++c) {
+      const double v = Kw(row, c);
+      if (v == 0) continue;
+      for (int a = 0; a < map[c].n; ++a) put(lr, map[c].idx[a], v * map[c].wt[a]);
     }
   }
 }
