@@ -161,9 +161,9 @@ void ChainStiffness::forces(Workspace& w, double t, const double* y, int color, 
 
 void ChainStiffness::hessian(double t, const double* y) {
   // K(l, l) = link l's own elements + the link-l parts of joints l and l+1 + the friction of
-  // its pin ends (at y's velocities); K(l, l-1) is joint l's cross block and K(l-1, l) its
-  // transpose (a Hessian). Each block is written by one thread: the same numbers for any
-  // thread count.
+  // its pin ends (at y's velocities); K(l, l-1) and K(l-1, l) are joint l's cross blocks
+  // (transposes of each other in the Hessian; the rocker's friction, added per joint, makes
+  // them differ). Each block is written by one thread: the same numbers for any thread count.
   const auto ranges = [this](const auto& f) { for_joint_ranges(schedule_, m_.links, f); };
   set_stage_input(m_, ws_, t, y);
   run_stages(stage_set(StageId::link_kinematics), StageArgs{m_, ws_}, ranges);

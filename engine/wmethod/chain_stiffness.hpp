@@ -30,8 +30,9 @@ class ChainStiffness {
  public:
   // Over the schedule's workspace ws (the differences leave it as one evaluation at the
   // unperturbed state does: the assembly reads its link directions).
-  // analytic: the Hessian of the elastic energy with the pin ends' friction part
-  // (add_pulley_friction_stiffness), else the differences.
+  // analytic: the Hessian of the elastic energy with the friction parts of the pin ends and
+  // the rockers (add_pulley_friction_stiffness, add_rocker_friction_stiffness), else the
+  // differences.
   ChainStiffness(const Model& m, Workspace& ws, Schedule& schedule, bool analytic = false);
   // K at the physical state y. The differences: 21 evaluations per colour (63 for 3
   // colours), in two halves on two workspaces when the schedule has threads. The Hessian:

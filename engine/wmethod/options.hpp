@@ -50,9 +50,9 @@ struct ModelOdeOptions {
   // (the elastic forces change slowly; the friction blocks, every w_every steps).
   bool w_stiffness = true;
   // true: K as the analytic Hessian of the chain's elastic energy (modules/elastic_hessian)
-  // and the pin ends' friction's change with position (add_pulley_friction_stiffness; the
-  // rocker's friction and the damping's change left out); false: the finite differences of
-  // all the chain's forces.
+  // and the friction's change with position at the pin ends and the rockers
+  // (add_pulley_friction_stiffness, add_rocker_friction_stiffness; the damping's change left
+  // out); false: the finite differences of all the chain's forces.
   bool w_analytic_stiffness = Config::Integrator{}.w_analytic_stiffness;
   int w_k_every = Config::Integrator{}.w_k_every;
   // true: a change of the contact statuses (after a step) makes the next step rebuild the
