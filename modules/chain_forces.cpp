@@ -192,6 +192,35 @@ inline RockerEval rocker_eval(const Model& m, const LinkKinematics& k, const dou
   return r;
 }
 
+// The slip at a rocker station (4.3): the levers from the halves' centre lines at the
+// station to the contact point P = C_b + R_r m, and the faces' sliding velocity u (a's less
+// b's, each half turning with its link) tangential to m; returns |u|.
+struct RockerSlip {
+  double rax, ray, rbx, rby;
+  double u[3];
+};
+
+inline double rocker_slip(const Model& m, const LinkKinematics& kin, const RockerEval& r, const double* va,
+                          const double* vb, int lp, int lc, RockerSlip& w) {
+  const double px = r.pbx + m.kappa * kin.ex[lc] + m.cfg.rocker.radius * r.mx;
+  const double py = r.pby + m.kappa * kin.ey[lc] + m.cfg.rocker.radius * r.my;
+  w.rax = px - r.pax, w.ray = py - r.pay, w.rbx = px - r.pbx, w.rby = py - r.pby;
+  const double xi = r.xi;
+  const double vax = r.lvax - kin.psi_dot[lp] * w.ray;
+  const double vay = r.lvay + kin.psi_dot[lp] * w.rax;
+  const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
+  const double vbx = r.lvbx - kin.psi_dot[lc] * w.rby;
+  const double vby = r.lvby + kin.psi_dot[lc] * w.rbx;
+  const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
+  double wx = vax - vbx, wy = vay - vby;
+  const double wz = vaz - vbz;
+  const double wn = wx * r.mx + wy * r.my;
+  wx -= wn * r.mx;
+  wy -= wn * r.my;
+  w.u[0] = wx, w.u[1] = wy, w.u[2] = wz;
+  return std::sqrt(wx * wx + wy * wy + wz * wz);
+}
+
 // FrictionJacobian blocks / mu: G (u = G v, zeroed by the caller) of the slip
 // velocity u = v_a - v_b at a rocker station as a function of the four halves it moves (b_{j-1}: 0..9, a_j: 10..19, b_j: 20..29, a_{j+1}:
 // 30..39): the centre lines' velocities at the station, their axial rates, and the link
@@ -288,7 +317,6 @@ struct JointHalves {
 // branch if x.frozen), and what x.jacobian asks for (the W-method's friction part).
 void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, const FrictionExtras& x, int j,
                      const JointHalves& h, JointSlot& s) {
-  const Config& c = m.cfg;
   const LinkKinematics& kin = ws.kin;
   const double crk = k.crk, brk = k.brk;
   const FrictionLaw law = k.law;
@@ -316,24 +344,11 @@ void rocker_stations(const Model& m, const ChainConstants& k, Workspace& ws, con
     double Rx = 0, Ry = 0;  // friction on a (lateral part)
     if (Nel > 0 && law != FrictionLaw::none) {
       // Friction on the sliding of the two faces at the contact point P = C_b + R_r m.
-      const double px = r.pbx + m.kappa * kin.ex[lc] + c.rocker.radius * r.mx;
-      const double py = r.pby + m.kappa * kin.ey[lc] + c.rocker.radius * r.my;
-      const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby;
-      const double xi = r.xi;
-      const double vax = r.lvax - kin.psi_dot[lp] * ray;
-      const double vay = r.lvay + kin.psi_dot[lp] * rax;
-      const double vaz = (1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ];
-      const double vbx = r.lvbx - kin.psi_dot[lc] * rby;
-      const double vby = r.lvby + kin.psi_dot[lc] * rbx;
-      const double vbz = (1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ];
-      double wx = vax - vbx, wy = vay - vby;
-      const double wz = vaz - vbz;
-      const double wn = wx * r.mx + wy * r.my;
-      wx -= wn * r.mx;
-      wy -= wn * r.my;
-      const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
+      RockerSlip sl;
+      const double speed = rocker_slip(m, kin, r, va, vb, lp, lc, sl);
+      const double *u = sl.u, rax = sl.rax, ray = sl.ray, rbx = sl.rbx, rby = sl.rby, xi = r.xi;
       const int idx = j * nst + st;
-      const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
+      const double nrm[3] = {r.mx, r.my, 0.0};
       double Rv[3];
       s.p_diss +=
           contact_friction(rocker_branch(x.frozen, idx), law, f0, v0, Nel, u, speed, nrm, Rv);
@@ -655,7 +670,6 @@ void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, J
   const int lp = m.wrap(j - 1), lc = j, nst = k.nst;
   const double *qa = ws.q + m.half_a(j), *va = ws.v + m.half_a(j);
   const double *qb = ws.q + m.half_b(j), *vb = ws.v + m.half_b(j);
-  const double *qbp = ws.q + m.half_b(lp), *qn = ws.q + m.half_a(j + 1);
   const double kap = m.kappa, Rr = m.cfg.rocker.radius;
   // Intermediates w (20), as joint_hessian: a_j's lateral dofs (4 c + i), b_j's (8 + 4 c + i),
   // D_{j-1} (16, 17), D_j (18, 19); local coordinates: link j-1's block, then link j's (+21).
@@ -700,16 +714,11 @@ void add_rocker_friction_stiffness(const Model& m, const Workspace& ws, int j, J
     const double Nel = hertz_force(k.crk, r.pen);
     if (!(Nel > 0)) continue;
     // The slip as rocker_stations forms it.
-    const double px = r.pbx + kap * kin.ex[lc] + Rr * r.mx, py = r.pby + kap * kin.ey[lc] + Rr * r.my;
-    const double rax = px - r.pax, ray = py - r.pay, rbx = px - r.pbx, rby = py - r.pby, xi = r.xi;
+    RockerSlip sl;
+    const double speed = rocker_slip(m, kin, r, va, vb, lp, lc, sl);
+    const double *u = sl.u, rax = sl.rax, ray = sl.ray, rbx = sl.rbx, rby = sl.rby;
     const double psp = kin.psi_dot[lp], psc = kin.psi_dot[lc];
-    double wx = (r.lvax - psp * ray) - (r.lvbx - psc * rby), wy = (r.lvay + psp * rax) - (r.lvby + psc * rbx);
-    const double wz = ((1 - xi) * va[half::kZ] + xi * va[half::kEnd + half::kZ]) -
-                      ((1 - xi) * vb[half::kZ] + xi * vb[half::kEnd + half::kZ]);
-    const double wn = wx * r.mx + wy * r.my;
-    wx -= wn * r.mx, wy -= wn * r.my;
-    const double speed = std::sqrt(wx * wx + wy * wy + wz * wz);
-    const double u[3] = {wx, wy, wz}, nrm[3] = {r.mx, r.my, 0.0};
+    const double nrm[3] = {r.mx, r.my, 0.0};
     double Rv[3];
     contact_friction(FrozenBranch{}, k.law, k.f0, k.v0, Nel, u, speed, nrm, Rv);
     const double mu = Nel * friction_over_speed(k.law, k.f0, k.v0, speed);

@@ -21,6 +21,58 @@ inline double penetration_rate(const Model& m, const EndGeometry& g, const doubl
          g.gtx * shv[kTx] + g.gty * shv[kTy] + g.gw * shv[kW];
 }
 
+// A pin end's contact point P = c + R_end n (4.5.4): the unit normal n, o = P - c, and
+// rs = P - O - u, the sheave's lever.
+struct EndPoint {
+  double n[3], o[3], rs[3];
+};
+
+inline EndPoint end_point(const EndGeometry& g, double R) {
+  EndPoint p;
+  const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
+  p.n[0] = g.gdx / gnorm, p.n[1] = g.gdy / gnorm, p.n[2] = g.gdz / gnorm;
+  for (int i = 0; i < 3; ++i) p.o[i] = R * p.n[i];
+  p.rs[0] = g.dx + p.o[0], p.rs[1] = g.dy + p.o[1], p.rs[2] = g.dz + p.o[2];
+  return p;
+}
+
+// The slip u at P (4.5.4), tangential to n: the cap's point (c_dot, the cap turning with the
+// end slopes, omega = (-sy', sx', 0), and with the link's spin psid) less the sheave's point
+// (its translation, tilt and spin w, and its axial rate where it moves the contact); returns |u|.
+inline double end_slip(const EndGeometry& g, const EndPoint& p, const double* pv, const double* shv, double sigma,
+                       double R, double psid, double u[3]) {
+  const double *o = p.o, *rs = p.rs, *n = p.n;
+  const double cvx = pv[half::kX] - sigma * R * pv[half::kSx];
+  const double cvy = pv[half::kY] - sigma * R * pv[half::kSy];
+  const double cvz = pv[half::kZ];
+  const double sxd = pv[half::kSx], syd = pv[half::kSy];
+  const double vpx = cvx - psid * o[1] + sxd * o[2];
+  const double vpy = cvy + psid * o[0] + syd * o[2];
+  const double vpz = cvz - sxd * o[0] - syd * o[1];
+  const double wx = shv[kTx], wy = shv[kTy], wz = shv[kPhi];
+  const double vsx = shv[kUx] + wy * rs[2] - wz * rs[1];
+  const double vsy = shv[kUy] + wz * rs[0] - wx * rs[2];
+  const double vsz = shv[kUz] + wx * rs[1] - wy * rs[0] + (g.gw != 0 ? shv[kW] : 0.0);
+  u[0] = vpx - vsx, u[1] = vpy - vsy, u[2] = vpz - vsz;
+  const double un = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
+  for (int i = 0; i < 3; ++i) u[i] -= un * n[i];
+  return std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+}
+
+// The rows of G (u = G v) of a pin end's own coordinates at row b: c_dot and the cap's tilt;
+// and the link's spin through the end's half (cp = +-1/(2|Delta|)) and through the link's
+// other half (-cp), with the lever o's perpendicular.
+inline void add_end_columns(double (*G)[3], int b, double (*own)[3], double (*other)[3], double sigma, double R,
+                            const double* o, double cp, double lnx, double lny) {
+  G[b + half::kX][0] += 1;
+  G[b + half::kY][1] += 1;
+  G[b + half::kZ][2] += 1;
+  G[b + half::kSx][0] += -sigma * R + o[2], G[b + half::kSx][2] += -o[0];
+  G[b + half::kSy][1] += -sigma * R + o[2], G[b + half::kSy][2] += -o[1];
+  add_spin_columns(own, cp, lnx, lny, -o[1], o[0]);
+  add_spin_columns(other, -cp, lnx, lny, -o[1], o[0]);
+}
+
 
 // What FrictionJacobian asks of one pin end with friction (docs/integrators.md 12): u as a
 // function of the two halves of the link that this half turns with (the sheave's velocity
@@ -44,23 +96,15 @@ void pin_end_friction_jacobian(const LinkKinematics& kin, FrictionJacobian& jac,
                                bool cols, const PinEndSlip& p, double mu, double mu_t) {
   constexpr int kD = FrictionJacobian::kDim;
   const int h = p.h, e = p.e, k = p.k, idx = p.idx, link = p.link;
-  const double sigma = p.sigma, R = p.R, ox = p.o[0], oy = p.o[1], oz = p.o[2];
+  const double sigma = p.sigma, R = p.R;
   const double rsx = p.rs[0], rsy = p.rs[1], rsz = p.rs[2];
   const double* u = p.u;
   const double* nrm = p.n;
   const double speed = p.speed;
   double G[kD][3] = {};
   double(*Gh)[3] = G + (h == 0 ? 10 : 20);
-  const int b = e * half::kEnd;
-  Gh[b + half::kX][0] += 1;
-  Gh[b + half::kY][1] += 1;
-  Gh[b + half::kZ][2] += 1;
-  Gh[b + half::kSx][0] += -sigma * R + oz, Gh[b + half::kSx][2] += -ox;
-  Gh[b + half::kSy][1] += -sigma * R + oz, Gh[b + half::kSy][2] += -oy;
   const double cp = (h == 0 ? 0.5 : -0.5) * kin.inv_len[link];
-  const double lnx = -kin.ey[link], lny = kin.ex[link];
-  add_spin_columns(Gh, cp, lnx, lny, -oy, ox);
-  add_spin_columns(G + (h == 0 ? 0 : 30), -cp, lnx, lny, -oy, ox);
+  add_end_columns(Gh, e * half::kEnd, Gh, G + (h == 0 ? 0 : 30), sigma, R, p.o, cp, -kin.ey[link], kin.ex[link]);
   if (Kd) add_friction_damping(Kd, kD, G, nrm, u, speed, mu, mu_t);
   double Gs[kShaftSize][3] = {};
   Gs[kUx][0] = -1, Gs[kUy][1] = -1, Gs[kUz][2] = -1;
@@ -118,10 +162,6 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
         const EndGeometry g = end_geometry(m, hq, e, k, sh);
         const double sigma = e == 0 ? -1.0 : 1.0;
         const double* pv = hv + e * half::kEnd;
-        // c_dot and the rate of penetration.
-        const double cvx = pv[half::kX] - sigma * R * pv[half::kSx];
-        const double cvy = pv[half::kY] - sigma * R * pv[half::kSy];
-        const double cvz = pv[half::kZ];
         const double rate = penetration_rate(m, g, hv, e, shv);
         const double Nel = hertz_force(cn, g.pen);
         const double N = Nel + (g.pen > 0 ? bn * rate : 0.0);
@@ -131,29 +171,14 @@ void pulley_contact_joint(const Model& m, Workspace& ws, int j, JointSlot& s, Pi
         double Fx = -N * g.gdx, Fy = -N * g.gdy, Fz = -N * g.gdz;
         // Friction (4.5.4) at the contact point P = c + R_end n.
         double Rx = 0, Ry = 0, Rz = 0, Rmag = 0;
-        const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
-        const double nx = g.gdx / gnorm, ny = g.gdy / gnorm, nz = g.gdz / gnorm;
-        const double ox = R * nx, oy = R * ny, oz = R * nz;  // P - c
-        const double rsx = g.dx + ox, rsy = g.dy + oy, rsz = g.dz + R * nz;  // P - O - u
+        const EndPoint P = end_point(g, R);
+        const double ox = P.o[0], oy = P.o[1], oz = P.o[2];
+        const double rsx = P.rs[0], rsy = P.rs[1], rsz = P.rs[2];
         if (Nel > 0 && law != FrictionLaw::none) {
-          const double psid = ws.kin.psi_dot[link];
-          // The cap turns with the end slopes, omega = (-sy', sx', 0): omega x (P - c).
-          const double sxd = pv[half::kSx], syd = pv[half::kSy];
-          const double vpx = cvx - psid * oy + sxd * oz;
-          const double vpy = cvy + psid * ox + syd * oz;
-          const double vpz = cvz - sxd * ox - syd * oy;
-          const double wx = shv[kTx], wy = shv[kTy], wz = shv[kPhi];
-          const double vsx = shv[kUx] + wy * rsz - wz * rsy;
-          const double vsy = shv[kUy] + wz * rsx - wx * rsz;
-          const double vsz = shv[kUz] + wx * rsy - wy * rsx + (g.gw != 0 ? shv[kW] : 0.0);
-          double ux = vpx - vsx, uy = vpy - vsy, uz = vpz - vsz;
-          const double un = ux * nx + uy * ny + uz * nz;
-          ux -= un * nx;
-          uy -= un * ny;
-          uz -= un * nz;
-          const double speed = std::sqrt(ux * ux + uy * uy + uz * uz);
+          double u[3];
+          const double speed = end_slip(g, P, pv, shv, sigma, R, ws.kin.psi_dot[link], u);
           const int idx = ContactStatus::pulley_index(j, h, e, k);
-          const double u[3] = {ux, uy, uz}, nrm[3] = {nx, ny, nz};
+          const double* nrm = P.n;
           double Rv[3];
           s.p_diss += contact_friction(pulley_branch(x.frozen, idx), law, f0, v0, Nel, u, speed, nrm, Rv, &Rmag);
           Rx = Rv[0], Ry = Rv[1], Rz = Rv[2];
@@ -219,22 +244,12 @@ void add_pulley_friction_stiffness(const Model& m, const Workspace& ws, int l,
         if (!(Nel > 0)) continue;
         // The slip u at the contact point, as pulley_contact_joint forms it.
         const double sigma = e == 0 ? -1.0 : 1.0;
-        const double* pv = hv + e * half::kEnd;
-        const double gnorm = std::sqrt(g.gdx * g.gdx + g.gdy * g.gdy + g.gdz * g.gdz);
-        const double n[3] = {g.gdx / gnorm, g.gdy / gnorm, g.gdz / gnorm};
-        const double ox = R * n[0], oy = R * n[1], oz = R * n[2];
-        const double rs[3] = {g.dx + ox, g.dy + oy, g.dz + oz};
+        const EndPoint P = end_point(g, R);
+        const double *n = P.n, ox = P.o[0], oy = P.o[1];
         const double psid = kin.psi_dot[l];
-        const double vp[3] = {pv[half::kX] - sigma * R * pv[half::kSx] - psid * oy + pv[half::kSx] * oz,
-                              pv[half::kY] - sigma * R * pv[half::kSy] + psid * ox + pv[half::kSy] * oz,
-                              pv[half::kZ] - pv[half::kSx] * ox - pv[half::kSy] * oy};
         const double w[3] = {shv[kTx], shv[kTy], shv[kPhi]};
-        const double vs[3] = {shv[kUx] + w[1] * rs[2] - w[2] * rs[1], shv[kUy] + w[2] * rs[0] - w[0] * rs[2],
-                              shv[kUz] + w[0] * rs[1] - w[1] * rs[0] + (g.gw != 0 ? shv[kW] : 0.0)};
-        double u[3] = {vp[0] - vs[0], vp[1] - vs[1], vp[2] - vs[2]};
-        const double un = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
-        for (int i = 0; i < 3; ++i) u[i] -= un * n[i];
-        const double speed = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        double u[3];
+        const double speed = end_slip(g, P, hv + e * half::kEnd, shv, sigma, R, psid, u);
         double Rv[3];
         contact_friction(FrozenBranch{}, law, f0, v0, Nel, u, speed, n, Rv);
         // D = -dR/du at fixed N (the exact slope along the sliding direction).
@@ -244,12 +259,8 @@ void add_pulley_friction_stiffness(const Model& m, const Workspace& ws, int l,
         // point and cap, and the link's spin through both its halves (pin_end_friction_jacobian).
         double G[2 * half::kSize][3] = {};
         const int b = off + e * half::kEnd;
-        G[b + half::kX][0] = 1, G[b + half::kY][1] = 1, G[b + half::kZ][2] = 1;
-        G[b + half::kSx][0] = -sigma * R + oz, G[b + half::kSx][2] = -ox;
-        G[b + half::kSy][1] = -sigma * R + oz, G[b + half::kSy][2] = -oy;
         const double cp = (h == 0 ? 0.5 : -0.5) * kin.inv_len[l];
-        add_spin_columns(G + off, cp, -kin.ey[l], kin.ex[l], -oy, ox);
-        add_spin_columns(G + other, -cp, -kin.ey[l], kin.ex[l], -oy, ox);
+        add_end_columns(G, b, G + off, G + other, sigma, R, P.o, cp, -kin.ey[l], kin.ex[l]);
         // Columns: the end's x, y, z, sx, sy move the sphere centre c by A_k.
         const int cols[5] = {half::kX, half::kY, half::kZ, half::kSx, half::kSy};
         const double A[5][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-sigma * R, 0, 0}, {0, -sigma * R, 0}};

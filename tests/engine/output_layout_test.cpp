@@ -384,9 +384,11 @@ TEST_F(OutputLayoutTest, SummaryHoldsEveryEntryOfTheTable) {
   std::size_t verified = 0;
   for (const SummaryField& e : summary_fields()) verified += e.verify.verified;
   EXPECT_EQ(count, summary_fields().size() + 1 + verified) << "attributes beyond the table, its units and uncertainties";
-  for (const SummaryField& e : summary_fields())
-    if (e.verify.verified)
+  for (const SummaryField& e : summary_fields()) {
+    if (e.verify.verified) {
       EXPECT_EQ(attribute_class(f_, "/summary", (std::string(e.name) + "_uncertainty").c_str()), H5T_FLOAT) << e.name;
+    }
+  }
   EXPECT_EQ(attribute_class(f_, "/summary", "units", nullptr), H5T_STRING) << "the units";
 }
 
