@@ -6,7 +6,9 @@ it predicts the time per step on P threads.
 Each profile row (section) is split into a part that runs in parallel on at most `cap`
 threads and a part that does not: T(1) = s + w, T(P0) = s + w / min(P0, cap), so
 w = (T(1) - T(P0)) / (1 - 1 / min(P0, cap)), s = T(1) - w (both kept >= 0). The caps: the
-block LU of W runs as two sweeps (factorization and solves: 2); the evaluations, the status
+block LU of W runs as two sweeps (factorization and solves: 2), or with
+`integrator.w_segments` = S as S segments (`--lu-segments S`: S; both profiles taken with
+that key, so that the LU's serial part, the reduced system, is in the calibration); the evaluations, the status
 update and the W assembly and stiffness run over the joints (cap: the links); the
 integrator's vector update and the output run on the master (1). The flow graph's own cost
 ("scheduling") is a synchronization cost per step that grows like log2 of the threads (a
@@ -31,21 +33,21 @@ def rows(path):
     return p["header"], {r["name"]: r["us_per_step"] for r in p["rows"] if r["name"] != "total"}
 
 
-def cap_of(name, links):
+def cap_of(name, links, segments=0):
     if name in TWO_SWEEPS:
-        return 2
+        return segments if segments >= 3 else 2
     if name in MASTER:
         return 1
     return links
 
 
-def calibrate(serial, parallel, p0, links):
+def calibrate(serial, parallel, p0, links, segments=0):
     """Per section: (serial part s, parallel work w, cap) in us per step."""
     model = {}
     for name, t1 in serial.items():
         if name == SYNC:
             continue
-        cap = cap_of(name, links)
+        cap = cap_of(name, links, segments)
         c0 = min(p0, cap)
         tp = parallel.get(name, t1)
         if c0 <= 1:
@@ -75,6 +77,8 @@ def main(argv=None):
     ap.add_argument("--socket-factor", type=float, default=2.0,
                     help="synchronization cost beyond one socket, relative to within (default 2)")
     ap.add_argument("--links", type=int, default=84, help="the chain's links (the widest parallel loop)")
+    ap.add_argument("--lu-segments", type=int, default=0,
+                    help="the block LU's segments (integrator.w_segments) of both profiles; 0: two sweeps")
     ap.add_argument("--step", type=float, default=0.0, help="mean step [s]: also print minutes per model second")
     a = ap.parse_args(argv)
     h1, serial = rows(a.serial)
@@ -82,7 +86,7 @@ def main(argv=None):
     if h1["threads"] != 1 or h2["threads"] < 2:
         sys.exit("perf_model: give a serial profile first and one with 2 or more threads second")
     p0 = h2["threads"]
-    model = calibrate(serial, parallel, p0, a.links)
+    model = calibrate(serial, parallel, p0, a.links, a.lu_segments)
     sync0 = parallel.get(SYNC, 0.0)
     print(f"calibrated on {h1['us_per_step']:.1f} us per step serial and {h2['us_per_step']:.1f} on {p0} threads")
     print(f"{'section':24s} {'serial part':>12s} {'parallel':>10s} {'cap':>5s}")

@@ -79,7 +79,6 @@ const std::vector<KeyDef>& schema() {
   static const std::vector<KeyDef> defs = {
       CVT_KEY(geometry, centre_distance, real, "m", positive),
       CVT_KEY(geometry, ratio, real, "1", positive),
-
       CVT_KEY(chain, links, integer, "", (Range{3, false, 10000, false})),
       CVT_KEY(chain, pitch, real, "m", positive),
       CVT_KEY(chain, plates_per_link, integer, "", (Range{1, false, 64, false})),
@@ -170,6 +169,7 @@ const std::vector<KeyDef>& schema() {
       CVT_KEY(integrator, w_k_every, integer, "", (Range{1, false, 1000000, false})),
       CVT_KEY(integrator, w_secant, boolean, "", Range{}),
       CVT_KEY(integrator, w_analytic_stiffness, boolean, "", Range{}),
+      CVT_KEY(integrator, w_segments, integer, "", (Range{0, false, 1000, false})),
       CVT_KEY(integrator, w_fresh, real, "1", nonneg),
       CVT_KEY(integrator, w_fresh_max, integer, "", (Range{1, false, 1000, false})),
       CVT_KEY(integrator, w_shafts, boolean, "", Range{}),
@@ -706,6 +706,10 @@ class Validator {
       subs("startup_step", c.integrator.startup_step, c.integrator.startup_time > 0);
       subs("settle_step", c.integrator.settle_step, c.integrator.settle_time != 0);
     }
+    if (c.integrator.w_segments != 0 && (c.integrator.w_segments < 3 || 2 * c.integrator.w_segments > c.chain.links))
+      fail_rel("integrator", "w_segments", std::to_string(c.integrator.w_segments),
+               "must be 0 (the block LU's two sweeps) or from 3 to half of chain.links = " +
+                   std::to_string(c.chain.links) + " (each segment holds a separator and at least one link)");
     if (c.integrator.w_k_every % c.integrator.w_every != 0)
       fail_rel("integrator", "w_k_every", std::to_string(c.integrator.w_k_every),
                "must be a multiple of integrator.w_every = " + std::to_string(c.integrator.w_every) +

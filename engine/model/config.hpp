@@ -187,6 +187,10 @@ struct Config {
     // W-methods: the chain's stiffness blocks as the analytic Hessian of its elastic energy
     // (modules/elastic_hessian) instead of finite differences of its forces.
     bool w_analytic_stiffness = false;
+    // W-methods: the chain's block LU on this many segments with a reduced system of their
+    // separators (SegmentedBlockLU), whose work divides over up to as many threads; 0: the
+    // two sweeps of CyclicBlockLU (docs/integrators.md 12.2, docs/performance.md 3).
+    int w_segments = 0;
     // W-methods: keep the friction part of the matrix current between rebuilds as a low-rank
     // correction for the contacts whose stiffness gamma h mu / m_pin moved by more than this
     // (ModelOdeOptions::w_fresh, docs/integrators.md 12.4); 0: off. w_fresh_max such contacts

@@ -148,6 +148,21 @@ inline void block_subtract(const Eigen::Matrix<double, B, B>& A, const Eigen::Ma
   y -= t;
 }
 
+// Waits for done() (another task's work, with acquire semantics), spinning a while, then
+// yielding the core.
+template <class Done>
+inline void spin_until(const Done& done) {
+  for (int spins = 0; !done();) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
+    if (spins < 4096)
+      ++spins;
+    else
+      std::this_thread::yield();
+  }
+}
+
 // Phases of work shared by the two tasks of one fork: each phase runs once, on the task that
 // claims it first, and a task that needs a phase claimed by the other waits for it. A task
 // waits only for a phase that the other has claimed and is running (it claims before it
@@ -203,237 +218,55 @@ class TwoTaskPhases {
     state_[i].store(kDone, std::memory_order_release);
   }
   void wait(int i) const {
-    for (int spins = 0; state_[i].load(std::memory_order_acquire) != kDone;) {
-#if defined(__x86_64__) || defined(__i386__)
-      __builtin_ia32_pause();
-#endif
-      if (spins < 4096)
-        ++spins;
-      else
-        std::this_thread::yield();
-    }
+    spin_until([&] { return state_[i].load(std::memory_order_acquire) == kDone; });
   }
   std::array<std::atomic<int>, kMax> state_;
 };
 
-template <int B>
-class CyclicBlockLU {
+// What CyclicBlockLU and SegmentedBlockLU share: the blocks of the block-tridiagonal matrix
+// with cyclic corners (n diagonal blocks D_l, sub-diagonal S_l = M(l, l-1 mod n),
+// super-diagonal P_l = M(l-1 mod n, l)), the pivots' inverses, and one elimination sweep
+// with its forward and backward solves. A sweep eliminates `count` blocks at(0), at(1), ...
+// in that order, each into the next, and stops at at(count), whose pivot update it returns
+// (dm); it carries the fill (col, row) that couples the swept blocks to one outside block
+// (the ring's last block, a segment's separator: `outer`), U's column ucol and L's row lrow
+// of each swept block, and that block's pivot update (dl), and drops the fill once it is
+// below the drop tolerance of the next pivot block.
+//
+// It also gives both their shorter solves, each the derived class's full solve (Derived::solve
+// with prepare, finish, serial and last; solve_columns with finish, serial and last) with
+// the phases it leaves out doing nothing.
+template <int B, class Derived>
+class BlockSweeps {
  public:
   using Mat = Eigen::Matrix<double, B, B>;
   using Vec = Eigen::Matrix<double, B, 1>;
+  using Mats = std::vector<Mat, Eigen::aligned_allocator<Mat>>;
 
-  // Runs two independent tasks; the default one after the other. A caller with threads passes
-  // one that runs them concurrently (tbb::parallel_invoke): the arithmetic, and so every bit
-  // of the result, is the same either way.
-  struct Sequential {
-    template <class F, class G>
-    void operator()(const F& f, const G& g) const {
-      f();
-      g();
-    }
-  };
-
-  void resize(int n) {
-    n_ = n;
-    for (auto* v : {&d_, &s_, &p_, &inv_, &lsub_, &lsup_, &lrow_, &ucol_}) v->resize(n);
-    fill_.assign(n, 1);
+  // Solves M x = b in place (x[l]: block l): serially, on the caller's tasks, and with the
+  // caller's prepare(l) and finish(l) (see the derived class's solve).
+  void solve(Vec* x) const { self().solve(x, typename Derived::Sequential()); }
+  template <class Tasks>
+  void solve(Vec* x, const Tasks& tasks) const {
+    const auto none = [](int) {};
+    self().solve(x, tasks, none, none);
   }
-  // Block rows of the last factorization that carry a coupling to the last block (the
-  // corners' fill, the band's own coupling and what it fills; all n - 1 without the decay,
-  // see factor()).
-  int fill_blocks() const { return fills_; }
-  // The fill below this fraction of the next pivot block is dropped (see factor()). The
-  // default changes M by far less than its own rounding; a caller whose matrix is an
-  // approximation anyway (a W-method's) may drop more: the factors are then the exact LU of
-  // M + E with |E| below tolerance * |pivot block|, the same matrix for every solve.
-  static constexpr double kNegligible = 1e-30;
-  void set_drop_tolerance(double tol) { drop_ = tol; }
+  template <class Tasks, class Prepare, class Finish>
+  void solve(Vec* x, const Tasks& tasks, const Prepare& prepare, const Finish& finish) const {
+    self().solve(x, tasks, prepare, finish, [] {}, [](int) {});
+  }
+  // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C).
+  template <int C, class Tasks>
+  void solve_columns(Eigen::Matrix<double, B, C>* x, const Tasks& tasks) const {
+    self().template solve_columns<C>(x, tasks, [](int) {}, [] {}, [](int) {});
+  }
+
   int blocks() const { return n_; }
-  // The matrix, filled by the caller before factor().
+  // The matrix, filled by the caller before the factorization.
   Mat& diag(int l) { return d_[l]; }
   Mat& sub(int l) { return s_[l]; }
   Mat& super(int l) { return p_[l]; }
 
-  // Factorizes; false if a pivot block is singular (or not finite). Overwrites the diagonal
-  // blocks. Needs n >= 3.
-  //
-  // The last block n-1 closes the ring; without it the blocks 0 .. n-2 form a chain whose
-  // two ends couple to it (block 0 through the corners, block n-2 through the band). The
-  // chain is eliminated from both ends at once towards its middle m = (n-1)/2: the top sweep
-  // takes 0 .. m-1 downwards, the bottom sweep n-2 .. m+1 upwards, two independent tasks
-  // (`both`); then m, then n-1. Each sweep fills the coupling of its next block to n-1, and
-  // that fill decays along the chain (by about 1e-4 per link for ROS2's matrix): once it is
-  // below the drop tolerance of the next pivot block it is dropped. By default (kNegligible)
-  // that changes M by less than its own rounding, and keeps most links at three blocks.
-  bool factor() { return factor(Sequential()); }
-  template <class Both>
-  bool factor(const Both& both) {
-    const int n = n_, last = n - 1, m = (n - 1) / 2;
-    Sweep top{0, +1, lsub_}, bottom{n - 2, -1, lsup_};
-    // The top sweep starts from the corners, the bottom one from the band's coupling.
-    both([&] { eliminate(top, s_[0], p_[0]); }, [&] { eliminate(bottom, p_[last], s_[last]); });
-    if (!top.ok || !bottom.ok) return false;
-    // The middle block, then the last, in a fixed order.
-    d_[m] += top.dm;
-    d_[m] += bottom.dm;
-    if (!invert(d_[m], inv_[m])) return false;
-    fill_[m] = 1;
-    ucol_[m] = top.col + bottom.col;
-    lrow_[m].noalias() = (top.row + bottom.row) * inv_[m];
-    d_[last] += top.dl;
-    d_[last] += bottom.dl;
-    d_[last].noalias() -= lrow_[m] * ucol_[m];
-    fills_ = top.fills + bottom.fills + 1;
-    return invert(d_[last], inv_[last]);
-  }
-
-  // Solves M x = b in place (x[l]: block l), the two halves as two tasks (`both`).
-  void solve(Vec* x) const { solve(x, Sequential()); }
-  template <class Both>
-  void solve(Vec* x, const Both& both) const {
-    const auto none = [](int) {};
-    solve(x, both, none, none);
-  }
-  // The same, with the caller's work per block fused into the two tasks (no extra fork and
-  // join): prepare(l) writes b_l into x[l] just before the task's sweep (blocks 0 .. m on
-  // the top task, m+1 .. n-1 on the bottom one, m = (n-1)/2); finish(l) reads the solution
-  // x[l] after it (the same split). Each block's prepare and finish run once, on one task.
-  template <class Both, class Prepare, class Finish>
-  void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish) const {
-    solve(x, both, prepare, finish, [] {}, [](int) {});
-  }
-  // The same, then once serial(), then last(l) for every block (the same split into halves):
-  // a caller's step that needs the whole solution (a bordered system's Schur complement)
-  // and its per-block completion, all within the one fork and join (TwoTaskPhases).
-  template <class Both, class Prepare, class Finish, class Serial, class Last>
-  void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish, const Serial& serial,
-             const Last& last) const {
-    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
-    // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
-    Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
-    in_phases(
-        both, prepare,
-        [&](int half) {
-          if (half == 0) forward(x, 0, +1, lsub_, xm_top, xl_top);
-          else forward(x, n - 2, -1, lsup_, xm_bot, xl_bot);
-        },
-        [&] {
-          x[m] -= xm_top;
-          x[m] -= xm_bot;
-          x[lastb] -= xl_top;
-          x[lastb] -= xl_bot;
-          block_subtract(lrow_[m], x[m], x[lastb]);
-          // U x = y: the last block, the middle, then both halves outwards.
-          Vec t = x[lastb];
-          block_times(inv_[lastb], t, x[lastb]);
-          t = x[m];
-          block_subtract(ucol_[m], x[lastb], t);
-          block_times(inv_[m], t, x[m]);
-        },
-        [&](int half) {
-          if (half == 0) backward(x, 0, +1);
-          else backward(x, n - 2, -1);
-        },
-        finish, serial, last);
-  }
-
-  // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C), the
-  // two halves as two tasks: the steps of solve() as block products.
-  template <int C, class Both>
-  void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both) const {
-    solve_columns(x, both, [](int) {}, [] {}, [](int) {});
-  }
-  // The same, with the caller's per-block finish(l) after the backward sweep, then once
-  // serial(), then last(l) for every block, all within one fork and join as in solve().
-  template <int C, class Both, class Finish, class Serial, class Last>
-  void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both, const Finish& finish, const Serial& serial,
-                     const Last& last) const {
-    using Cols = Eigen::Matrix<double, B, C>;
-    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
-    Cols xm_top = Cols::Zero(), xm_bot = Cols::Zero(), xl_top = Cols::Zero(), xl_bot = Cols::Zero();
-    in_phases(
-        both, [](int) {},
-        [&](int half) {
-          if (half == 0) forward_columns(x, 0, +1, lsub_, xm_top, xl_top);
-          else forward_columns(x, n - 2, -1, lsup_, xm_bot, xl_bot);
-        },
-        [&] {
-          x[m] -= xm_top;
-          x[m] -= xm_bot;
-          x[lastb] -= xl_top;
-          x[lastb] -= xl_bot;
-          block_subtract_columns<B, C>(lrow_[m], x[m], x[lastb]);
-          Cols t = x[lastb];
-          block_times_columns<B, C>(inv_[lastb], t, x[lastb]);
-          t = x[m];
-          block_subtract_columns<B, C>(ucol_[m], x[lastb], t);
-          block_times_columns<B, C>(inv_[m], t, x[m]);
-        },
-        [&](int half) {
-          if (half == 0) backward_columns(x, 0, +1);
-          else backward_columns(x, n - 2, -1);
-        },
-        finish, serial, last);
-  }
-
- private:
-  // A solve's phases in one fork and join (TwoTaskPhases), the blocks split into the top half
-  // 0 .. m and the bottom half m+1 .. n-1 (m = (n-1)/2): each half's prepare(l) and forward
-  // sweep forward(half), the middle, each half's backward sweep backward(half) and finish(l),
-  // serial(), each half's last(l).
-  template <class Both, class Prepare, class Forward, class Middle, class Backward, class Finish, class Serial,
-            class Last>
-  void in_phases(const Both& both, const Prepare& prepare, const Forward& forward, const Middle& middle,
-                 const Backward& backward, const Finish& finish, const Serial& serial, const Last& last) const {
-    const int n = n_, m = (n - 1) / 2;
-    const auto each = [m, n](int half, const auto& f) {
-      for (int l = half == 0 ? 0 : m + 1; l < (half == 0 ? m + 1 : n); ++l) f(l);
-    };
-    TwoTaskPhases ph;
-    const auto task = [&](int side) {
-      ph.two(
-          0, side, [&] { each(0, prepare), forward(0); }, [&] { each(1, prepare), forward(1); });
-      ph.one(2, middle);
-      ph.two(
-          3, side, [&] { backward(0), each(0, finish); }, [&] { backward(1), each(1, finish); });
-      ph.one(5, serial);
-      ph.two(
-          6, side, [&] { each(0, last); }, [&] { each(1, last); });
-    };
-    both([&] { task(0); }, [&] { task(1); });
-  }
-
-  template <class Cols>
-  void forward_columns(Cols* x, int first, int dir, const std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult,
-                       Cols& xm, Cols& xl) const {
-    const int m = (n_ - 1) / 2;
-    if (first == m) return;
-    constexpr int C = Cols::ColsAtCompileTime;
-    for (int l = first + dir; l != m; l += dir) block_subtract_columns<B, C>(mult[l], x[l - dir], x[l]);
-    block_times_columns<B, C>(mult[m], x[m - dir], xm);
-    Cols t;
-    for (int l = first; l != m; l += dir)
-      if (fill_[l]) {
-        block_times_columns<B, C>(lrow_[l], x[l], t);
-        xl += t;
-      }
-  }
-  template <class Cols>
-  void backward_columns(Cols* x, int first, int dir) const {
-    const int m = (n_ - 1) / 2, last = n_ - 1;
-    if (first == m) return;
-    constexpr int C = Cols::ColsAtCompileTime;
-    Cols u;
-    for (int l = m - dir;; l -= dir) {
-      u = x[l];
-      if (fill_[l]) block_subtract_columns<B, C>(ucol_[l], x[last], u);
-      block_subtract_columns<B, C>(band(l, l + dir), x[l + dir], u);
-      block_times_columns<B, C>(inv_[l], u, x[l]);
-      if (l == first) break;
-    }
-  }
-
- public:
   // Di = D^-1 by Gauss-Jordan elimination in place with partial pivoting (row swaps, undone
   // as column swaps at the end), column by column so that every update is a contiguous
   // axpy of B entries: faster than Eigen's PartialPivLU(D).inverse() on 21 x 21 blocks,
@@ -472,26 +305,30 @@ class CyclicBlockLU {
     return Di.allFinite();
   }
 
- private:
-  // M(r, c) of two neighbours on the chain (|r - c| = 1, no wrap).
-  const Mat& band(int r, int c) const { return r == c + 1 ? s_[r] : p_[c]; }
-
-  // One sweep of factor(): from block `first` towards the middle m in steps of `dir`; its
-  // multipliers M(l + dir, l) D_l^-1 go to mult[l + dir]. It leaves its contributions to the
-  // middle (dm) and last (dl) pivot blocks and the middle's coupling to the last block.
-  struct Sweep {
-    int first, dir;
-    std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult;
+ protected:
+  const Derived& self() const { return static_cast<const Derived&>(*this); }
+  // What a sweep leaves: its pivot update of the block it stops at (dm), that of the outer
+  // block (dl), and the fill that reached the stop, col = M(stop, outer), row = M(outer, stop).
+  struct Fill {
     bool ok = true;
     int fills = 0;
     Mat dm = Mat::Zero(), dl = Mat::Zero(), col = Mat::Zero(), row = Mat::Zero();
   };
-  // col, row: M(first, last), M(last, first).
-  void eliminate(Sweep& sw, Mat col, Mat row) {
-    const int m = (n_ - 1) / 2;
+  void resize_blocks(int n) {
+    n_ = n;
+    for (auto* v : {&d_, &s_, &p_, &inv_, &lrow_, &ucol_}) v->resize(n);
+    fill_.assign(n, 1);
+  }
+  // M(r, c) of two neighbours on the ring.
+  const Mat& block(int r, int c) const { return r == (c + 1 == n_ ? 0 : c + 1) ? s_[r] : p_[c]; }
+  // The sweep's elimination, from the fill (col, row) = (M(at(0), outer), M(outer, at(0)));
+  // its multipliers M(at(i+1), at(i)) D^-1 go to mult[at(i+1)].
+  template <class At>
+  void sweep(int count, const At& at, Mats& mult, Mat col, Mat row, Fill& sw) {
     bool fill = true;
-    for (int l = sw.first; l != m; l += sw.dir) {
-      const int nb = l + sw.dir;
+    for (int i = 0; i < count; ++i) {
+      const int l = at(i), nb = at(i + 1);
+      const bool stop = i + 1 == count;
       if (!invert(d_[l], inv_[l])) {
         sw.ok = false;
         return;
@@ -504,43 +341,53 @@ class CyclicBlockLU {
         lrow_[l].noalias() = row * Pi;
         sw.dl.noalias() -= lrow_[l] * col;
       }
-      sw.mult[nb].noalias() = band(nb, l) * Pi;
-      (nb != m ? d_[nb] : sw.dm).noalias() -= sw.mult[nb] * band(l, nb);
+      mult[nb].noalias() = block(nb, l) * Pi;
+      (!stop ? d_[nb] : sw.dm).noalias() -= mult[nb] * block(l, nb);
       if (fill) {
-        col = -sw.mult[nb] * col;
-        row = -lrow_[l] * band(l, nb);
-        if (nb != m) fill = above(col, row, d_[nb]);
+        col = -mult[nb] * col;
+        row = -lrow_[l] * block(l, nb);
+        if (!stop) fill = above(col, row, d_[nb]);
       }
     }
     if (fill) sw.col = col, sw.row = row;
   }
-  // A sweep's part of L y = b: its blocks in elimination order, the multiplier into the middle
-  // (xm) and the couplings into the last block (xl), summed by the caller.
-  void forward(Vec* x, int first, int dir, const std::vector<Mat, Eigen::aligned_allocator<Mat>>& mult, Vec& xm,
-               Vec& xl) const {
-    const int m = (n_ - 1) / 2;
-    if (first == m) return;
-    for (int l = first + dir; l != m; l += dir) block_subtract(mult[l], x[l - dir], x[l]);
-    block_times(mult[m], x[m - dir], xm);
-    Vec t;
-    for (int l = first; l != m; l += dir)
-      if (fill_[l]) {
-        block_times(lrow_[l], x[l], t);
+  // The sweep's part of L y = b (one right side or several): its blocks in elimination order,
+  // the multiplier into the stop block (xm) and the fill's couplings into the outer one,
+  // added to xl.
+  template <class V, class At>
+  void sweep_forward(V* x, int count, const At& at, const Mats& mult, V& xm, V& xl) const {
+    if (count == 0) return;
+    for (int i = 1; i < count; ++i) sub_times(mult[at(i)], x[at(i - 1)], x[at(i)]);
+    times(mult[at(count)], x[at(count - 1)], xm);
+    V t;
+    for (int i = 0; i < count; ++i)
+      if (fill_[at(i)]) {
+        times(lrow_[at(i)], x[at(i)], t);
         xl += t;
       }
   }
-  // A sweep's part of U x = y, outwards from the middle.
-  void backward(Vec* x, int first, int dir) const {
-    const int m = (n_ - 1) / 2, last = n_ - 1;
-    if (first == m) return;
-    Vec u;
-    for (int l = m - dir;; l -= dir) {
+  // Its part of U x = y, from the stop block back to at(0), with the outer block's x[outer].
+  template <class V, class At>
+  void sweep_backward(V* x, int count, const At& at, int outer) const {
+    V u;
+    for (int i = count - 1; i >= 0; --i) {
+      const int l = at(i), nb = at(i + 1);
       u = x[l];
-      if (fill_[l]) block_subtract(ucol_[l], x[last], u);
-      block_subtract(band(l, l + dir), x[l + dir], u);
-      block_times(inv_[l], u, x[l]);
-      if (l == first) break;
+      if (fill_[l]) sub_times(ucol_[l], x[outer], u);
+      sub_times(block(l, nb), x[nb], u);
+      times(inv_[l], u, x[l]);
     }
+  }
+  // t = A v and y -= A v, for one right side or several.
+  static void times(const Mat& A, const Vec& v, Vec& t) { block_times<B>(A, v, t); }
+  template <int C>
+  static void times(const Mat& A, const Eigen::Matrix<double, B, C>& v, Eigen::Matrix<double, B, C>& t) {
+    block_times_columns<B, C>(A, v, t);
+  }
+  static void sub_times(const Mat& A, const Vec& v, Vec& y) { block_subtract<B>(A, v, y); }
+  template <int C>
+  static void sub_times(const Mat& A, const Eigen::Matrix<double, B, C>& v, Eigen::Matrix<double, B, C>& y) {
+    block_subtract_columns<B, C>(A, v, y);
   }
   // Whether a fill (col, row) still matters next to the pivot block D.
   bool above(const Mat& col, const Mat& row, const Mat& D) const {
@@ -549,12 +396,205 @@ class CyclicBlockLU {
   }
 
   int n_ = 0;
-  int fills_ = 0;
-  double drop_ = kNegligible;
+  double drop_ = 1e-30;
   std::vector<char> fill_;
+  // lrow_ / ucol_: the fill's couplings of each swept block to its sweep's outer block.
+  Mats d_, s_, p_, inv_, lrow_, ucol_;
+};
+
+template <int B>
+class CyclicBlockLU : public BlockSweeps<B, CyclicBlockLU<B>> {
+  using Base = BlockSweeps<B, CyclicBlockLU<B>>;
+  using typename Base::Fill;
+  using Base::n_;
+  using Base::d_;
+  using Base::s_;
+  using Base::p_;
+  using Base::inv_;
+  using Base::lrow_;
+  using Base::ucol_;
+
+ public:
+  using Base::invert;
+  using Base::solve;
+  using Base::solve_columns;
+  using Mat = typename Base::Mat;
+  using Vec = typename Base::Vec;
+
+  // Runs two independent tasks; the default one after the other. A caller with threads passes
+  // one that runs them concurrently (tbb::parallel_invoke): the arithmetic, and so every bit
+  // of the result, is the same either way.
+  struct Sequential {
+    template <class F, class G>
+    void operator()(const F& f, const G& g) const {
+      f();
+      g();
+    }
+  };
+
+  void resize(int n) {
+    this->resize_blocks(n);
+    lsub_.resize(n), lsup_.resize(n);
+  }
+  // Block rows of the last factorization that carry a coupling to the last block (the
+  // corners' fill, the band's own coupling and what it fills; all n - 1 without the decay,
+  // see factor()).
+  int fill_blocks() const { return fills_; }
+  // The fill below this fraction of the next pivot block is dropped (see factor()). The
+  // default changes M by far less than its own rounding; a caller whose matrix is an
+  // approximation anyway (a W-method's) may drop more: the factors are then the exact LU of
+  // M + E with |E| below tolerance * |pivot block|, the same matrix for every solve.
+  static constexpr double kNegligible = 1e-30;
+  void set_drop_tolerance(double tol) { this->drop_ = tol; }
+
+  // Factorizes; false if a pivot block is singular (or not finite). Overwrites the diagonal
+  // blocks. Needs n >= 3.
+  //
+  // The last block n-1 closes the ring; without it the blocks 0 .. n-2 form a chain whose
+  // two ends couple to it (block 0 through the corners, block n-2 through the band). The
+  // chain is eliminated from both ends at once towards its middle m = (n-1)/2: the top sweep
+  // takes 0 .. m-1 downwards, the bottom sweep n-2 .. m+1 upwards, two independent tasks
+  // (`both`); then m, then n-1. Each sweep fills the coupling of its next block to n-1, and
+  // that fill decays along the chain (by about 1e-4 per link for ROS2's matrix): once it is
+  // below the drop tolerance of the next pivot block it is dropped. By default (kNegligible)
+  // that changes M by less than its own rounding, and keeps most links at three blocks.
+  bool factor() { return factor(Sequential()); }
+  template <class Both>
+  bool factor(const Both& both) {
+    const int n = n_, last = n - 1, m = (n - 1) / 2;
+    Fill top, bottom;
+    // The top sweep starts from the corners, the bottom one from the band's coupling.
+    both([&] { this->sweep(m, top_at(), lsub_, s_[0], p_[0], top); },
+         [&] { this->sweep(n - 2 - m, bottom_at(), lsup_, p_[last], s_[last], bottom); });
+    if (!top.ok || !bottom.ok) return false;
+    // The middle block, then the last, in a fixed order.
+    d_[m] += top.dm;
+    d_[m] += bottom.dm;
+    if (!invert(d_[m], inv_[m])) return false;
+    this->fill_[m] = 1;
+    ucol_[m] = top.col + bottom.col;
+    lrow_[m].noalias() = (top.row + bottom.row) * inv_[m];
+    d_[last] += top.dl;
+    d_[last] += bottom.dl;
+    d_[last].noalias() -= lrow_[m] * ucol_[m];
+    fills_ = top.fills + bottom.fills + 1;
+    return invert(d_[last], inv_[last]);
+  }
+
+  // Solves M x = b in place (x[l]: block l), the two halves as two tasks (`both`; the
+  // shorter forms: BlockSweeps), with the caller's work per block fused into the two tasks
+  // (no extra fork and join): prepare(l) writes b_l into x[l] just before the task's sweep
+  // (blocks 0 .. m on the top task, m+1 .. n-1 on the bottom one, m = (n-1)/2); finish(l)
+  // reads the solution x[l] after it (the same split); then once serial(), then last(l) for
+  // every block (the same split into halves): a caller's step that needs the whole solution
+  // (a bordered system's Schur complement) and its per-block completion, all within the one
+  // fork and join (TwoTaskPhases). Each block's prepare, finish and last run once, on one task.
+  template <class Both, class Prepare, class Finish, class Serial, class Last>
+  void solve(Vec* x, const Both& both, const Prepare& prepare, const Finish& finish, const Serial& serial,
+             const Last& last) const {
+    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
+    // L y = b (unit block-lower: the multipliers), each sweep in its elimination order.
+    Vec xm_top = Vec::Zero(), xm_bot = Vec::Zero(), xl_top = Vec::Zero(), xl_bot = Vec::Zero();
+    in_phases(
+        both, prepare,
+        [&](int half) {
+          if (half == 0) this->sweep_forward(x, m, top_at(), lsub_, xm_top, xl_top);
+          else this->sweep_forward(x, n - 2 - m, bottom_at(), lsup_, xm_bot, xl_bot);
+        },
+        [&] {
+          x[m] -= xm_top;
+          x[m] -= xm_bot;
+          x[lastb] -= xl_top;
+          x[lastb] -= xl_bot;
+          block_subtract(lrow_[m], x[m], x[lastb]);
+          // U x = y: the last block, the middle, then both halves outwards.
+          Vec t = x[lastb];
+          block_times(inv_[lastb], t, x[lastb]);
+          t = x[m];
+          block_subtract(ucol_[m], x[lastb], t);
+          block_times(inv_[m], t, x[m]);
+        },
+        [&](int half) {
+          if (half == 0) this->sweep_backward(x, m, top_at(), lastb);
+          else this->sweep_backward(x, n - 2 - m, bottom_at(), lastb);
+        },
+        finish, serial, last);
+  }
+
+  // Solves M X = B for a block of right sides in place (X[l]: block l's rows, B x C), the
+  // two halves as two tasks: the steps of solve() as block products, with the caller's
+  // per-block finish(l) after the backward sweep, then once serial(), then last(l) for every
+  // block, all within one fork and join as in solve().
+  template <int C, class Both, class Finish, class Serial, class Last>
+  void solve_columns(Eigen::Matrix<double, B, C>* x, const Both& both, const Finish& finish, const Serial& serial,
+                     const Last& last) const {
+    using Cols = Eigen::Matrix<double, B, C>;
+    const int n = n_, lastb = n - 1, m = (n - 1) / 2;
+    Cols xm_top = Cols::Zero(), xm_bot = Cols::Zero(), xl_top = Cols::Zero(), xl_bot = Cols::Zero();
+    in_phases(
+        both, [](int) {},
+        [&](int half) {
+          if (half == 0) this->sweep_forward(x, m, top_at(), lsub_, xm_top, xl_top);
+          else this->sweep_forward(x, n - 2 - m, bottom_at(), lsup_, xm_bot, xl_bot);
+        },
+        [&] {
+          x[m] -= xm_top;
+          x[m] -= xm_bot;
+          x[lastb] -= xl_top;
+          x[lastb] -= xl_bot;
+          block_subtract_columns<B, C>(lrow_[m], x[m], x[lastb]);
+          Cols t = x[lastb];
+          block_times_columns<B, C>(inv_[lastb], t, x[lastb]);
+          t = x[m];
+          block_subtract_columns<B, C>(ucol_[m], x[lastb], t);
+          block_times_columns<B, C>(inv_[m], t, x[m]);
+        },
+        [&](int half) {
+          if (half == 0) this->sweep_backward(x, m, top_at(), lastb);
+          else this->sweep_backward(x, n - 2 - m, bottom_at(), lastb);
+        },
+        finish, serial, last);
+  }
+
+ private:
+  // A solve's phases in one fork and join (TwoTaskPhases), the blocks split into the top half
+  // 0 .. m and the bottom half m+1 .. n-1 (m = (n-1)/2): each half's prepare(l) and forward
+  // sweep forward(half), the middle, each half's backward sweep backward(half) and finish(l),
+  // serial(), each half's last(l).
+  template <class Both, class Prepare, class Forward, class Middle, class Backward, class Finish, class Serial,
+            class Last>
+  void in_phases(const Both& both, const Prepare& prepare, const Forward& forward, const Middle& middle,
+                 const Backward& backward, const Finish& finish, const Serial& serial, const Last& last) const {
+    const int n = n_, m = (n - 1) / 2;
+    const auto each = [m, n](int half, const auto& f) {
+      for (int l = half == 0 ? 0 : m + 1; l < (half == 0 ? m + 1 : n); ++l) f(l);
+    };
+    TwoTaskPhases ph;
+    const auto task = [&](int side) {
+      ph.two(
+          0, side, [&] { each(0, prepare), forward(0); }, [&] { each(1, prepare), forward(1); });
+      ph.one(2, middle);
+      ph.two(
+          3, side, [&] { backward(0), each(0, finish); }, [&] { backward(1), each(1, finish); });
+      ph.one(5, serial);
+      ph.two(
+          6, side, [&] { each(0, last); }, [&] { each(1, last); });
+    };
+    both([&] { task(0); }, [&] { task(1); });
+  }
+
+  // The sweeps' blocks: the top one's 0, 1, .. m (m = (n-1)/2), the bottom one's n-2, n-3, .. m.
+  static auto top_at() {
+    return [](int i) { return i; };
+  }
+  auto bottom_at() const {
+    return [n = n_](int i) { return n - 2 - i; };
+  }
+
+  int fills_ = 0;
   // lsub_[l] = M(l, l-1) D_{l-1}^-1 (top sweep, l = 1 .. m); lsup_[l] = M(l, l+1) D_{l+1}^-1
-  // (bottom sweep, l = m .. n-3); lrow_ / ucol_: the couplings to the last block.
-  std::vector<Mat, Eigen::aligned_allocator<Mat>> d_, s_, p_, inv_, lsub_, lsup_, lrow_, ucol_;
+  // (bottom sweep, l = m .. n-3); the base's lrow_ / ucol_: the couplings to the last block.
+  typename Base::Mats lsub_, lsup_;
 };
 
 }  // namespace cvt

@@ -20,6 +20,7 @@ OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   ro.jac.w_k_every = startup ? in.w_every : in.w_k_every;
   ro.jac.w_secant = in.w_secant;
   ro.jac.w_analytic_stiffness = in.w_analytic_stiffness;
+  ro.jac.w_segments = in.w_segments;
   ro.jac.w_fresh = in.w_fresh;  // ModelOde leaves it off without the secant
   ro.jac.w_fresh_max = in.w_fresh_max;
   ro.jac.w_shafts = in.w_shafts;

@@ -89,7 +89,7 @@ void FreshFriction::join(const Contact& c) {
     ShaftVectors* bz[2] = {&w_.bz_, &bz2_};
     ShaftVector xs[2];
     w_.lu_.solve_columns(
-        v, TwoTasks{w_.threads()},
+        v, w_.threads(),
         [&](int l) {
           for (int a = 0; a < 2; ++a) (*w[a])[l] = v[l].col(a), w_.shaft_product(l, *w[a], *bz[a]);
         },
@@ -109,7 +109,7 @@ void FreshFriction::join(const Contact& c) {
           }
         });
   } else {
-    w_.lu_.solve_columns(v, TwoTasks{w_.threads()});
+    w_.lu_.solve_columns(v, w_.threads());
     for (int a = 0; a < 2; ++a)
       for (int l = 0; l < m_.links; ++l) z_of(a, l) = v[l].col(a);
   }

@@ -66,6 +66,8 @@ struct ModelOdeOptions {
   // works with anyway (a matrix up to w_every steps old). On the reference model at 1e-6
   // the fill rows fall from 58 to 21 of 83 per factorization (docs/integrators.md 12.2).
   double w_fill_drop = 1e-12;
+  // The block LU on this many segments (SegmentedBlockLU; 0: CyclicBlockLU's two sweeps).
+  int w_segments = Config::Integrator{}.w_segments;
   // Fresh friction between rebuilds (docs/integrators.md 12.4): > 0 keeps W's friction part
   // current at every step, as a low-rank (Woodbury) correction of the factorized W for the
   // contacts whose friction coefficient mu (the secant N f(v)/v) moved since the rebuild by

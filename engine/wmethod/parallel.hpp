@@ -1,5 +1,5 @@
 // What the W-method's matrix code runs on the schedule's threads (engine/wmethod/*.cpp):
-// the block LU's two sweeps, and loops over joint ranges or links.
+// the block LU's sweeps or segments, and loops over joint ranges or links.
 #pragma once
 
 #include <tbb/blocked_range.h>
@@ -29,6 +29,20 @@ struct TwoTasks {
     } else {
       f(), g();
     }
+  }
+};
+
+// The segmented block LU's tasks (SegmentedBlockLU): `tasks` of them on the schedule's
+// threads (inside its arena), each isolated as TwoTasks' are; one task runs every part.
+struct ManyTasks {
+  int tasks;
+  int count() const { return tasks; }
+  template <class F>
+  void operator()(const F& f) const {
+    if (tasks <= 1) return f(0);
+    const auto task = [&](int t) { tbb::this_task_arena::isolate([&] { f(t); }); };
+    const numa::ScopedForkJoin fj;
+    tbb::parallel_for(0, tasks, fj.task(task), tbb::static_partitioner());
   }
 };
 

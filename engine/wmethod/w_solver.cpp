@@ -34,8 +34,7 @@ WSolver::WSolver(const Model& m, Workspace& ws, Schedule& schedule, const ModelO
   a0_link_.setZero();
   for (int h = 0; h < 2; ++h) set_half_mass(m, a0_link_, h * half::kSize);
   a0_link_(2 * half::kSize, 2 * half::kSize) = m.pack_mass;
-  lu_.resize(N);
-  lu_.set_drop_tolerance(opt.w_fill_drop);
+  lu_.resize(N, opt.w_segments, opt.w_fill_drop);
   // The chain's coordinates in link order, and their units (1 unless scaled).
   coord_.resize(static_cast<size_t>(N) * kLinkDim);
   unit_q_.assign(coord_.size(), 1.0), unit_v_.assign(coord_.size(), 1.0);
@@ -103,7 +102,7 @@ void WSolver::factor(double t, const double* y, double gh) {
   timed(Section::w_assembly, [&] { for_joints(schedule_, m_.links, [this, gh](int l) { assemble_link(l, gh); }); });
   bool ok = false;
   timed(Section::w_factor, [&] {
-    ok = lu_.factor(TwoTasks{threads()});
+    ok = lu_.factor(threads());
     if (ok && opt_.w_shafts) shaft_factor(gh);
   });
   if (!ok) throw std::runtime_error(singular_matrix(t, index, gh));
@@ -227,7 +226,7 @@ void WSolver::shaft_factor(double gh) {
     else
       y_shaft_[l].setZero();
   }
-  lu_.solve_columns(y_shaft_.data(), TwoTasks{threads()});
+  lu_.solve_columns(y_shaft_.data(), threads());
   for (int l = 0; l < m_.links; ++l)
     if (cps_on_[l]) S.noalias() -= (gh * cps_[l]).transpose() * y_shaft_[l];
   schur_.compute(S);
@@ -346,13 +345,13 @@ void WSolver::solve_untimed(double* x) const {
     // and join for the three (CyclicBlockLU::solve's serial and last phases).
     ShaftVector xs;
     lu_.solve(
-        v, TwoTasks{threads()}, prepare, [&](int l) { shaft_product(l); }, [&] { xs = shaft_solve(x); },
+        v, threads(), prepare, [&](int l) { shaft_product(l); }, [&] { xs = shaft_solve(x); },
         [&](int l) {
           shaft_back(l, xs, v[l]);
           finish(l);
         });
   } else {
-    lu_.solve(v, TwoTasks{threads()}, prepare, finish);
+    lu_.solve(v, threads(), prepare, finish);
   }
   fresh_.correct(x);
   for (int c : other_coord_) x[c] += gh * x[n + c] * ratio[c];  // the shafts' and load's

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/wmethod/chain_lu.hpp"
 #include "engine/wmethod/chain_stiffness.hpp"
 #include "engine/wmethod/fresh_friction.hpp"
 #include "engine/wmethod/options.hpp"
@@ -92,7 +93,7 @@ class WSolver {
   void shaft_product(int l, const LinkVectors& z, ShaftVectors& bz) const;
   void shaft_back(int l, const ShaftVector& xs, LinkVector& z) const;  // z -= Y_l x_s
   ShaftVector shaft_velocities(const double* x) const;  // x's 14 shaft velocities, physical units
-  bool threads() const { return schedule_.threads() > 1; }
+  int threads() const { return schedule_.threads(); }
 
   const Model& m_;
   Workspace& ws_;
@@ -105,7 +106,7 @@ class WSolver {
   FreshFriction fresh_;
   Eigen::VectorXd y_;  // the physical state of a scaled system's factor()
   LinkBlock a0_link_;  // A0 of a link's coordinates (constant)
-  CyclicBlockLU<kLinkDim> lu_;
+  ChainLU lu_;
   std::vector<int> coord_;           // [l * kLinkDim + i]: link_coordinate(m, l, i)
   std::vector<double> unit_q_, unit_v_;  // the units of those positions and velocities (scaled)
   std::vector<double> unit_ratio_;       // [i < ndof]: unit of velocity i / unit of position i

@@ -30,24 +30,30 @@ bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
 // differ from the same run without. The fourth takes the analytic stiffness (the Hessian
 // per joint and per link over the threads), which must change the run too.
 TEST(Ros2Run, SameBitsWithEveryScheduleAndThreadCount) {
-  for (const char* fresh : {"ros2:5", "ros34pw2:5", "ros34pw2:1e-6", "ros34pw2:5:analytic"}) {
-    const std::string method(fresh, std::strchr(fresh, ':'));
-    const char* rest = std::strchr(fresh, ':') + 1;
+  // method:w_fresh[:variant]: the analytic stiffness, or the block LU on four segments.
+  for (const char* spec : {"ros2:5", "ros34pw2:5", "ros34pw2:1e-6", "ros34pw2:5:analytic", "ros34pw2:5:segments"}) {
+    const std::string method(spec, std::strchr(spec, ':'));
+    const char* rest = std::strchr(spec, ':') + 1;
     const char* third = std::strchr(rest, ':');
     const std::string w_fresh = third ? std::string(rest, third) : std::string(rest);
-    const bool analytic = third != nullptr;
-    const Model m = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
-                                         "integrator.w_k_every=6", "integrator.startup_time=0",
-                                         "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4",
-                                         std::string("integrator.w_analytic_stiffness=") + (analytic ? "true" : "false")});
+    const std::string variant = third ? third + 1 : "";
+    const std::vector<std::string> keys = {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
+                                           "integrator.w_k_every=6", "integrator.startup_time=0",
+                                           "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4"};
+    std::vector<std::string> with = keys;
+    if (variant == "analytic") with.push_back("integrator.w_analytic_stiffness=true");
+    if (variant == "segments") with.push_back("integrator.w_segments=4");
+    const Model m = test::model("mini", with);
     const Eigen::VectorXd ref = run(m, {}, 300, 1e-7);
     Simulation start(m);
     EXPECT_GT((ref - start.state()).norm(), 1e-6) << "the run must move";
-    if (analytic) {
-      const Model fd = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",
-                                            "integrator.w_k_every=6", "integrator.startup_time=0",
-                                            "integrator.w_fresh=" + w_fresh, "integrator.w_fresh_max=4"});
-      EXPECT_FALSE(same_bits(run(fd, {}, 300, 1e-7), ref)) << "the analytic stiffness must change the run";
+    if (!variant.empty()) {
+      const Eigen::VectorXd plain = run(test::model("mini", keys), {}, 300, 1e-7);
+      EXPECT_FALSE(same_bits(plain, ref)) << "the " << variant << " must change the run's rounding";
+      // The segments solve the same matrix: the same run but for rounding over 300 steps.
+      if (variant == "segments") {
+        EXPECT_LT((plain - ref).norm(), 1e-6 * (ref - start.state()).norm()) << variant;
+      }
     }
     if (w_fresh != "5") {
       const Model plain = test::model("mini", {"ramp.time=2e-5", "integrator.method=" + method, "integrator.w_every=3",

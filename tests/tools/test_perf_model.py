@@ -66,6 +66,20 @@ class PerfModel(unittest.TestCase):
         # The two-sweep and master parts bound the speed-up: (10 + 200 + 30 + 100 + 20) / (10 + 30 + 50 + 20).
         self.assertLess(pm.predict(model, 0.0, 4, 1, 14, 2.0) / pm.predict(model, 0.0, 4, 10**6, 14, 2.0), 360 / 110 + 1e-9)
 
+    def test_segments_cap_the_block_lu_at_their_count(self):
+        # The same profiles read as those of the block LU on 8 segments: W solves' parallel
+        # work divides over up to 8 threads; the other sections keep their caps.
+        _, s = pm.rows(self.one)
+        _, p = pm.rows(self.four)
+        model = pm.calibrate(s, p, 4, 84, segments=8)
+        self.assertEqual(model["W solves"][2], 8)
+        self.assertEqual(model["chain forces"][2], 84)
+        self.assertEqual(model["integrator update"][2], 1)
+        self.assertEqual(pm.cap_of("W factorization", 84, 0), 2)
+        self.assertEqual(pm.cap_of("W factorization", 84, 12), 12)
+        two = pm.calibrate(s, p, 4, 84)
+        self.assertLess(pm.predict(model, 0.0, 4, 8, 14, 2.0), pm.predict(two, 0.0, 4, 8, 14, 2.0))
+
     def test_command_line(self):
         out = subprocess.run([sys.executable, TOOL, self.one, self.four, "--threads", "1,4", "--step", "1e-6"],
                              capture_output=True, text=True)

@@ -273,6 +273,13 @@ TEST_F(CliTest, StiffnessIntervalNotAMultipleOfWEvery) {
                       "integrator.w_k_every", "6", "must be a multiple of integrator.w_every = 4");
 }
 
+TEST_F(CliTest, BlockLUSegmentsOutsideTheirRange) {
+  // The mini chain has 30 links: from 3 to 15 segments.
+  for (const char* s : {"2", "16"})
+    expect_config_error({"run", kMini, "--t-end", "2e-6", "--set", std::string("integrator.w_segments=") + s},
+                        "integrator.w_segments", s, "must be 0 (the block LU's two sweeps) or from 3 to half of chain.links = 30");
+}
+
 TEST_F(CliTest, Ros2RunWritesOutputAndNamesTheMethod) {
   const RunResult r = run({"run", kMini, "--t-end", "2e-6", "--step", "1e-7", "--method", "ros2", "--set",
                            "integrator.w_every=4", "--out", "ros2.h5"});

@@ -1,5 +1,6 @@
 // CyclicBlockLU against a dense LU of the same matrix.
 #include "engine/ode/block_cyclic.hpp"
+#include "tests/engine/ode/cyclic_matrix.hpp"
 
 #include <gtest/gtest.h>
 
@@ -29,50 +30,6 @@ struct SecondFirst {
     f();
   }
 };
-
-// The solve with a serial and a last phase (a bordered system's step): every block's
-// prepare, finish and last run once, serial once after every finish and before every last,
-// and the result is the sequential solve's to the bit, whichever task runs which phase.
-template <class C, class Both>
-void check_phases(const C& lu, const Eigen::VectorXd& b, const std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>>& x0,
-                  const Both& both, const char* name) {
-  const int n = static_cast<int>(x0.size());
-  constexpr int B = C::Vec::RowsAtCompileTime;
-  std::vector<typename C::Vec, Eigen::aligned_allocator<typename C::Vec>> y(n);
-  std::vector<int> prepared(n, 0), finished(n, 0), lasted(n, 0);
-  int serial_runs = 0;
-  double total = 0;
-  lu.solve(
-      y.data(), both,
-      [&](int l) {
-        y[l] = b.segment(l * B, B);
-        ++prepared[l];
-      },
-      [&](int l) { ++finished[l]; },
-      [&] {
-        ++serial_runs;
-        for (int l = 0; l < n; ++l) {
-          EXPECT_EQ(finished[l], 1) << name << ": block " << l << " not finished before the serial phase";
-          total += y[l].sum();
-        }
-      },
-      [&](int l) {
-        EXPECT_EQ(serial_runs, 1) << name;
-        y[l].array() += total;
-        ++lasted[l];
-      });
-  EXPECT_EQ(serial_runs, 1) << name;
-  double total0 = 0;
-  for (int l = 0; l < n; ++l) total0 += x0[l].sum();
-  EXPECT_EQ(total, total0) << name;
-  for (int l = 0; l < n; ++l) {
-    EXPECT_EQ(prepared[l], 1) << name << " block " << l;
-    EXPECT_EQ(lasted[l], 1) << name << " block " << l;
-    typename C::Vec want = x0[l];
-    want.array() += total0;
-    EXPECT_TRUE(y[l] == want) << name << ": block " << l << " differs from the sequential solve";
-  }
-}
 
 // The same for a block of right sides (solve_columns with finish, serial and last): every
 // block's finish and last once, serial once between them, and the result that of the
@@ -105,31 +62,13 @@ void check_column_phases(const C& lu, const std::vector<Cols, Eigen::aligned_all
 template <int B>
 int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double drop = CyclicBlockLU<B>::kNegligible) {
   using C = CyclicBlockLU<B>;
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
   const int N = n * B;
-  // A random matrix with the structure: M = D + sum over l of G_l^T H_l, each G_l, H_l over
-  // blocks l-1 and l (so block-tridiagonal with cyclic corners, not symmetric), D diagonal
-  // and positive.
-  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(N, N);
-  for (int i = 0; i < N; ++i) M(i, i) = diagonal + std::abs(u(rng));
-  for (int l = 0; l < n; ++l) {
-    Eigen::MatrixXd G(3, 2 * B), H(3, 2 * B);
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 2 * B; ++c) G(r, c) = coupling * u(rng), H(r, c) = G(r, c) + 0.2 * coupling * u(rng);
-    const Eigen::MatrixXd K = G.transpose() * H;
-    const int o[2] = {((l - 1 + n) % n) * B, l * B};
-    for (int a = 0; a < 2; ++a)
-      for (int b = 0; b < 2; ++b) M.block(o[a], o[b], B, B) += K.block(a * B, b * B, B, B);
-  }
+  // A random matrix with the structure (block-tridiagonal with cyclic corners, not symmetric).
+  const Eigen::MatrixXd M = random_cyclic_matrix(n, B, seed, coupling, diagonal);
   C lu;
   lu.resize(n);
   lu.set_drop_tolerance(drop);
-  for (int l = 0; l < n; ++l) {
-    lu.diag(l) = M.block(l * B, l * B, B, B);
-    lu.sub(l) = M.block(l * B, ((l - 1 + n) % n) * B, B, B);
-    lu.super(l) = M.block(((l - 1 + n) % n) * B, l * B, B, B);
-  }
+  load_cyclic_blocks(M, n, B, lu);
   if (!lu.factor()) {
     ADD_FAILURE() << "singular pivot";
     return -1;
@@ -140,9 +79,9 @@ int check(int n, unsigned seed, double coupling, double diagonal = 0.1, double d
   lu.solve(x.data());
   Eigen::VectorXd xs(N);
   for (int l = 0; l < n; ++l) xs.segment(l * B, B) = x[l];
-  check_phases(lu, b, x, typename C::Sequential(), "sequential");
-  check_phases(lu, b, x, SecondFirst(), "second task first");
-  for (int rep = 0; rep < 20; ++rep) check_phases(lu, b, x, OnTwoThreads(), "two threads");
+  check_solve_phases(lu, b, x, typename C::Sequential(), "sequential");
+  check_solve_phases(lu, b, x, SecondFirst(), "second task first");
+  for (int rep = 0; rep < 20; ++rep) check_solve_phases(lu, b, x, OnTwoThreads(), "two threads");
   const Eigen::VectorXd xd = M.partialPivLu().solve(b);
   // A block of right sides at once (solve_columns): each column as its own solve gives, to
   // the bit where both use the AVX2 kernels (the same sums in the same order), with an odd

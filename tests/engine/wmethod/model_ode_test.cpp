@@ -297,11 +297,13 @@ TEST(ModelOde, WSolveIsTheChainsIterationMatrix) {
         }
     }
   }
-  for (int variant = 0; variant < 4; ++variant) {
+  // Variant 4: the differences' K with the block LU on seven segments (w_segments).
+  for (int variant = 0; variant < 5; ++variant) {
     const bool stiffness = variant > 0;
     opt.w_stiffness = stiffness;
     opt.w_shafts = variant >= 2;
     opt.w_analytic_stiffness = variant == 3;
+    opt.w_segments = variant == 4 ? 7 : 0;
     const Eigen::MatrixXd& K = variant == 3 ? Ke : Kd;
     ModelOde ode(m, ws, *sched, opt);
     ode.ask_friction_jacobian(0);
