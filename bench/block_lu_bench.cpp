@@ -140,7 +140,6 @@ void BM_PivotInverse(benchmark::State& st) {
 using SegLU = cvt::SegmentedBlockLU<kB>;
 struct ArenaTasks {
   int tasks;
-  int count() const { return tasks; }
   template <class F>
   void operator()(const F& f) const {
     if (tasks == 1) return f(0);

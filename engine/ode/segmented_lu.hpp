@@ -74,11 +74,10 @@ class SegmentedBlockLU : public BlockSweeps<B, SegmentedBlockLU<B>> {
   using Vec = typename Base::Vec;
   static constexpr double kNegligible = CyclicBlockLU<B>::kNegligible;
 
-  // Runs task(t) for t in [0, count()), concurrently or not; the default one task, which then
-  // runs every part itself. A caller with threads passes one that forks count() tasks
-  // (tbb::parallel_for): the arithmetic, and so every bit of the result, is the same.
+  // Runs task(t) for the tasks t = 0, 1, ..., concurrently or not; the default one task,
+  // which then runs every part itself. A caller with threads passes one that forks several
+  // (ManyTasks): the arithmetic, and so every bit of the result, is the same.
   struct Sequential {
-    int count() const { return 1; }
     template <class F>
     void operator()(const F& task) const {
       task(0);
@@ -102,9 +101,6 @@ class SegmentedBlockLU : public BlockSweeps<B, SegmentedBlockLU<B>> {
     red_.set_drop_tolerance(tol);
   }
   int segments() const { return segs_; }
-  // The separator of segment k (its first block); segment k holds blocks separator(k) ..
-  // separator(k + 1) - 1.
-  int separator(int k) const { return sep_[k]; }
   // Interior blocks of the last factorization that carry a fill to their segment's separator.
   int fill_blocks() const { return fills_; }
   // Factorizes; false if a pivot block is singular (or not finite). Overwrites the diagonal

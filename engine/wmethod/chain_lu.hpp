@@ -24,11 +24,9 @@ class ChainLU {
       two_.set_drop_tolerance(drop);
     }
   }
-  int segments() const { return segments_; }
   LinkBlock& diag(int l) { return segments_ ? seg_.diag(l) : two_.diag(l); }
   LinkBlock& sub(int l) { return segments_ ? seg_.sub(l) : two_.sub(l); }
   LinkBlock& super(int l) { return segments_ ? seg_.super(l) : two_.super(l); }
-  int fill_blocks() const { return segments_ ? seg_.fill_blocks() : two_.fill_blocks(); }
 
   // On `threads` threads of the caller's arena (1: serially); false if a pivot is singular.
   bool factor(int threads) {

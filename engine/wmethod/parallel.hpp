@@ -36,20 +36,11 @@ struct TwoTasks {
 // threads (inside its arena), each isolated as TwoTasks' are; one task runs every part.
 struct ManyTasks {
   int tasks;
-  int count() const { return tasks; }
   template <class F>
   void operator()(const F& f) const {
     if (tasks <= 1) return f(0);
-    fork(tasks, [](const void* body, int t) { (*static_cast<const F*>(body))(t); }, &f);
-  }
-
- private:
-  // The fork, apart from the body's type, over a blocked range as for_joint_ranges' (the
-  // loop over indices wraps the body in a type whose partitioner frame ThreadSanitizer's
-  // symbolizer leaves without its file, past the suppression of oneTBB's own reuse).
-  static void fork(int tasks, void (*call)(const void*, int), const void* body) {
     const auto range = [&](const tbb::blocked_range<int>& r) {
-      for (int t = r.begin(); t < r.end(); ++t) tbb::this_task_arena::isolate([&] { call(body, t); });
+      for (int t = r.begin(); t < r.end(); ++t) tbb::this_task_arena::isolate([&] { f(t); });
     };
     const numa::ScopedForkJoin fj;
     tbb::parallel_for(tbb::blocked_range<int>(0, tasks, 1), fj.task(range), tbb::static_partitioner());

@@ -18,7 +18,6 @@ namespace {
 // `count` tasks, each on a thread of its own (the first on the caller's).
 struct OnThreads {
   int tasks;
-  int count() const { return tasks; }
   template <class F>
   void operator()(const F& f) const {
     std::vector<std::thread> th;
