@@ -318,6 +318,7 @@ H5File H5File::open(const std::string& path, bool clear_status) {
     check(H5Pset(fapl.get(), kClearStatus, &clear), "H5Pset(clear_status_flags)", path);
   }
   H5Handle file(H5Fopen(path.c_str(), H5F_ACC_RDWR, fapl.get()), "H5Fopen", path);
+  if (clear_status) check(H5Fincrement_filesize(file.get(), 0), "H5Fincrement_filesize", path);
   return H5File(std::move(file), path);
 }
 

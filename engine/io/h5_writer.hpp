@@ -125,8 +125,11 @@ class H5File {
   // Opens an existing file for reading and writing (not in SWMR mode): to add objects
   // after a SWMR run has closed it (the end-of-run /profile group).
   // clear_status: a file left marked as open for writing by a killed writer has that mark
-  // cleared first, as h5clear -s does; only for a file whose writer is known to be gone (its
-  // FileLock held by the caller).
+  // cleared first, as h5clear -s does, and its end of allocation raised to its end of file, as
+  // h5clear -i does: a writer killed in SWMR mode may have written blocks past the end its
+  // superblock records, which the library would otherwise refuse to reach ("addr overflow")
+  // or allocate over. Only for a file whose writer is known to be gone (its FileLock held by
+  // the caller).
   static H5File open(const std::string& path, bool clear_status = false);
   // Opens an existing file read-only; nothing in it changes. One marked as open for writing
   // (a writer has it, or one was killed with kill -9 and left the mark h5clear -s clears)
