@@ -140,6 +140,9 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
   if (!f.exists("/observables/input_speed/step"))
     refuse("it has no step datasets (an older cvt-engine wrote it): give --out NEW to write the continuation to a "
            "new file");
+  if (!f.exists("/observables/strand_tension_upper/value"))
+    refuse("it has no strand tension channels (an older cvt-engine wrote it): give --out NEW to write the "
+           "continuation to a new file");
   FileHistory hist;
   const std::vector<double> t = f.read_doubles("/observables/input_speed/time");
   hist.samples = kept(t, every_sample);
@@ -170,6 +173,8 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
            {"geometric_ratio", &ch.geometric_ratio},
            {"clamping_force_driving", &ch.clamp_driving},
            {"clamping_force_driven", &ch.clamp_driven},
+           {"strand_tension_upper", &ch.strand_upper},
+           {"strand_tension_lower", &ch.strand_lower},
            {"work_input", &ch.work_input},
            {"work_output", &ch.work_output},
            {"work_dissipated", &ch.work_dissipated}}) {

@@ -68,6 +68,8 @@ class Recorder {
     vector("pin_end_normal_force", "N", s.t, s.pin_end_normal, 4);
     vector("pin_end_friction_force", "N", s.t, s.pin_end_friction, 4);
     scalar("link_tension", "N", s.t, s.link_tension);
+    scalar("strand_tension_upper", "N", s.t, s.strand_tension[0]);
+    scalar("strand_tension_lower", "N", s.t, s.strand_tension[1]);
     vector("plate_tension", "N", s.t, s.plate_tension.data(), static_cast<int>(s.plate_tension.size()));
     scalar("rocker_force", "N", s.t, s.rocker_force);
     scalar("chain_torsion_angle", "rad", s.t, s.chain_torsion_angle);

@@ -621,6 +621,7 @@ Sample Simulation::sample(double next_step) {
       s.pin_end_friction[2 * h + e] = rep.end[h][e].friction;
     }
   s.link_tension = link_tension(m_, w, m_.cfg.run.tracked_link);
+  strand_tensions(m_, w, s.strand_tension);
   s.plate_tension.resize(m_.plate_zeta.size());
   plate_tensions(m_, w, m_.cfg.run.tracked_link, s.plate_tension.data());
   s.rocker_force = rocker_force(m_, w, jp);

@@ -47,6 +47,7 @@ struct Sample {
   double pin_end_normal[4] = {0, 0, 0, 0};
   double pin_end_friction[4] = {0, 0, 0, 0};
   double link_tension = 0;
+  double strand_tension[2] = {0, 0};  // the mean link tension of the upper and lower free strand [N]
   std::vector<double> plate_tension;  // the tracked link's plates
   double rocker_force = 0;            // the tracked pin's rocker joint (normal) [N]
   double chain_torsion_angle = 0;     // tracked pin vs the next, about the chain direction [rad]

@@ -25,6 +25,8 @@ void SummaryChannels::push(const Sample& s) {
   geometric_ratio.push_back(s.geometric_ratio);
   clamp_driving.push_back(s.clamp[0]);
   clamp_driven.push_back(s.clamp[1]);
+  strand_upper.push_back(s.strand_tension[0]);
+  strand_lower.push_back(s.strand_tension[1]);
   sheave_driving.push_back(s.sheave_position[0]);
   sheave_driven.push_back(s.sheave_position[1]);
   work_input.push_back(s.work_input);
@@ -74,6 +76,8 @@ void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSumm
   s.load_torque = mean(ch.load_torque, a, b);
   s.clamp_driving = mean(ch.clamp_driving, a, b);
   s.clamp_driven = mean(ch.clamp_driven, a, b);
+  s.strand_upper = mean(ch.strand_upper, a, b);
+  s.strand_lower = mean(ch.strand_lower, a, b);
   s.sheave_driving = mean(ch.sheave_driving, a, b);
   s.sheave_driven = mean(ch.sheave_driven, a, b);
   double pin = 0, pout = 0;
@@ -448,6 +452,10 @@ const std::vector<SummaryField>& summary_fields() {
        {true, VerifiedMean::relative, 5e-3}},
       {"clamping_force_driven", "N", "the mean driven clamping force over the window", &S::clamp_driven,
        {true, VerifiedMean::relative, 5e-3}},
+      {"strand_tension_upper", "N", "the mean link tension of the upper free strand over the window",
+       &S::strand_upper, {true, VerifiedMean::relative, 5e-3}},
+      {"strand_tension_lower", "N", "the mean link tension of the lower free strand over the window",
+       &S::strand_lower, {true, VerifiedMean::relative, 5e-3}},
       {"sheave_position_driving", "m", "the mean driving sheave position over the window", &S::sheave_driving,
        {true}},
       {"sheave_position_driven", "m", "the mean driven sheave position over the window", &S::sheave_driven,
@@ -621,6 +629,10 @@ std::string format_summary(const RunSummary& s) {
        1e-3 * e.num("clamping_force_driven"), pm("clamping_force_driven", "%.2g", 1e-3).c_str(),
        1e3 * e.num("sheave_position_driving"), pm("sheave_position_driving", "%.2g", 1e3).c_str(),
        1e3 * e.num("sheave_position_driven"), pm("sheave_position_driven", "%.2g", 1e3).c_str());
+  const double upper = e.num("strand_tension_upper"), lower = e.num("strand_tension_lower");
+  line("    strand tensions          %.4g%s / %.4g%s kN   (upper / lower free strand: difference %.4g kN)\n",
+       1e-3 * upper, pm("strand_tension_upper", "%.2g", 1e-3).c_str(), 1e-3 * lower,
+       pm("strand_tension_lower", "%.2g", 1e-3).c_str(), 1e-3 * (upper - lower));
   const double efficiency = e.num("efficiency"), loss_efficiency = e.num("loss_efficiency");
   const bool outside = !(efficiency >= 0 && efficiency <= 1);
   if (e.flag("efficiency_meaningful") && !outside)
@@ -641,10 +653,11 @@ std::string format_summary(const RunSummary& s) {
   if (spans >= 2) {
     const auto u = [&](std::string_view name, const char* f, double scale = 1) { return fmt(f, scale * uncertainty(s, name)); };
     line("    (statistical uncertainty, the standard error of the means over %ld whole spans of %.3g s: efficiency "
-         "+-%s, slip +-%s %%, torques +-%s / %s N m, forces +-%s / %s kN)\n",
+         "+-%s, slip +-%s %%, torques +-%s / %s N m, forces +-%s / %s kN, strands +-%s / %s kN)\n",
          spans, span, u("efficiency", "%.2g").c_str(), u("slip", "%.2g", 100).c_str(), u("input_torque", "%.2g").c_str(),
          u("output_torque", "%.2g").c_str(), u("clamping_force_driving", "%.2g", 1e-3).c_str(),
-         u("clamping_force_driven", "%.2g", 1e-3).c_str());
+         u("clamping_force_driven", "%.2g", 1e-3).c_str(), u("strand_tension_upper", "%.2g", 1e-3).c_str(),
+         u("strand_tension_lower", "%.2g", 1e-3).c_str());
   }
   line("  energy balance residual    %.4g J (%.3g %% of the energy turned over, %.4g J)\n", e.num("energy_residual"),
        100 * e.num("residual_fraction"), e.num("energy_turnover"));

@@ -25,8 +25,8 @@ inline double slip_of(double speed_ratio, double geometric_ratio) {
 // observables read back from a run's file).
 struct SummaryChannels {
   std::vector<double> t, input_speed, output_speed, input_torque, output_torque, load_torque, speed_ratio,
-      geometric_ratio, clamp_driving, clamp_driven, sheave_driving, sheave_driven, work_input, work_output,
-      work_dissipated, work_clamping;
+      geometric_ratio, clamp_driving, clamp_driven, strand_upper, strand_lower, sheave_driving, sheave_driven,
+      work_input, work_output, work_dissipated, work_clamping;
   void push(const Sample& s);
   std::size_t size() const { return t.size(); }
   // The earliest time a window may start besides the ramps' end: the run's last change of
@@ -75,8 +75,8 @@ struct RunSummary {
   // The window and the means over it.
   double window_start = 0, window_end = 0;
   double speed_ratio = 0, geometric_ratio = 0, slip = 0, input_speed = 0, output_speed = 0, input_torque = 0,
-         output_torque = 0, load_torque = 0, clamp_driving = 0, clamp_driven = 0, sheave_driving = 0,
-         sheave_driven = 0;
+         output_torque = 0, load_torque = 0, clamp_driving = 0, clamp_driven = 0, strand_upper = 0, strand_lower = 0,
+         sheave_driving = 0, sheave_driven = 0;
   double efficiency = 0;       // mean output power / mean input power over the window
   double loss_efficiency = 0;  // 1 - dissipated / input work over the window
   bool efficiency_meaningful = false;

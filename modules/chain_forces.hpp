@@ -31,6 +31,12 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
 
 // Per-link plate tension sum (k (d - l0) + c ddot over stretched plates) [N].
 double link_tension(const Model& m, const Workspace& ws, int link);
+// The mean link tension of the two free strands [N]: over the links whose middle lies
+// between 20 % and 80 % of the way from the driving to the driven shaft's axis, on the left
+// of the line of centres seen from the driving shaft (out[0], the upper strand of the
+// models, whose driven shaft lies along +x) and on its right (out[1], the lower); 0 for a
+// strand without such a link (docs/model.md 6).
+void strand_tensions(const Model& m, const Workspace& ws, double out[2]);
 // Tension of each plate of link `link` (k (d - l0) + c ddot where stretched, else 0) [N],
 // into out[0 .. plates_per_link).
 void plate_tensions(const Model& m, const Workspace& ws, int link, double* out);

@@ -206,7 +206,9 @@ class Stepper {
                     py::arg("geometric_ratio") = s.geometric_ratio, py::arg("efficiency") = s.efficiency,
                     py::arg("clamping_force_driving") = s.clamp[0], py::arg("clamping_force_driven") = s.clamp[1],
                     py::arg("sheave_position") = std::vector<double>(s.sheave_position, s.sheave_position + 2),
-                    py::arg("link_tension") = s.link_tension, py::arg("power_input") = s.power_input,
+                    py::arg("link_tension") = s.link_tension,
+                    py::arg("strand_tension_upper") = s.strand_tension[0],
+                    py::arg("strand_tension_lower") = s.strand_tension[1], py::arg("power_input") = s.power_input,
                     py::arg("power_output") = s.power_output, py::arg("work_input") = s.work_input,
                     py::arg("work_output") = s.work_output, py::arg("energy_residual") = s.energy_residual);
   }

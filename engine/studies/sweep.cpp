@@ -138,6 +138,8 @@ const std::vector<Column>& result_columns() {
       {"load_torque", &SweepRow::load_torque, "N m"},
       {"clamping_force_driving", &SweepRow::clamping_force_driving, "N"},
       {"clamping_force_driven", &SweepRow::clamping_force_driven, "N"},
+      {"strand_tension_upper", &SweepRow::strand_tension_upper, "N"},
+      {"strand_tension_lower", &SweepRow::strand_tension_lower, "N"},
       {"model_time", &SweepRow::model_time, "s"},
       {"steady_window", &SweepRow::steady_window, "s"},
       {"step", &SweepRow::step, "s"},
@@ -522,6 +524,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
     r.loss_efficiency = s.loss_efficiency;
     r.input_speed = s.input_speed, r.output_speed = s.output_speed, r.load_torque = s.load_torque;
     r.clamping_force_driving = s.clamp_driving, r.clamping_force_driven = s.clamp_driven;
+    r.strand_tension_upper = s.strand_upper, r.strand_tension_lower = s.strand_lower;
     r.model_time = s.model_time, r.steady_window = s.steady_window;
     r.step = s.step, r.energy_leak = s.energy_leak;
     if (s.verify_step > 0)

@@ -260,6 +260,7 @@ TEST_F(OutputLayoutTest, Observables) {
   const std::vector<std::string> scalars = {
       "input_speed",     "output_speed",  "input_torque",    "output_torque",  "speed_ratio",
       "geometric_ratio", "efficiency",    "clamping_force_driving", "clamping_force_driven", "link_tension",
+      "strand_tension_upper", "strand_tension_lower",
       "energy_kinetic",  "energy_elastic", "work_input",     "work_output",    "work_dissipated",
       "energy_residual", "rocker_force",  "chain_torsion_angle", "input_angle", "output_angle", "load_angle",
       "power_input",     "power_output",  "power_dissipated", "running_efficiency"};

@@ -4,6 +4,9 @@
 // (a steady point and a slipping one) and, as a Slow test, on the reference model.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+
 #include "engine/io/h5_writer.hpp"
 #include "engine/run.hpp"
 #include "tests/test_util.hpp"
@@ -56,6 +59,15 @@ TEST(UntilSteadyTest, MiniStopsWhenSteadyAndSaysWhichCriteriaHeld) {
   for (const char* c : {"no gross slip", "means over t = ", "ratio held", "torsion settled", "torque balance"})
     EXPECT_TRUE(any_starts(r.criteria, c)) << c;
   EXPECT_TRUE(r.efficiency_meaningful);
+  // CVT theory: both free strands in tension, and the tight one's minus the slack one's is
+  // what the driven pulley transmits, the output torque over its running radius; here
+  // within 12 %: the mini's pitch spans 0.42 rad of its 19 mm radius, and a strand leaves
+  // the polygon of its joints at a lever arm between R and R cos(p / R) = 0.91 R (the
+  // reference model's 0.14 rad: below).
+  EXPECT_GT(std::min(r.strand_upper, r.strand_lower), 0);
+  const double theory = std::abs(r.output_torque) / m.pulley[1].running_radius;
+  EXPECT_NEAR(std::abs(r.strand_upper - r.strand_lower), theory, 0.12 * theory)
+      << "strands " << r.strand_upper << " / " << r.strand_lower << " N";
   // The window: two torsion periods (about 3.7 ms here) in whole meshing periods.
   const double t_mesh = m.cfg.chain.pitch / (m.cfg.drive.speed * m.pulley[0].running_radius);
   EXPECT_GE(r.steady_window, 2 * torsion_period(m) - 1e-12);
@@ -90,13 +102,18 @@ TEST(UntilSteadyTest, TorsionPeriodIsTheLowestModeOfTheDriveLine) {
 }
 
 // The reference model at its steady operating point (configs/reference-steady.toml) from
-// rest: steady before t_end = 0.3 s.
+// rest: steady before t_end = 0.3 s, its free strands' tensions apart by the output torque
+// over the driven radius within 2 %.
 TEST(UntilSteadyTest, SlowReferenceReachesSteady) {
   const RunResult r = run_until_steady("reference-steady", {"run.t_end=0.3"}, "steady_reference");
   EXPECT_EQ(r.status, "steady");
   EXPECT_EQ(r.stopped, "steady");
   EXPECT_LT(r.model_time, 0.3);
   EXPECT_NEAR(r.output_torque, 150.0, 3.0);
+  const Model m = build_model(load_config(test::config_path("reference-steady")));
+  const double theory = std::abs(r.output_torque) / m.pulley[1].running_radius;
+  EXPECT_NEAR(std::abs(r.strand_upper - r.strand_lower), theory, 0.02 * theory)
+      << "strands " << r.strand_upper << " / " << r.strand_lower << " N";
 }
 
 }  // namespace
