@@ -346,11 +346,11 @@ class Simulation:
 
     The model starts from rest, as a run. advance(t) takes the configured steps to t [s] (a
     multiple of the step, .step [s]) and returns the channels at t: time [s], the speeds
-    [rad/s], torques [N m], clamping forces [N], sheave positions [m], powers [W], works and
-    the energy residual [J], the ratios and efficiency [1]. Between advances the inputs may
-    change: set_drive_speed (rad/s, a step), set_load_torque (N m, a step),
-    set_clamping (N, linear over `over` seconds). Without changes the trajectory is that of
-    run() to the same time, bit for bit. Raises ConfigError for a bad argument and
+    [rad/s], torques [N m], clamping forces, link and strand tensions [N], sheave positions
+    [m], powers [W], works and the energy residual [J], the ratios and efficiency [1].
+    Between advances the inputs may change: set_drive_speed (rad/s, a step),
+    set_load_torque (N m, a step), set_clamping (N, linear over `over` seconds). Without
+    changes the trajectory is that of run() to the same time, bit for bit. Raises ConfigError for a bad argument and
     BlowUpError when the state blows up.
     """
 
