@@ -654,8 +654,9 @@ void Simulation::snapshot(std::vector<double>& positions, std::vector<double>& t
   for (int j = 0; j < N; ++j) {
     const double* a = q + m_.half_a(j);
     const double* b = q + m_.half_b(j);
-    positions[3 * j + 0] = 0.5 * (mid(a, 0) + mid(b, 0));
-    positions[3 * j + 1] = 0.5 * (mid(a, 1) + mid(b, 1));
+    const Eigen::Vector2d c = joint_centre(m_, q, j);
+    positions[3 * j + 0] = c.x();
+    positions[3 * j + 1] = c.y();
     positions[3 * j + 2] = 0.25 * (a[half::kZ] + a[half::kEnd + half::kZ] + b[half::kZ] + b[half::kEnd + half::kZ]);
     tensions[j] = link_tension(m_, diag_, j);
   }

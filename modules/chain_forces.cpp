@@ -590,18 +590,22 @@ double link_tension(const Model& m, const Workspace& ws, int j) {
   return T;
 }
 
+Eigen::Vector2d joint_centre(const Model& m, const double* q, int j) {
+  const double* a = q + m.half_a(j);
+  const double* b = q + m.half_b(j);
+  return Eigen::Vector2d(0.5 * (mid(a, 0) + mid(b, 0)), 0.5 * (mid(a, 1) + mid(b, 1)));
+}
+
 void strand_tensions(const Model& m, const Workspace& ws, double out[2]) {
   const Eigen::Vector2d c0 = m.pulley[0].centre, d = m.pulley[1].centre - c0;
   const double a2 = d.squaredNorm();
-  const auto pin = [&](int j) {
-    const double* a = ws.q + m.half_a(j);
-    const double* b = ws.q + m.half_b(j);
-    return Eigen::Vector2d(0.5 * (mid(a, 0) + mid(b, 0)), 0.5 * (mid(a, 1) + mid(b, 1)));
-  };
   double sum[2] = {0, 0};
   int count[2] = {0, 0};
+  Eigen::Vector2d next = joint_centre(m, ws.q, 0);  // each joint's centre once
   for (int j = 0; j < m.links; ++j) {
-    const Eigen::Vector2d p = 0.5 * (pin(j) + pin(m.wrap(j + 1))) - c0;
+    const Eigen::Vector2d here = next;
+    next = joint_centre(m, ws.q, m.wrap(j + 1));
+    const Eigen::Vector2d p = 0.5 * (here + next) - c0;
     const double along = p.dot(d) / a2;
     if (!(along >= 0.2 && along <= 0.8)) continue;
     const int k = d.x() * p.y() - d.y() * p.x() > 0 ? 0 : 1;

@@ -31,6 +31,8 @@ double chain_energy(const Model& m, const double* q, const ContactStatus* status
 
 // Per-link plate tension sum (k (d - l0) + c ddot over stretched plates) [N].
 double link_tension(const Model& m, const Workspace& ws, int link);
+// Joint j's centre in the xy plane: the mean of its two halves' chord middles [m].
+Eigen::Vector2d joint_centre(const Model& m, const double* q, int j);
 // The mean link tension of the two free strands [N]: over the links whose middle lies
 // between 20 % and 80 % of the way from the driving to the driven shaft's axis, on the left
 // of the line of centres seen from the driving shaft (out[0], the upper strand of the

@@ -5,11 +5,10 @@
 
 Prints the window means of input, output and load torque, speed ratio against the
 geometric ratio (creep), the efficiency as 1 - dissipated / input work over the window
-(insensitive to energy swinging in and out of the torsion springs), and, from the last
-the mean link tension of the two free strands over the window (the last snapshot's, for a
-file without the strand channels) against the difference the transmitted torque demands
-(T_tight - T_slack = M_out / R2), and the meshing frequency: the
-strongest line of the output torque's spectrum near the rate at which links enter the
+(insensitive to energy swinging in and out of the torsion springs), the mean link tension
+of the two free strands over the window (the last snapshot's, for a file without the
+strand channels) against the difference the transmitted torque demands (T_tight - T_slack
+= M_out / R2), and the meshing frequency: the strongest line of the output torque's spectrum near the rate at which links enter the
 driving pulley, omega_in R1 / pitch.
 """
 import argparse
@@ -64,14 +63,12 @@ def main():
             peak = fr[band][np.argmax(F[band])]
             print(f"  meshing frequency           {peak:.0f} Hz in the output torque against omega_in R1 / pitch = "
                   f"{f_mesh:.0f} Hz ({100 * (peak / f_mesh - 1):+.1f} %; resolution {fr[1]:.0f} Hz)")
-    R2_run = None
-    if "strand_tension_upper" in o and R1 is not None:
+    if "strand_tension_upper" in o:
         up, lo = v("strand_tension_upper")[w].mean(), v("strand_tension_lower")[w].mean()
+        print(f"  strands (window means)      upper {up:.0f} N, lower {lo:.0f} N: difference {abs(up - lo):.0f} N")
         # The driven pulley's running radius of the placement.
         if "parameters/geometry/running_radius_driven" in f:
             R2_run = float(np.ravel(f["parameters/geometry/running_radius_driven"][()])[0])
-        print(f"  strands (window means)      upper {up:.0f} N, lower {lo:.0f} N: difference {abs(up - lo):.0f} N")
-        if R2_run is not None:
             print(f"    output torque / R2 = {Mout:.1f} / {R2_run*1e3:.1f} mm = {Mout / R2_run:.0f} N "
                   f"({100 * (abs(up - lo) / (Mout / R2_run) - 1):+.1f} %)")
     elif "particles/chain/position" in f:

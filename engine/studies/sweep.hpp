@@ -63,7 +63,8 @@ struct SweepRow {
   std::string status = "error", reason;
   double speed_ratio = 0, geometric_ratio = 0, slip = 0, input_torque = 0, output_torque = 0, efficiency = 0,
          loss_efficiency = 0, input_speed = 0, output_speed = 0, load_torque = 0, clamping_force_driving = 0,
-         clamping_force_driven = 0, strand_tension_upper = 0, strand_tension_lower = 0, model_time = 0, steady_window = 0, step = 0, energy_leak = 0, wall_s = 0;
+         clamping_force_driven = 0, strand_tension_upper = 0, strand_tension_lower = 0, model_time = 0,
+         steady_window = 0, step = 0, energy_leak = 0, wall_s = 0;
   // run.verify: the numerical error of each verified mean among the columns, by column
   // name (speed_ratio, efficiency, ...); empty when the point was not verified.
   std::map<std::string, double> numerical_error;
