@@ -59,6 +59,69 @@ std::string fmt(const char* f, double a, double b = 0, double c = 0, double d = 
   return buf;
 }
 
+// The samples' interval, and the meshing period (a link passing, pitch / (omega_in R1)) in
+// whole samples (at least one).
+double sample_interval(const SummaryChannels& ch) {
+  const std::size_t n = ch.size();
+  return (ch.t.back() - ch.t.front()) / static_cast<double>(std::max<std::size_t>(1, n - 1));
+}
+double meshing_period(const Model& m, double input_speed) {
+  const double v_chain = std::abs(input_speed) * m.pulley[0].running_radius;
+  return v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0;
+}
+std::size_t meshing_samples(double t_mesh, double dt) {
+  return t_mesh > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh / dt)) : 1;
+}
+
+// The output torque's swing over samples [a, b), averaged over k samples (one meshing
+// period: the polygon ripple removed): its own period from the crossings about its mean,
+// and its swing (half of max - min) over each half.
+struct Swing {
+  double period = 0;             // [s]; 0: fewer than three crossings
+  double first = 0, second = 0;  // the swing over the first and the second half [N m]
+  int crossings = 0;
+  bool regular = false;  // the half periods between crossings agree within a quarter
+};
+
+Swing measure_swing(const SummaryChannels& ch, std::size_t a, std::size_t b, std::size_t k) {
+  Swing w;
+  std::vector<double> avg;
+  double run = 0;
+  for (std::size_t i = a; i < b; ++i) {
+    run += ch.output_torque[i];
+    if (i >= a + k) run -= ch.output_torque[i - k];
+    if (i + 1 >= a + k) avg.push_back(run / static_cast<double>(k));
+  }
+  if (avg.size() < 4) return w;
+  double mean = 0, lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
+  for (double x : avg) mean += x;
+  mean /= static_cast<double>(avg.size());
+  for (std::size_t i = 0; i < avg.size(); ++i) {
+    const int h = 2 * i < avg.size() ? 0 : 1;
+    lo[h] = std::min(lo[h], avg[i]), hi[h] = std::max(hi[h], avg[i]);
+  }
+  w.first = 0.5 * (hi[0] - lo[0]), w.second = 0.5 * (hi[1] - lo[1]);
+  // A crossing counts where the torque leaves a band of a tenth of the swing about the mean
+  // on the other side (a residue of the ripple does not count) and is dated there: every one
+  // a band's width from the mean, so the half periods between them are whole.
+  const double band = 0.1 * std::max(w.first, w.second);
+  int side = 0;
+  std::vector<double> at;
+  for (std::size_t i = 0; i < avg.size(); ++i) {
+    const int now = avg[i] > mean + band ? 1 : (avg[i] < mean - band ? -1 : 0);
+    if (now != 0 && side != 0 && now != side) at.push_back(ch.t[a + k - 1 + i]);
+    if (now != 0) side = now;
+  }
+  w.crossings = static_cast<int>(at.size());
+  if (at.size() < 3 || !(at.back() > at.front())) return w;
+  const double half = (at.back() - at.front()) / static_cast<double>(at.size() - 1);
+  w.period = 2 * half;
+  double dev = 0;
+  for (std::size_t i = 1; i < at.size(); ++i) dev = std::max(dev, std::abs(at[i] - at[i - 1] - half));
+  w.regular = dev <= 0.25 * half;
+  return w;
+}
+
 }  // namespace
 
 namespace {
@@ -99,11 +162,9 @@ class Judge {
       : ch_(ch), a_(a), b_(b), mid_((a + b) / 2), first_(a), s_(s), c_(c),
         torque_scale_(std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6})),
         controlled_(m.cfg.controller.enabled) {
-    const std::size_t n = ch.size();
-    const double dt = (ch.t.back() - ch.t.front()) / static_cast<double>(std::max<std::size_t>(1, n - 1));
-    const double v_chain = std::abs(s.input_speed) * m.pulley[0].running_radius;
-    t_mesh_ = v_chain > 0 ? m.cfg.chain.pitch / v_chain : 0;
-    k_ = t_mesh_ > 0 && dt > 0 ? std::max<std::size_t>(1, std::lround(t_mesh_ / dt)) : 1;
+    const double dt = sample_interval(ch);
+    t_mesh_ = meshing_period(m, s.input_speed);
+    k_ = meshing_samples(t_mesh_, dt);
     // The span that averages out both the lowest torsion mode and the meshing ripple: half
     // the until-steady window, a torsion period in whole meshing periods (steady_window),
     // or the span given (a longer until-steady window's half).
@@ -137,6 +198,15 @@ class Judge {
   }
   std::vector<std::string> slip, unsteady, held;
 
+  // Where the spans are whole periods of the swing as measured (until_steady_verdict).
+  std::string whole_periods() const {
+    const Swing w = measure_swing(ch_, a_, b_, k_);
+    return w.period > 0 ? fmt("windows of whole periods of the output torque's self-sustained swing: spans of %.4g s "
+                              "hold %.3g of its periods of %.4g s (%.3g Hz) as measured over the two windows, "
+                              "where the torsion mode's estimate leaves them part periods",
+                              t_torsion_, t_torsion_ / w.period, w.period, 1 / w.period)
+                        : "";
+  }
  private:
   void slip_check() {
     if (std::abs(s_.slip) > c_.gross_slip)
@@ -261,9 +331,23 @@ class Judge {
                   "meshing ripple removed",
                   periods_, t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
     if (se > c_.torsion_uncertainty * torque_scale_)
-      unsteady.push_back(std::string("torsion mode not settled: ") + text);
+      unsteady.push_back(std::string("torsion mode not settled: ") + text + swing_measured());
     else
       held.push_back(std::string("torsion settled: ") + text);
+  }
+  // What the output torque's swing is, where its span means scatter: its own period from
+  // the crossings of the meshing-averaged torque about its mean, and its swing over each half
+  // of the window: one that holds on is self-sustained, one that falls is still decaying.
+  std::string swing_measured() const {
+    const Swing w = measure_swing(ch_, a_, b_, k_);
+    if (!(w.period > 0)) return "";
+    const char* how = w.second >= 0.9 * w.first   ? "holding on: self-sustained, not decaying"
+                      : w.second < 0.7 * w.first ? "falling: still decaying"
+                                                 : "falling slowly";
+    return fmt("; the swing's own period, by its zero crossings, is %.3g s (%.3g Hz), %.3g of them per span "
+               "(spans that hold no whole number of them scatter its means), ",
+               w.period, 1 / w.period, t_torsion_ / w.period) +
+           fmt("+-%.3g N m over the first window and +-%.3g N m over the second (", w.first, w.second) + how + ")";
   }
   // The efficiency against the energy balance. Over a window W_out = W_in - D + W_c - dE:
   // the ratio of the mean powers carries the change dE of the kinetic and elastic energy
@@ -381,6 +465,11 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.reasons = judge.slip;
   s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
   s.criteria = judge.held;
+  if (span > 0) {  // spans that are not the steady window's halves (W / 2, W, 2 W, ...)
+    const double d = std::log2(2 * span / steady_window(m));
+    if (std::abs(d - std::round(d)) > 1e-6)
+      if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
+  }
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
@@ -389,7 +478,7 @@ double until_steady_verdict(const Model& m, const SummaryChannels& ch, const Ste
   if (ch.size() < 2 || !(W > 0)) return 0;
   const double t1 = ch.t.back(), earliest = std::max({ramps_end(m.cfg), ch.t.front(), ch.from});
   const double slack = 1e-9 * std::max(1.0, t1);
-  double w = W;
+  double w = W, longest = W;
   for (int d = 0; d <= kSteadyWindowDoublings; ++d, w *= 2) {
     // A longer pair must fit where the data are; W's is judged regardless (its ramp verdict).
     if (d > 0 && t1 - 2 * w < earliest - slack) break;
@@ -400,6 +489,28 @@ double until_steady_verdict(const Model& m, const SummaryChannels& ch, const Ste
       return w;
     }
     if (d == 0) s = std::move(probe);
+    longest = w;
+  }
+  // A swing that holds on over the longest pair that fits, regular and larger than the
+  // ringing criterion's 3 % of the load (a limit cycle of the drive line, whose period the
+  // torsion mode's estimate, and so the spans of W / 2, need not hold whole: docs/output.md,
+  // "Until steady"): windows of whole periods of it as measured, the number of periods per
+  // span nearest W / 2, and their doublings within the longest pair's reach.
+  const double from = std::max(earliest, t1 - 2 * longest);
+  const std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), from) - ch.t.begin());
+  const Swing sw = measure_swing(ch, a, ch.size(), meshing_samples(meshing_period(m, s.input_speed), sample_interval(ch)));
+  const double scale = std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6});
+  if (!(sw.period > 0) || sw.crossings < 8 || !sw.regular || sw.second < 0.9 * sw.first || sw.first < c.ringing * scale)
+    return 0;
+  const double span = std::max(1.0, std::round(0.5 * W / sw.period)) * sw.period;
+  for (double w = 2 * span; w <= W * (1 << kSteadyWindowDoublings) * (1 + 1e-9); w *= 2) {
+    if (t1 - 2 * w < earliest - slack) break;
+    RunSummary probe;
+    summarize(m, ch, probe, c, t1 - 2 * w, 0.5 * w);
+    if (probe.status == "steady" || probe.status == "slip") {
+      s = std::move(probe);
+      return w;
+    }
   }
   return 0;
 }

@@ -154,8 +154,10 @@ inline constexpr int kSteadyWindowDoublings = 4;
 // run.until_steady's verdict at the channels' end (docs/output.md, "Until steady"): the last
 // two windows of length w, for w = W, 2W, 4W, ... up to 2^kSteadyWindowDoublings W (W =
 // steady_window(m)), as long as both fit after the ramps' end and the first sample, each
-// judged with torsion spans of w / 2; the first that is steady or slips decides. Returns
-// that w with s its summary, or 0 when none does (s then holds W's).
+// judged with torsion spans of w / 2; the first that is steady or slips decides. Where none
+// does and the output torque carries a self-sustained swing, pairs of windows of whole
+// periods of it as measured, up to the same reach. Returns that w with s its summary, or 0
+// when none does (s then holds W's).
 double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s);
 
 // run.verify: the numerical errors of s's means against tight, the same window's summary

@@ -150,6 +150,41 @@ TEST(SummaryTest, TorsionModeIsJudgedByItsMeanOverWholePeriods) {
   EXPECT_TRUE(has_reason(beat, "torsion mode not settled")) << reasons(beat);
 }
 
+// Where the span means scatter, the reason measures the swing itself: its period from its
+// zero crossings, how many of them a span holds, and whether it holds on over the two
+// windows (a self-sustained swing) or falls (a mode still decaying).
+TEST(SummaryTest, AnUnsettledTorsionReasonMeasuresTheSwingsPeriodAndWhetherItHoldsOn) {
+  const double T = torsion_period(test::model("reference")), t_end = 15 * T, f = 1.37 / T;
+  const auto reason = [](const RunSummary& s) {
+    for (const auto& r : s.reasons)
+      if (r.rfind("torsion mode not settled", 0) == 0) return r;
+    return std::string();
+  };
+  const auto period = [](const std::string& r) {
+    const std::size_t at = r.find("the swing's own period, by its zero crossings, is ");
+    return at == std::string::npos ? -1.0 : std::stod(r.substr(at + 50));
+  };
+  const RunSummary held =
+      Synthetic([f](double t, Sample& x) { x.output_torque += 20 * std::sin(2 * M_PI * f * t); }, t_end).summary();
+  const std::string h = reason(held);
+  ASSERT_FALSE(h.empty()) << reasons(held);
+  EXPECT_NEAR(period(h), 1 / f, 0.03 / f) << h;
+  EXPECT_NE(h.find("self-sustained"), std::string::npos) << h;
+  // Decaying by e over 2 T, +-60 N m where the window starts (12 T): the second window's
+  // swing is well below the first's.
+  const RunSummary decaying = Synthetic(
+                                  [f, T](double t, Sample& x) {
+                                    x.output_torque +=
+                                        60 * std::exp(-(t - 12 * T) / (2 * T)) * std::sin(2 * M_PI * f * t);
+                                  },
+                                  t_end)
+                                  .summary();
+  const std::string d = reason(decaying);
+  ASSERT_FALSE(d.empty()) << reasons(decaying);
+  EXPECT_NEAR(period(d), 1 / f, 0.03 / f) << d;
+  EXPECT_NE(d.find("still decaying"), std::string::npos) << d;
+}
+
 // Every verified mean carries its statistical uncertainty, the standard error of its means
 // over the window's whole torsion spans: none for a steady signal, one that follows
 // sd / sqrt(n) for a swing the spans miss. The losses' is a criterion: input and output
@@ -277,6 +312,37 @@ TEST(SummaryTest, UntilSteadyJudgesLongerWindowsWhereTheSteadyWindowDoesNotSettl
   EXPECT_EQ(trend.status, "not_steady");
   EXPECT_TRUE(has_reason(trend, "drift of the means: output torque")) << reasons(trend);
   EXPECT_NEAR(trend.window_end - trend.window_start, 2 * W, 2e-5) << "the reasons are the steady window's";
+}
+
+// A self-sustained swing (a limit cycle of the drive line) at a period that the torsion
+// mode's estimate misses scatters the means of spans of W / 2 and of the doublings that fit;
+// windows of whole periods of it, as measured, settle: the verdict takes them and says so. A
+// decaying swing gets no such windows: it must ring down.
+TEST(SummaryTest, UntilSteadyJudgesWholePeriodsOfASelfSustainedSwing) {
+  const Model m = test::model("reference");
+  const double W = steady_window(m), T = torsion_period(m), P = T / 1.37;
+  const double t_end = ramps_end(m.cfg) + 4 * W + 1e-3;  // the pairs of W and 2 W fit, no longer
+  RunSummary s;
+  const Synthetic held([P](double t, Sample& x) { x.output_torque += 60 * std::sin(2 * M_PI * t / P); }, t_end);
+  RunSummary at_2w;
+  summarize(m, held.ch, at_2w, SteadyCriteria{}, t_end - 4 * W, W);
+  EXPECT_EQ(at_2w.status, "not_steady") << "the doubled pair does not settle it";
+  const double w = until_steady_verdict(m, held.ch, SteadyCriteria{}, s);
+  ASSERT_GT(w, 0) << reasons(s);
+  EXPECT_EQ(s.status, "steady") << reasons(s);
+  const double periods = w / P;  // two spans of whole periods
+  EXPECT_NEAR(periods, 2 * std::round(periods / 2), 0.02) << w;
+  bool said = false;
+  for (const auto& c : s.criteria) said |= c.rfind("windows of whole periods of the output torque's self-sustained swing", 0) == 0;
+  EXPECT_TRUE(said);
+
+  RunSummary d;
+  const double t_a = t_end - 4 * W;
+  const Synthetic decaying(
+      [P, T, t_a](double t, Sample& x) { x.output_torque += 60 * std::exp(-(t - t_a) / (2 * T)) * std::sin(2 * M_PI * t / P); },
+      t_end);
+  EXPECT_EQ(until_steady_verdict(m, decaying.ch, SteadyCriteria{}, d), 0.0) << "a decaying swing rings down first";
+  EXPECT_EQ(d.status, "not_steady");
 }
 
 TEST(SummaryTest, ShiftingRatioIsNamedWithItsRate) {
