@@ -75,10 +75,11 @@ std::size_t meshing_samples(double t_mesh, double dt) {
 
 // The output torque's swing over samples [a, b), averaged over k samples (one meshing
 // period: the polygon ripple removed): its own period from the crossings about its mean,
-// and its swing (half of max - min) over each half.
+// and its swing (half of max - min) over each half and over all of it.
 struct Swing {
   double period = 0;             // [s]; 0: fewer than three crossings
   double first = 0, second = 0;  // the swing over the first and the second half [N m]
+  double whole = 0;              // the swing over all of it [N m]; 0: shorter than k samples
   int crossings = 0;
   bool regular = false;  // the half periods between crossings agree within a quarter
 };
@@ -92,15 +93,18 @@ Swing measure_swing(const SummaryChannels& ch, std::size_t a, std::size_t b, std
     if (i >= a + k) run -= ch.output_torque[i - k];
     if (i + 1 >= a + k) avg.push_back(run / static_cast<double>(k));
   }
-  if (avg.size() < 4) return w;
-  double mean = 0, lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
-  for (double x : avg) mean += x;
-  mean /= static_cast<double>(avg.size());
+  if (avg.empty()) return w;
+  double lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
   for (std::size_t i = 0; i < avg.size(); ++i) {
     const int h = 2 * i < avg.size() ? 0 : 1;
     lo[h] = std::min(lo[h], avg[i]), hi[h] = std::max(hi[h], avg[i]);
   }
+  w.whole = 0.5 * (std::max(hi[0], hi[1]) - std::min(lo[0], lo[1]));
+  if (avg.size() < 4) return w;
   w.first = 0.5 * (hi[0] - lo[0]), w.second = 0.5 * (hi[1] - lo[1]);
+  double mean = 0;
+  for (double x : avg) mean += x;
+  mean /= static_cast<double>(avg.size());
   // A crossing counts where the torque leaves a band of a tenth of the swing about the mean
   // on the other side (a residue of the ripple does not count) and is dated there: every one
   // a band's width from the mean, so the half periods between them are whole.
@@ -305,13 +309,7 @@ class Judge {
   // to pass, pitch / (omega_in R1), removes the polygon ripple) is reported beside it. A
   // window of fewer than two spans judges the swing against the load instead.
   void ringing() {
-    double lo = 1e300, hi = -1e300, run = 0;
-    for (std::size_t i = a_; i < b_; ++i) {
-      run += ch_.output_torque[i];
-      if (i >= a_ + k_) run -= ch_.output_torque[i - k_];
-      if (i + 1 >= a_ + k_) lo = std::min(lo, run / k_), hi = std::max(hi, run / k_);
-    }
-    const double swing = 0.5 * (hi - lo);
+    const double swing = measure_swing(ch_, a_, b_, k_).whole;
     if (periods_ < 2) {
       if (swing > c_.ringing * torque_scale_)
         unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
