@@ -177,7 +177,8 @@ FileHistory continue_file(H5File& f, const Model& m, const Checkpoint& ck, long 
            {"strand_tension_lower", &ch.strand_lower},
            {"work_input", &ch.work_input},
            {"work_output", &ch.work_output},
-           {"work_dissipated", &ch.work_dissipated}}) {
+           {"work_dissipated", &ch.work_dissipated},
+           {"work_clamping", &ch.work_clamping}}) {
     const std::vector<double> v = read(name);
     to->assign(v.begin(), v.begin() + static_cast<long>(n));
   }

@@ -11,6 +11,7 @@
 
 #include "engine/io/checkpoint.hpp"
 #include "engine/io/h5_writer.hpp"
+#include "engine/output.hpp"
 #include "engine/run.hpp"
 #include "engine/simulation.hpp"
 #include "tests/test_util.hpp"
@@ -146,6 +147,25 @@ TEST_F(CheckpointTest, ResumeAppendsToTheRunsOwnFileBitForBit) {
   EXPECT_FALSE(history(path("run")) == history(path("whole")));  // the comparison below can fail
   run("run", "8e-6", &half, {}, {}, true);
   expect_same_history(path("run"), path("whole"));
+}
+
+// The history a continuation reads back for its summary holds every channel the summary
+// reads, each as long as the time: its verdicts index them by sample.
+TEST_F(CheckpointTest, AContinuationReadsBackEverySummaryChannel) {
+  const Checkpoint half = run("run", "4e-6", nullptr);
+  const Config cfg = parse_config(half.config_toml, {});
+  const Model m = build_model(cfg);
+  H5File f = H5File::open_for_reading(path("run"));
+  const long every = std::lround(cfg.run.sample_interval / cfg.integrator.step);
+  const FileHistory hist = continue_file(f, m, half, every, 0);
+  const SummaryChannels& ch = hist.channels;
+  ASSERT_GT(ch.size(), 2u);
+  for (const std::vector<double>* v :
+       {&ch.input_speed, &ch.output_speed, &ch.input_torque, &ch.output_torque, &ch.load_torque, &ch.speed_ratio,
+        &ch.geometric_ratio, &ch.clamp_driving, &ch.clamp_driven, &ch.strand_upper, &ch.strand_lower,
+        &ch.sheave_driving, &ch.sheave_driven, &ch.work_input, &ch.work_output, &ch.work_dissipated,
+        &ch.work_clamping})
+    EXPECT_EQ(v->size(), ch.size());
 }
 
 // A checkpoint between samples (as an interrupt leaves it; here t_end): the file's last,
