@@ -195,6 +195,7 @@ class Run {
   const bool until_ = c_.run.until_steady;
   double window_ = 0, first_check_ = 0;
   double judged_ = 0;  // the windows' length that decided (until_steady_verdict), else window_
+  std::vector<double> judged_bounds_;  // its spans' bounds, where whole periods of a swing decided
   long check_every_ = 1;
   std::string stopped_ = "t_end";
   // run.verify: the states the summary's window may start from, kept in memory: at step
@@ -505,9 +506,10 @@ bool Run::steady_now() {
   channels_.from = std::max(0.0, sim_.step_halved_at());
   if (sim_.time() < (channels_.from + 2 * window_) * (1 - 1e-12)) return false;
   RunSummary probe;
-  const double w = until_steady_verdict(m_, channels_, SteadyCriteria::of(c_), probe);
+  std::vector<double> bounds;
+  const double w = until_steady_verdict(m_, channels_, SteadyCriteria::of(c_), probe, &bounds);
   if (!(w > 0)) return false;
-  judged_ = w;
+  judged_ = w, judged_bounds_ = std::move(bounds);
   stopped_ = probe.status;
   return true;
 }
@@ -649,7 +651,10 @@ RunResult Run::finish() {
   r_.stopped = stopped;
   r_.steady_window = judged_;
   channels_.from = std::max(0.0, sim_.step_halved_at());
-  summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);
+  if (!judged_bounds_.empty())
+    summarize(m_, channels_, r_, SteadyCriteria::of(c_), judged_bounds_);
+  else
+    summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);
   // The step the window was taken with, and the energy balance's control of it.
   r_.step = h_ / (1 << sim_.step_halvings());
   r_.step_halvings = sim_.step_halvings();
@@ -723,7 +728,10 @@ void Run::verify() {
   }
   if (ch.size() < 2) return skip("the window holds fewer than two samples");
   RunSummary tight;
-  summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from), 0.5 * judged_);
+  if (!judged_bounds_.empty())
+    summarize(m_, ch, tight, SteadyCriteria::of(c_), judged_bounds_);
+  else
+    summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from), 0.5 * judged_);
   if (std::abs(tight.window_start - r_.window_start) > 0.5 * h_ || std::abs(tight.window_end - r_.window_end) > 0.5 * h_)
     return skip("its window " + std::to_string(tight.window_start) + " .. " + std::to_string(tight.window_end) +
                 " s is not the run's");

@@ -126,6 +126,53 @@ Swing measure_swing(const SummaryChannels& ch, std::size_t a, std::size_t b, std
   return w;
 }
 
+// Where the energy held in the model's inertias and springs passes the same phase of a
+// swing, once per period, in samples [a, b). That energy, from its balance
+// W_in - W_out - D + W_c (the residual aside), averaged over k samples (one meshing period),
+// less its centred average over one period of the swing (`period` samples), crosses zero
+// upwards once per period: the sample first at or above zero after it was below a tenth of
+// its swing. Between two such crossings the stored energy changes by its trend alone, not
+// by the swing's phase nor, to first order, by its amplitude; at a high speed the swing's
+// energy is mostly J omega d(omega) of the turning inertias, so a window that ends at
+// another phase carries that into its power ratio and torque means.
+std::vector<std::size_t> stored_energy_crossings(const SummaryChannels& ch, std::size_t a, std::size_t b,
+                                                 std::size_t k, std::size_t period) {
+  std::vector<std::size_t> up;
+  const std::size_t h = period / 2;
+  if (b <= a || b - a < k + 2 * h + 2) return up;
+  const std::size_t n = b - a - k + 1;  // avg[j]: samples a + j .. a + j + k - 1, dated at the last
+  std::vector<double> avg(n), sum(n + 1, 0.0);
+  double run = 0;
+  const auto energy = [&ch](std::size_t i) {
+    return ch.work_input[i] - ch.work_output[i] - ch.work_dissipated[i] + ch.work_clamping[i];
+  };
+  for (std::size_t i = a; i < b; ++i) {
+    run += energy(i);
+    if (i >= a + k) run -= energy(i - k);
+    if (i + 1 >= a + k) avg[i + 1 - a - k] = run / static_cast<double>(k);
+  }
+  for (std::size_t j = 0; j < n; ++j) sum[j + 1] = sum[j] + avg[j];
+  std::vector<double> x(n, 0.0);
+  double lo = 1e300, hi = -1e300;
+  for (std::size_t j = h; j + h < n; ++j) {
+    x[j] = avg[j] - (sum[j + h + 1] - sum[j - h]) / static_cast<double>(2 * h + 1);
+    lo = std::min(lo, x[j]), hi = std::max(hi, x[j]);
+  }
+  const double band = 0.05 * (hi - lo);
+  bool armed = false;
+  for (std::size_t j = h + 1; j + h < n; ++j) {
+    if (x[j] < -band) armed = true;
+    if (armed && x[j - 1] < 0 && x[j] >= 0) up.push_back(a + j + k - 1), armed = false;
+  }
+  return up;
+}
+
+// The first sample at or after time t (half a sample's slack: another run's grid).
+std::size_t sample_at(const SummaryChannels& ch, double t) {
+  const double slack = 0.5 * sample_interval(ch);
+  return static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), t - slack) - ch.t.begin());
+}
+
 }  // namespace
 
 namespace {
@@ -161,14 +208,22 @@ void fill_means(const SummaryChannels& ch, std::size_t a, std::size_t b, RunSumm
 // (a line in slip or unsteady).
 class Judge {
  public:
+  // bounds: the spans' first samples and the window's end (whole periods of a swing,
+  // until_steady_verdict), in place of spans of `span` counted back from b.
   Judge(const Model& m, const SummaryChannels& ch, std::size_t a, std::size_t b, RunSummary& s, const SteadyCriteria& c,
-        double span)
+        double span, const std::vector<std::size_t>* bounds = nullptr)
       : ch_(ch), a_(a), b_(b), mid_((a + b) / 2), first_(a), s_(s), c_(c),
         torque_scale_(std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6})),
         controlled_(m.cfg.controller.enabled) {
     const double dt = sample_interval(ch);
     t_mesh_ = meshing_period(m, s.input_speed);
     k_ = meshing_samples(t_mesh_, dt);
+    if (bounds) {
+      bounds_ = *bounds;
+      a_ = first_ = bounds_.front(), b_ = bounds_.back(), mid_ = bounds_[bounds_.size() / 2];
+      t_torsion_ = (ch.t[b_ - 1] - ch.t[a_]) / static_cast<double>(bounds_.size() - 1);
+      return;
+    }
     // The span that averages out both the lowest torsion mode and the meshing ripple: half
     // the until-steady window, a torsion period in whole meshing periods (steady_window),
     // or the span given (a longer until-steady window's half).
@@ -205,11 +260,16 @@ class Judge {
   // Where the spans are whole periods of the swing as measured (until_steady_verdict).
   std::string whole_periods() const {
     const Swing w = measure_swing(ch_, a_, b_, k_);
-    return w.period > 0 ? fmt("windows of whole periods of the output torque's self-sustained swing: spans of %.4g s "
-                              "hold %.3g of its periods of %.4g s (%.3g Hz) as measured over the two windows, "
-                              "where the torsion mode's estimate leaves them part periods",
-                              t_torsion_, t_torsion_ / w.period, w.period, 1 / w.period)
-                        : "";
+    if (!(w.period > 0)) return "";
+    if (!bounds_.empty())
+      return fmt("windows of whole periods of the drive line's self-sustained swing: %zu spans of %.0f of its periods "
+                 "(%.4g s, %.3g Hz, as measured), each from an upward crossing of the stored energy's swing to a "
+                 "later one, so that the window's ends hold the same energy; the window ends at the last crossing",
+                 bounds_.size() - 1, std::round(t_torsion_ / w.period), w.period, 1 / w.period);
+    return fmt("windows of whole periods of the output torque's self-sustained swing: spans of %.4g s "
+               "hold %.3g of its periods of %.4g s (%.3g Hz) as measured over the two windows, "
+               "where the torsion mode's estimate leaves them part periods",
+               t_torsion_, t_torsion_ / w.period, w.period, 1 / w.period);
   }
  private:
   void slip_check() {
@@ -282,14 +342,17 @@ class Judge {
   void span_means() {
     const auto& fields = summary_fields();
     s_.uncertainty.assign(fields.size(), std::numeric_limits<double>::quiet_NaN());
-    periods_ = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
+    periods_ = !bounds_.empty() ? bounds_.size() - 1 : k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
     s_.uncertainty_spans = periods_ >= 2 ? static_cast<long>(periods_) : 0;
     s_.uncertainty_span = periods_ >= 2 ? t_torsion_ : 0;
     if (periods_ < 2) return;
     const std::size_t first = b_ - periods_ * k_torsion_;
     std::vector<RunSummary> span(periods_);
     for (std::size_t p = 0; p < periods_; ++p)
-      fill_means(ch_, first + p * k_torsion_, first + (p + 1) * k_torsion_, span[p]);
+      if (!bounds_.empty())
+        fill_means(ch_, bounds_[p], bounds_[p + 1], span[p]);
+      else
+        fill_means(ch_, first + p * k_torsion_, first + (p + 1) * k_torsion_, span[p]);
     const double n = static_cast<double>(periods_);
     for (std::size_t i = 0; i < fields.size(); ++i) {
       if (!fields[i].verify.verified) continue;
@@ -397,6 +460,7 @@ class Judge {
   double t_mesh_ = 0;
   std::size_t k_ = 1;
   std::size_t periods_ = 0;  // the whole spans in [a_, b_) (span_means)
+  std::vector<std::size_t> bounds_;  // spans between these samples, if given
 };
 
 }  // namespace
@@ -429,8 +493,10 @@ std::string controller_text(const Config& cfg) {
 
 }  // namespace
 
-void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
-               double window_start, double span) {
+namespace {
+
+// The configured inputs and the run's method into s, its verdicts cleared.
+void summary_header(const Model& m, RunSummary& s) {
   const Config& cfg = m.cfg;
   // As configured, or where an input's profile ends.
   const auto last = [](const Config::Profile& p, double constant) { return p.empty() ? constant : p.back()[1]; };
@@ -444,26 +510,21 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.controller = controller_text(cfg);
   s.reasons.clear();
   s.criteria.clear();
-  const std::size_t n = ch.size();
-  if (n == 0) return;
-  // The window: the last window_fraction of the run (or from window_start), not before
-  // the ramps have ended.
-  const double t0 = ch.t.front(), t1 = ch.t.back();
-  const double ramp_end = ramps_end(cfg);
-  double w0 = window_start >= 0 ? window_start : t1 - c.window_fraction * (t1 - t0);
-  const bool ramping = w0 < ramp_end;
-  if (ramping && ramp_end < t1) w0 = std::max(w0, ramp_end);
-  if (w0 < ch.from && ch.from < t1) w0 = ch.from;  // not across a change of the step
-  std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
-  if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
-  fill_means(ch, a, n, s);
-  Judge judge(m, ch, a, n, s, c, span);
-  judge.all(ramping, ramp_end);
+}
+
+// The means over samples [a, b) and the verdicts on them (Judge's arguments).
+void judge_window(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c, std::size_t a,
+                  std::size_t b, bool ramping, double span, const std::vector<std::size_t>* bounds) {
+  fill_means(ch, a, b, s);
+  Judge judge(m, ch, a, b, s, c, span, bounds);
+  judge.all(ramping, ramps_end(m.cfg));
   s.status = !judge.slip.empty() ? "slip" : judge.unsteady.empty() ? "steady" : "not_steady";
   s.reasons = judge.slip;
   s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
   s.criteria = judge.held;
-  if (span > 0) {  // spans that are not the steady window's halves (W / 2, W, 2 W, ...)
+  if (bounds) {
+    if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
+  } else if (span > 0) {  // spans that are not the steady window's halves (W / 2, W, 2 W, ...)
     const double d = std::log2(2 * span / steady_window(m));
     if (std::abs(d - std::round(d)) > 1e-6)
       if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
@@ -471,7 +532,41 @@ void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const S
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
-double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s) {
+}  // namespace
+
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
+               double window_start, double span) {
+  summary_header(m, s);
+  const std::size_t n = ch.size();
+  if (n == 0) return;
+  // The window: the last window_fraction of the run (or from window_start), not before
+  // the ramps have ended.
+  const double t0 = ch.t.front(), t1 = ch.t.back();
+  const double ramp_end = ramps_end(m.cfg);
+  double w0 = window_start >= 0 ? window_start : t1 - c.window_fraction * (t1 - t0);
+  const bool ramping = w0 < ramp_end;
+  if (ramping && ramp_end < t1) w0 = std::max(w0, ramp_end);
+  if (w0 < ch.from && ch.from < t1) w0 = ch.from;  // not across a change of the step
+  std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), w0) - ch.t.begin());
+  if (a + 2 > n) a = n >= 2 ? n - 2 : 0;
+  judge_window(m, ch, s, c, a, n, ramping, span, nullptr);
+}
+
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
+               const std::vector<double>& span_bounds) {
+  summary_header(m, s);
+  std::vector<std::size_t> at;
+  for (double t : span_bounds) at.push_back(sample_at(ch, t));
+  for (std::size_t i = 1; i < at.size(); ++i)
+    if (!(at[i] > at[i - 1] + 1) || at[i] > ch.size())
+      throw std::invalid_argument("summarize: the spans' bounds are not ascending times within the channels");
+  if (at.size() < 3) throw std::invalid_argument("summarize: the spans' bounds hold fewer than two spans");
+  judge_window(m, ch, s, c, at.front(), at.back(), span_bounds.front() < ramps_end(m.cfg), 0, &at);
+}
+
+double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s,
+                            std::vector<double>* span_bounds) {
+  if (span_bounds) span_bounds->clear();
   const double W = steady_window(m);
   if (ch.size() < 2 || !(W > 0)) return 0;
   const double t1 = ch.t.back(), earliest = std::max({ramps_end(m.cfg), ch.t.front(), ch.from});
@@ -492,22 +587,32 @@ double until_steady_verdict(const Model& m, const SummaryChannels& ch, const Ste
   // A swing that holds on over the longest pair that fits, regular and larger than the
   // ringing criterion's 3 % of the load (a limit cycle of the drive line, whose period the
   // torsion mode's estimate, and so the spans of W / 2, need not hold whole: docs/output.md,
-  // "Until steady"): windows of whole periods of it as measured, the number of periods per
-  // span nearest W / 2, and their doublings within the longest pair's reach.
+  // "Until steady"): four spans of whole periods of it, each from an upward crossing of the
+  // stored energy's swing to a later one (stored_energy_crossings), the number of periods
+  // per span nearest W / 2 and its doublings, the pair no longer than the longest of 16 W.
   const double from = std::max(earliest, t1 - 2 * longest);
   const std::size_t a = static_cast<std::size_t>(std::lower_bound(ch.t.begin(), ch.t.end(), from) - ch.t.begin());
-  const Swing sw = measure_swing(ch, a, ch.size(), meshing_samples(meshing_period(m, s.input_speed), sample_interval(ch)));
+  const double dt = sample_interval(ch);
+  const std::size_t k = meshing_samples(meshing_period(m, s.input_speed), dt);
+  const Swing sw = measure_swing(ch, a, ch.size(), k);
   const double scale = std::max({std::abs(s.load_torque), std::abs(s.output_torque), 1e-6});
   if (!(sw.period > 0) || sw.crossings < 8 || !sw.regular || sw.second < 0.9 * sw.first || sw.first < c.ringing * scale)
     return 0;
-  const double span = std::max(1.0, std::round(0.5 * W / sw.period)) * sw.period;
-  for (double w = 2 * span; w <= W * (1 << kSteadyWindowDoublings) * (1 + 1e-9); w *= 2) {
-    if (t1 - 2 * w < earliest - slack) break;
+  const double reach = 2 * W * (1 << kSteadyWindowDoublings) * (1 + 1e-9);
+  const std::size_t e = sample_at(ch, std::max(earliest, t1 - reach - sw.period));
+  const std::vector<std::size_t> up =
+      stored_energy_crossings(ch, e, ch.size(), k, std::max<std::size_t>(1, std::lround(sw.period / dt)));
+  for (std::size_t per = std::max(1L, std::lround(0.5 * W / sw.period)); 4 * per < up.size(); per *= 2) {
+    const std::size_t last = up.size() - 1, first = last - 4 * per;
+    if (ch.t[up[first]] < t1 - reach) break;
+    std::vector<double> bounds;
+    for (std::size_t i = 0; i <= 4; ++i) bounds.push_back(ch.t[up[first + i * per]]);
     RunSummary probe;
-    summarize(m, ch, probe, c, t1 - 2 * w, 0.5 * w);
+    summarize(m, ch, probe, c, bounds);
     if (probe.status == "steady" || probe.status == "slip") {
       s = std::move(probe);
-      return w;
+      if (span_bounds) *span_bounds = std::move(bounds);
+      return 0.5 * (s.window_end - s.window_start);
     }
   }
   return 0;

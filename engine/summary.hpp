@@ -147,6 +147,12 @@ std::string summary_units_json();
 // torsion verdict averages over [s]; 0: half the steady window (steady_window(m)).
 void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c = {},
                double window_start = -1, double span = 0);
+// The same over the spans between consecutive times of span_bounds (ascending, at least
+// three, each the time of a sample or within half a sample of one): the window from the
+// first to the last, its halves split at the middle bound (until_steady_verdict's windows of
+// whole periods of a swing).
+void summarize(const Model& m, const SummaryChannels& ch, RunSummary& s, const SteadyCriteria& c,
+               const std::vector<double>& span_bounds);
 
 // The longest steady window run.until_steady compares: the steady window W times 2^this.
 inline constexpr int kSteadyWindowDoublings = 4;
@@ -156,9 +162,12 @@ inline constexpr int kSteadyWindowDoublings = 4;
 // steady_window(m)), as long as both fit after the ramps' end and the first sample, each
 // judged with torsion spans of w / 2; the first that is steady or slips decides. Where none
 // does and the output torque carries a self-sustained swing, pairs of windows of whole
-// periods of it as measured, up to the same reach. Returns that w with s its summary, or 0
-// when none does (s then holds W's).
-double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s);
+// periods of it as measured, between upward crossings of the stored energy's swing, up to
+// the same reach: then span_bounds (if given) receives the spans' bounds, for summarize's
+// second form, and the window ends at its last crossing. Returns that w (half the pair's
+// length) with s its summary, or 0 when none does (s then holds W's).
+double until_steady_verdict(const Model& m, const SummaryChannels& ch, const SteadyCriteria& c, RunSummary& s,
+                            std::vector<double>* span_bounds = nullptr);
 
 // run.verify: the numerical errors of s's means against tight, the same window's summary
 // from an integration with the step `tight_step`; a mean whose error passes its goal adds

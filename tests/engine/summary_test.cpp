@@ -35,12 +35,15 @@ std::string reasons(const RunSummary& s) {
 
 // The reference model's operating point as channels: 20 ms sampled every 1e-5 s, the loads
 // ramped over the config's ramp time, a meshing ripple of +-5 % on the output torque, and
-// `tweak(t, sample)` to spoil it.
+// `tweak(t, sample)` to spoil it. The power the tweak adds to the output is dissipated,
+// or with `stored` held in the drive line (as a swing of its inertias holds it: the stored
+// energy W_in - W_out - D swings with it).
 struct Synthetic {
   const Model m = test::model("reference");
   SummaryChannels ch;
 
-  explicit Synthetic(const std::function<void(double, Sample&)>& tweak = {}, double t_end = 20e-3) {
+  explicit Synthetic(const std::function<void(double, Sample&)>& tweak = {}, double t_end = 20e-3,
+                     bool stored = false) {
     const double w1 = m.cfg.drive.speed, load = m.cfg.load.torque, ratio = 1.0, slip = 0.01;
     const double t_mesh = m.cfg.chain.pitch / (w1 * m.pulley[0].running_radius);
     double win = 0, wout = 0, wd = 0;
@@ -57,9 +60,10 @@ struct Synthetic {
       s.input_torque = s.load_torque / s.speed_ratio / 0.97;
       s.clamp[0] = m.cfg.clamping.driving * ramp;
       s.clamp[1] = m.cfg.clamping.driven * ramp;
+      const double pout0 = s.output_torque * s.output_speed;
       if (tweak) tweak(s.t, s);
       const double pin = s.input_torque * s.input_speed, pout = s.output_torque * s.output_speed;
-      win += pin * 1e-5, wout += pout * 1e-5, wd += (pin - pout) * 1e-5;
+      win += pin * 1e-5, wout += pout * 1e-5, wd += (pin - (stored ? pout0 : pout)) * 1e-5;
       s.work_input = win, s.work_output = wout, s.work_dissipated = wd;
       ch.push(s);
     }
@@ -316,25 +320,41 @@ TEST(SummaryTest, UntilSteadyJudgesLongerWindowsWhereTheSteadyWindowDoesNotSettl
 
 // A self-sustained swing (a limit cycle of the drive line) at a period that the torsion
 // mode's estimate misses scatters the means of spans of W / 2 and of the doublings that fit;
-// windows of whole periods of it, as measured, settle: the verdict takes them and says so. A
-// decaying swing gets no such windows: it must ring down.
+// windows of whole periods of it, between upward crossings of the stored energy's swing,
+// settle: the verdict takes them and says so. A decaying swing gets no such windows: it
+// must ring down.
 TEST(SummaryTest, UntilSteadyJudgesWholePeriodsOfASelfSustainedSwing) {
   const Model m = test::model("reference");
   const double W = steady_window(m), T = torsion_period(m), P = T / 1.37;
   const double t_end = ramps_end(m.cfg) + 4 * W + 1e-3;  // the pairs of W and 2 W fit, no longer
   RunSummary s;
-  const Synthetic held([P](double t, Sample& x) { x.output_torque += 60 * std::sin(2 * M_PI * t / P); }, t_end);
+  const Synthetic held([P](double t, Sample& x) { x.output_torque += 60 * std::sin(2 * M_PI * t / P); }, t_end,
+                       true);
   RunSummary at_2w;
   summarize(m, held.ch, at_2w, SteadyCriteria{}, t_end - 4 * W, W);
   EXPECT_EQ(at_2w.status, "not_steady") << "the doubled pair does not settle it";
-  const double w = until_steady_verdict(m, held.ch, SteadyCriteria{}, s);
+  std::vector<double> bounds;
+  const double w = until_steady_verdict(m, held.ch, SteadyCriteria{}, s, &bounds);
   ASSERT_GT(w, 0) << reasons(s);
   EXPECT_EQ(s.status, "steady") << reasons(s);
-  const double periods = w / P;  // two spans of whole periods
-  EXPECT_NEAR(periods, 2 * std::round(periods / 2), 0.02) << w;
+  ASSERT_EQ(bounds.size(), 5u);
+  for (std::size_t i = 1; i < bounds.size(); ++i) {
+    const double periods = (bounds[i] - bounds[i - 1]) / P;  // each span whole periods, to a sample
+    EXPECT_GE(periods, 0.99);
+    EXPECT_NEAR(periods, std::round(periods), 1.5e-5 / P) << i;
+  }
+  EXPECT_NEAR(s.window_start, bounds.front(), 1e-9);
+  EXPECT_LE(bounds.back(), t_end);
+  EXPECT_NEAR(w, 0.5 * (s.window_end - s.window_start), 1e-12);
   bool said = false;
-  for (const auto& c : s.criteria) said |= c.rfind("windows of whole periods of the output torque's self-sustained swing", 0) == 0;
+  for (const auto& c : s.criteria) said |= c.rfind("windows of whole periods of the drive line's self-sustained swing", 0) == 0;
   EXPECT_TRUE(said);
+  // The same window summarized again from its bounds gives the same verdict and means.
+  RunSummary again;
+  summarize(m, held.ch, again, SteadyCriteria{}, bounds);
+  EXPECT_EQ(again.status, "steady");
+  EXPECT_EQ(again.output_torque, s.output_torque);
+  EXPECT_EQ(again.efficiency, s.efficiency);
 
   RunSummary d;
   const double t_a = t_end - 4 * W;
@@ -343,6 +363,35 @@ TEST(SummaryTest, UntilSteadyJudgesWholePeriodsOfASelfSustainedSwing) {
       t_end);
   EXPECT_EQ(until_steady_verdict(m, decaying.ch, SteadyCriteria{}, d), 0.0) << "a decaying swing rings down first";
   EXPECT_EQ(d.status, "not_steady");
+}
+
+// A swing whose period and amplitude wander: the windows between crossings of the stored
+// energy's swing hold the same energy at their ends, so the power ratio meets the energy
+// balance; a pair of the same spans in periods of the swing's mean length, ending where the
+// channels end, does not: its ends lie at another phase, and the swing's energy between
+// them shows in the power ratio.
+TEST(SummaryTest, WholePeriodWindowsOfAWanderingSwingEndWhereTheStoredEnergyStarted) {
+  const Model m = test::model("reference");
+  const double W = steady_window(m), T = torsion_period(m), P = T / 1.37;
+  const double t_end = ramps_end(m.cfg) + 4 * W + 1e-3;
+  double phase = 0, t_last = 0;
+  const Synthetic held(
+      [&](double t, Sample& x) {
+        phase += 2 * M_PI / P * (1 + 0.06 * std::sin(2 * M_PI * t / (5.3 * P))) * (t - t_last), t_last = t;
+        x.output_torque += 60 * (1 + 0.1 * std::sin(2 * M_PI * t / (3.7 * P))) * std::sin(phase);
+      },
+      t_end, true);
+  RunSummary s;
+  std::vector<double> bounds;
+  ASSERT_GT(until_steady_verdict(m, held.ch, SteadyCriteria{}, s, &bounds), 0) << reasons(s);
+  EXPECT_EQ(s.status, "steady") << reasons(s);
+  ASSERT_EQ(bounds.size(), 5u);
+  const double per = std::round((bounds[1] - bounds[0]) / P), span = per * P;
+  RunSummary fixed;
+  summarize(m, held.ch, fixed, SteadyCriteria{}, t_end - 4 * span, span);
+  EXPECT_EQ(fixed.status, "not_steady");
+  EXPECT_TRUE(has_reason(fixed, "efficiency not settled")) << reasons(fixed);
+  EXPECT_GT(std::abs(fixed.efficiency - fixed.loss_efficiency), 10 * std::abs(s.efficiency - s.loss_efficiency));
 }
 
 TEST(SummaryTest, ShiftingRatioIsNamedWithItsRate) {
