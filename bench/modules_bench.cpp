@@ -11,7 +11,9 @@
 #include "modules/other_forces.hpp"
 #include "modules/pulley_contact.hpp"
 #include "bench/bench_fixture.hpp"
+#include "engine/ode/w_stages.hpp"
 #include "engine/wmethod/chain_stiffness.hpp"
+#include "engine/wmethod/parallel.hpp"
 
 namespace {
 
@@ -110,6 +112,44 @@ void BM_ChainStiffness(benchmark::State& st) {
   st.SetLabel(st.range(0) == 1 ? "analytic" : "differences");
 }
 
+// The vector work of one ROS34PW2 step on the reference model's state (the stage sums, the
+// new state and the error estimate: ros34pw2_stages with its evaluations and solves left
+// out), against one fork and join over the joints on the flow graph's threads (arg: the
+// threads) with nothing inside: what moving those sums onto the threads would have to beat
+// (docs/performance.md 3.2).
+void BM_Ros34pw2StageSums(benchmark::State& st) {
+  auto& f = reference();
+  const int n = f.m.nstate;
+  Eigen::VectorXd y = f.y, f0 = Eigen::VectorXd::Constant(n, 1e-3);
+  WStageVectors w;
+  w.resize(n);
+  const auto eval = [](double, const Eigen::VectorXd& yy, Eigen::VectorXd& dy) { dy = 1e-3 * yy; };
+  const auto none = [](double, const Eigen::VectorXd&, Eigen::VectorXd&) {};
+  const auto solve = [](Eigen::VectorXd&) {};
+  const bool with_eval = st.range(0) == 1;
+  for (auto _ : st) {
+    if (with_eval)
+      ros34pw2_stages(3e-4, 2.5e-6, y, f0, nullptr, w, true, eval, solve);
+    else
+      ros34pw2_stages(3e-4, 2.5e-6, y, f0, nullptr, w, true, none, solve);
+    benchmark::DoNotOptimize(w.y_new.data());
+  }
+  st.SetLabel(with_eval ? "with a vector copy per evaluation" : "the sums alone");
+}
+void BM_ForkJoinOverJoints(benchmark::State& st) {
+  auto& f = reference();
+  Workspace ws = prepared(f);
+  ScheduleOptions o;
+  o.kind = SchedulerKind::flowgraph;
+  o.threads = static_cast<int>(st.range(0));
+  const auto schedule = make_schedule(f.m, ws, o);
+  schedule->within([&] {
+    for (auto _ : st) for_joint_ranges(*schedule, f.m.links, [](int b, int e) { benchmark::DoNotOptimize(b + e); });
+  });
+}
+
+BENCHMARK(BM_Ros34pw2StageSums)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ForkJoinOverJoints)->Arg(1)->Arg(2)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ChainStiffness)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ChainForces)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PulleyContact)->Unit(benchmark::kMicrosecond);
