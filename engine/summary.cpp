@@ -260,16 +260,11 @@ class Judge {
   // Where the spans are whole periods of the swing as measured (until_steady_verdict).
   std::string whole_periods() const {
     const Swing w = measure_swing(ch_, a_, b_, k_);
-    if (!(w.period > 0)) return "";
-    if (!bounds_.empty())
-      return fmt("windows of whole periods of the drive line's self-sustained swing: %zu spans of %.0f of its periods "
-                 "(%.4g s, %.3g Hz, as measured), each from an upward crossing of the stored energy's swing to a "
-                 "later one, so that the window's ends hold the same energy; the window ends at the last crossing",
-                 bounds_.size() - 1, std::round(t_torsion_ / w.period), w.period, 1 / w.period);
-    return fmt("windows of whole periods of the output torque's self-sustained swing: spans of %.4g s "
-               "hold %.3g of its periods of %.4g s (%.3g Hz) as measured over the two windows, "
-               "where the torsion mode's estimate leaves them part periods",
-               t_torsion_, t_torsion_ / w.period, w.period, 1 / w.period);
+    if (!(w.period > 0) || bounds_.empty()) return "";
+    return fmt("windows of whole periods of the drive line's self-sustained swing: %zu spans of %.0f of its periods "
+               "(%.4g s, %.3g Hz, as measured), each from an upward crossing of the stored energy's swing to a "
+               "later one, so that the window's ends hold the same energy; the window ends at the last crossing",
+               bounds_.size() - 1, std::round(t_torsion_ / w.period), w.period, 1 / w.period);
   }
  private:
   void slip_check() {
@@ -522,13 +517,8 @@ void judge_window(const Model& m, const SummaryChannels& ch, RunSummary& s, cons
   s.reasons = judge.slip;
   s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
   s.criteria = judge.held;
-  if (bounds) {
+  if (bounds)
     if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
-  } else if (span > 0) {  // spans that are not the steady window's halves (W / 2, W, 2 W, ...)
-    const double d = std::log2(2 * span / steady_window(m));
-    if (std::abs(d - std::round(d)) > 1e-6)
-      if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
-  }
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
