@@ -132,6 +132,9 @@ class Run {
   void plan_verify();
   void keep_for_verify(long n);
   void verify();
+  // The summary over the until-steady verdict's spans (whole periods of a swing) where they
+  // decided, otherwise over the window from w0 in spans of half the judged window.
+  void summarize_judged(const SummaryChannels& ch, RunSummary& s, double w0) const;
 
   const Model& m_;
   const Config& c_;
@@ -651,10 +654,7 @@ RunResult Run::finish() {
   r_.stopped = stopped;
   r_.steady_window = judged_;
   channels_.from = std::max(0.0, sim_.step_halved_at());
-  if (!judged_bounds_.empty())
-    summarize(m_, channels_, r_, SteadyCriteria::of(c_), judged_bounds_);
-  else
-    summarize(m_, channels_, r_, SteadyCriteria::of(c_), until_ ? sim_.time() - 2 * judged_ : -1.0, 0.5 * judged_);
+  summarize_judged(channels_, r_, until_ ? sim_.time() - 2 * judged_ : -1.0);
   // The step the window was taken with, and the energy balance's control of it.
   r_.step = h_ / (1 << sim_.step_halvings());
   r_.step_halvings = sim_.step_halvings();
@@ -687,6 +687,13 @@ RunResult Run::finish() {
 // as it is, sampled on the same grid in memory (nothing is written), and summarized by the
 // same code over the same window; each mean's numerical error is its change. The run's
 // simulation does it: its output is complete by now.
+void Run::summarize_judged(const SummaryChannels& ch, RunSummary& s, double w0) const {
+  if (!judged_bounds_.empty())
+    summarize(m_, ch, s, SteadyCriteria::of(c_), judged_bounds_);
+  else
+    summarize(m_, ch, s, SteadyCriteria::of(c_), w0, 0.5 * judged_);
+}
+
 void Run::verify() {
   if (!verify_) return;
   const auto skip = [&](const std::string& why) { warn("run.verify: the means are not verified: " + why); };
@@ -728,10 +735,7 @@ void Run::verify() {
   }
   if (ch.size() < 2) return skip("the window holds fewer than two samples");
   RunSummary tight;
-  if (!judged_bounds_.empty())
-    summarize(m_, ch, tight, SteadyCriteria::of(c_), judged_bounds_);
-  else
-    summarize(m_, ch, tight, SteadyCriteria::of(c_), std::max(0.0, from), 0.5 * judged_);
+  summarize_judged(ch, tight, std::max(0.0, from));
   if (std::abs(tight.window_start - r_.window_start) > 0.5 * h_ || std::abs(tight.window_end - r_.window_end) > 0.5 * h_)
     return skip("its window " + std::to_string(tight.window_start) + " .. " + std::to_string(tight.window_end) +
                 " s is not the run's");

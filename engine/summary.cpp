@@ -219,7 +219,7 @@ class Judge {
     t_mesh_ = meshing_period(m, s.input_speed);
     k_ = meshing_samples(t_mesh_, dt);
     if (bounds) {
-      bounds_ = *bounds;
+      bounds_ = *bounds, whole_periods_ = true;
       a_ = first_ = bounds_.front(), b_ = bounds_.back(), mid_ = bounds_[bounds_.size() / 2];
       t_torsion_ = (ch.t[b_ - 1] - ch.t[a_]) / static_cast<double>(bounds_.size() - 1);
       return;
@@ -234,6 +234,9 @@ class Judge {
     // windows): a mode ringing on then moves neither half's mean.
     if (const std::size_t half = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ / 2 : 0; half > 0)
       a_ = b_ - 2 * half * k_torsion_, mid_ = b_ - half * k_torsion_;
+    // The whole spans in [a_, b_), the last ones before b_.
+    const std::size_t spans = k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
+    for (std::size_t p = 0; spans > 0 && p <= spans; ++p) bounds_.push_back(b_ - (spans - p) * k_torsion_);
   }
   void all(bool ramping, double ramp_end) {
     span_means();
@@ -260,7 +263,7 @@ class Judge {
   // Where the spans are whole periods of the swing as measured (until_steady_verdict).
   std::string whole_periods() const {
     const Swing w = measure_swing(ch_, a_, b_, k_);
-    if (!(w.period > 0) || bounds_.empty()) return "";
+    if (!(w.period > 0) || !whole_periods_) return "";
     return fmt("windows of whole periods of the drive line's self-sustained swing: %zu spans of %.0f of its periods "
                "(%.4g s, %.3g Hz, as measured), each from an upward crossing of the stored energy's swing to a "
                "later one, so that the window's ends hold the same energy; the window ends at the last crossing",
@@ -337,17 +340,12 @@ class Judge {
   void span_means() {
     const auto& fields = summary_fields();
     s_.uncertainty.assign(fields.size(), std::numeric_limits<double>::quiet_NaN());
-    periods_ = !bounds_.empty() ? bounds_.size() - 1 : k_torsion_ > 0 ? (b_ - a_) / k_torsion_ : 0;
+    periods_ = bounds_.empty() ? 0 : bounds_.size() - 1;
     s_.uncertainty_spans = periods_ >= 2 ? static_cast<long>(periods_) : 0;
     s_.uncertainty_span = periods_ >= 2 ? t_torsion_ : 0;
     if (periods_ < 2) return;
-    const std::size_t first = b_ - periods_ * k_torsion_;
     std::vector<RunSummary> span(periods_);
-    for (std::size_t p = 0; p < periods_; ++p)
-      if (!bounds_.empty())
-        fill_means(ch_, bounds_[p], bounds_[p + 1], span[p]);
-      else
-        fill_means(ch_, first + p * k_torsion_, first + (p + 1) * k_torsion_, span[p]);
+    for (std::size_t p = 0; p < periods_; ++p) fill_means(ch_, bounds_[p], bounds_[p + 1], span[p]);
     const double n = static_cast<double>(periods_);
     for (std::size_t i = 0; i < fields.size(); ++i) {
       if (!fields[i].verify.verified) continue;
@@ -455,7 +453,8 @@ class Judge {
   double t_mesh_ = 0;
   std::size_t k_ = 1;
   std::size_t periods_ = 0;  // the whole spans in [a_, b_) (span_means)
-  std::vector<std::size_t> bounds_;  // spans between these samples, if given
+  std::vector<std::size_t> bounds_;  // the spans run between these samples
+  bool whole_periods_ = false;       // bounds_ given: whole periods of a swing
 };
 
 }  // namespace
