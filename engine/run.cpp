@@ -132,6 +132,9 @@ class Run {
   void plan_verify();
   void keep_for_verify(long n);
   void verify();
+  // run.verify's progress, every progress_seconds: a line on stderr, or the callback
+  // (RunProgress::verifying); false where the callback asks to stop.
+  bool verify_progress(long done, long total, double t_end, WallClock::time_point t0);
   // The summary over the until-steady verdict's spans (whole periods of a swing) where they
   // decided, otherwise over the window from w0 in spans of half the judged window.
   void summarize_judged(const SummaryChannels& ch, RunSummary& s, double w0) const;
@@ -491,7 +494,7 @@ void Run::progress(long n, WallClock::time_point now) {
   const double eta = el / static_cast<double>(n - start_) * static_cast<double>(total_ - n);
   if (opt_.on_progress) {
     last_progress_ = now;
-    if (!opt_.on_progress({n, total_, sim_.time(), c_.run.t_end, el, eta})) stop_asked_ = true;
+    if (!opt_.on_progress({n, total_, sim_.time(), c_.run.t_end, el, eta, false})) stop_asked_ = true;
     return;
   }
   std::fprintf(stderr, "%sstep %ld/%ld  t = %.6f s  %5.1f %%  %.3g model s/h  ETA %.0f s%s", tty_ ? "\r" : "", n,
@@ -694,6 +697,20 @@ void Run::summarize_judged(const SummaryChannels& ch, RunSummary& s, double w0) 
     summarize(m_, ch, s, SteadyCriteria::of(c_), w0, 0.5 * judged_);
 }
 
+bool Run::verify_progress(long done, long total, double t_end, WallClock::time_point t0) {
+  const auto now = WallClock::now();
+  if ((!opt_.progress && !opt_.on_progress) ||
+      std::chrono::duration<double>(now - last_progress_).count() <= opt_.progress_seconds)
+    return true;
+  last_progress_ = now;
+  const double el = std::chrono::duration<double>(now - t0).count();
+  const double eta = el / static_cast<double>(std::max(1L, done)) * static_cast<double>(total - done);
+  if (opt_.on_progress) return opt_.on_progress({done, total, sim_.time(), t_end, el, eta, true});
+  std::fprintf(stderr, "%sverify step %ld/%ld  t = %.6f s  %5.1f %%  ETA %.0f s%s", tty_ ? "\r" : "", done, total,
+               sim_.time(), 100.0 * static_cast<double>(done) / static_cast<double>(total), eta, tty_ ? "   " : "\n");
+  return true;
+}
+
 void Run::verify() {
   if (!verify_) return;
   const auto skip = [&](const std::string& why) { warn("run.verify: the means are not verified: " + why); };
@@ -715,6 +732,8 @@ void Run::verify() {
     std::fflush(stdout);
   }
   const auto t0 = WallClock::now();
+  const double t_end = sim_.time();
+  const long n0 = ck->steps * k;
   StopSignals signals;
   SummaryChannels ch;
   try {
@@ -729,7 +748,9 @@ void Run::verify() {
         if (sim_.time() >= from) ch.push(sim_.sample(hv));
       }
       if (g_stop_signal) return skip("stopped by a signal");
+      if (!verify_progress(n - n0, n_end - n0, t_end, t0)) return skip("stopped by the progress callback");
     }
+    if (opt_.progress && tty_) std::fprintf(stderr, "\n");
   } catch (const BlowUpError& e) {
     return skip(std::string("the integration with the step ") + std::to_string(hv) + " s blew up: " + e.what());
   }

@@ -41,6 +41,9 @@ struct RunProgress {
   double t = 0, t_end = 0;   // model time now and at the end [s]
   double wall_s = 0;         // since the steps began
   double eta_s = 0;          // wall time to t_end at the rate so far
+  // run.verify's second integration of the summary's window, after the run's steps: step,
+  // steps, wall_s and eta_s then count its own steps, t runs again up to t_end.
+  bool verifying = false;
 };
 
 struct RunOptions {

@@ -100,7 +100,8 @@ std::pair<std::string, int> run(const Config& cfg, const std::string& out, const
       try {
         const py::object go = progress(py::dict(py::arg("step") = p.step, py::arg("steps") = p.steps,
                                                 py::arg("t") = p.t, py::arg("t_end") = p.t_end,
-                                                py::arg("wall_s") = p.wall_s, py::arg("eta_s") = p.eta_s));
+                                                py::arg("wall_s") = p.wall_s, py::arg("eta_s") = p.eta_s,
+                                                py::arg("verifying") = p.verifying));
         if (go.is_none()) return true;
         const int truth = PyObject_IsTrue(go.ptr());  // any object's truth, as `if go:` has it
         if (truth < 0) throw py::error_already_set();

@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <algorithm>
 #include <cmath>
+#include <functional>
 #include <fstream>
 #include <sstream>
 
@@ -24,12 +26,15 @@ struct Verified {
   double efficiency_error_attribute = 0;
 };
 
-// The mini model to 5 ms with the given overrides; refine: RunOptions::verify_refine.
-Verified run_mini(std::vector<std::string> ov, int refine, const std::string& name) {
+// The mini model to 5 ms with the given overrides; refine: RunOptions::verify_refine;
+// on_progress: called at every step.
+Verified run_mini(std::vector<std::string> ov, int refine, const std::string& name,
+                  std::function<bool(const RunProgress&)> on_progress = {}) {
   ov.insert(ov.begin(), "run.t_end=5e-3");
   const Model m = build_model(load_config(test::config_path("mini"), ov));
   RunOptions o = test::quiet_run_options(name);
   o.verify_refine = refine;
+  if (on_progress) o.on_progress = std::move(on_progress), o.progress_seconds = 0;
   o.summary_json = o.out_path + ".json";
   Verified v;
   v.r = run_simulation(m, o);
@@ -167,6 +172,48 @@ TEST_F(VerifyTest, CoarserStepHasTheLargerError) {
   const Verified coarse = run_mini({"run.verify=true", "integrator.step=1.6666666666666667e-6"}, 2, "verify_coarse");
   ASSERT_EQ(coarse.r.numerical_error.size(), summary_fields().size());
   EXPECT_GT(error_figure(coarse.r), error_figure(halved_->r));
+}
+
+// The second integration reports its progress: after the run's calls, the callback's calls
+// marked verifying count its own steps up to its total, at model times within the run's;
+// a false return there stops it, leaving the means unverified (a warning says why) and the
+// run's own means and end as they were.
+TEST_F(VerifyTest, VerificationReportsItsProgressAndStopsWhenAsked) {
+  std::vector<RunProgress> seen;
+  const Verified v = run_mini({"run.verify=true"}, 2, "verify_progress", [&seen](const RunProgress& p) {
+    seen.push_back(p);
+    return true;
+  });
+  EXPECT_EQ(v.r.numerical_error.size(), summary_fields().size());
+  const auto first = std::find_if(seen.begin(), seen.end(), [](const RunProgress& p) { return p.verifying; });
+  ASSERT_NE(first, seen.begin());
+  ASSERT_NE(first, seen.end());
+  EXPECT_TRUE(std::all_of(first, seen.end(), [](const RunProgress& p) { return p.verifying; }));
+  long before = 0;
+  for (auto p = first; p != seen.end(); ++p) {
+    EXPECT_GT(p->step, before);
+    EXPECT_LE(p->step, p->steps);
+    EXPECT_EQ(p->steps, first->steps);
+    EXPECT_LE(p->t, p->t_end * (1 + 1e-12));
+    EXPECT_EQ(p->t_end, v.r.model_time);
+    before = p->step;
+  }
+  EXPECT_EQ(seen.back().step, first->steps);
+
+  const Verified stopped = run_mini({"run.verify=true"}, 2, "verify_stopped", [](const RunProgress& p) {
+    return !p.verifying;
+  });
+  EXPECT_TRUE(stopped.r.numerical_error.empty());
+  EXPECT_EQ(stopped.r.stopped, plain_->r.stopped);
+  EXPECT_EQ(stopped.r.model_time, plain_->r.model_time);
+  for (const auto& [name, x] : means(stopped.r))
+    for (const auto& [name0, x0] : means(plain_->r))
+      if (name == name0) {
+        EXPECT_EQ(x, x0) << name;
+      }
+  EXPECT_TRUE(std::any_of(stopped.r.warnings.begin(), stopped.r.warnings.end(), [](const std::string& w) {
+    return w.find("run.verify: the means are not verified: stopped by the progress callback") != std::string::npos;
+  }));
 }
 
 // A mean whose error passes its goal is a reason; the status stays what the verdicts say.

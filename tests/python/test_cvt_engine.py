@@ -186,6 +186,7 @@ def test_progress_reaches_the_callback_which_can_stop_the_run():
     r = cvt.run(MINI, t_end=0.003, progress=seen.append, progress_seconds=0)
     assert seen and all(p["t_end"] == 0.003 and 0 < p["step"] <= p["steps"] for p in seen)
     assert [p["step"] for p in seen] == sorted(p["step"] for p in seen)
+    assert not any(p["verifying"] for p in seen)
     assert r.summary["stopped"] == "t_end" and not r.summary["interrupted"]
     r = cvt.run(MINI, t_end=0.003, progress=lambda p: p["t"] < 0.001, progress_seconds=0)
     assert r.summary["stopped"] == "callback" and r.summary["interrupted"]
@@ -195,6 +196,18 @@ def test_progress_reaches_the_callback_which_can_stop_the_run():
     r = cvt.run(MINI, t_end=0.003, progress=lambda p: p["step"] < p["steps"], progress_seconds=0)
     assert r.summary["stopped"] == "t_end" and not r.summary["interrupted"]
     assert r.summary["model_time"] == pytest.approx(0.003)
+
+    # run.verify's second integration reports as well, marked; stopping it leaves the means
+    # unverified.
+    seen = []
+    r = cvt.run(MINI, t_end=0.003, overrides={"run.verify": True}, progress=seen.append, progress_seconds=0)
+    verifying = [p for p in seen if p["verifying"]]
+    assert verifying and not seen[0]["verifying"] and seen[-1]["verifying"]
+    assert verifying[-1]["step"] == verifying[-1]["steps"] and "efficiency_numerical_error" in r.summary
+    r = cvt.run(MINI, t_end=0.003, overrides={"run.verify": True}, progress=lambda p: not p["verifying"],
+                progress_seconds=0)
+    assert r.summary["stopped"] == "t_end" and "efficiency_numerical_error" not in r.summary
+    assert any("stopped by the progress callback" in w for w in r.summary["warnings"])
 
     def fails(p):
         raise ZeroDivisionError("from the callback")

@@ -269,7 +269,8 @@ def run(config, *, overrides=None, t_end=None, until_steady=None, step=None, met
     out: the HDF5 file to keep (None: a temporary file, removed after the channels are read).
     threads > 1 runs the flow graph (the same bits for any thread count).
     quiet: no lines on stdout/stderr (warnings are in summary["warnings"] all the same).
-    progress: a callable given a dict (step, steps, t [s], t_end [s], wall_s [s], eta_s [s])
+    progress: a callable given a dict (step, steps, t [s], t_end [s], wall_s [s], eta_s [s],
+            verifying: run.verify's second integration)
     every progress_seconds [s of wall time]; returning a false value stops the run at the
     next step where the W matrix is rebuilt (summary["stopped"] == "callback").
     checkpoint_every: steps between checkpoints to OUT.ckpt (0: only at the end).
