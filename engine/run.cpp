@@ -685,11 +685,6 @@ RunResult Run::finish() {
   return r_;
 }
 
-// run.verify (docs/output.md, "Numerical error"): the summary's window integrated again from
-// the state kept at or before its start, with the step h / verify_refine and every other key
-// as it is, sampled on the same grid in memory (nothing is written), and summarized by the
-// same code over the same window; each mean's numerical error is its change. The run's
-// simulation does it: its output is complete by now.
 void Run::summarize_judged(const SummaryChannels& ch, RunSummary& s, double w0) const {
   if (!judged_bounds_.empty())
     summarize(m_, ch, s, SteadyCriteria::of(c_), judged_bounds_);
@@ -711,6 +706,11 @@ bool Run::verify_progress(long done, long total, double t_end, WallClock::time_p
   return true;
 }
 
+// run.verify (docs/output.md, "Numerical error"): the summary's window integrated again from
+// the state kept at or before its start, with the step h / verify_refine and every other key
+// as it is, sampled on the same grid in memory (nothing is written), and summarized by the
+// same code over the same window; each mean's numerical error is its change. The run's
+// simulation does it: its output is complete by now.
 void Run::verify() {
   if (!verify_) return;
   const auto skip = [&](const std::string& why) { warn("run.verify: the means are not verified: " + why); };

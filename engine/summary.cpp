@@ -261,6 +261,8 @@ class Judge {
   std::vector<std::string> slip, unsteady, held;
 
   // Where the spans are whole periods of the swing as measured (until_steady_verdict).
+  // The whole spans in [a_, b_).
+  std::size_t periods() const { return bounds_.empty() ? 0 : bounds_.size() - 1; }
   std::string whole_periods() const {
     const Swing w = measure_swing(ch_, a_, b_, k_);
     if (!(w.period > 0) || !whole_periods_) return "";
@@ -334,19 +336,18 @@ class Judge {
       held.push_back(fmt("ratio held: the geometric ratio moves %+.2g %% per 10 ms (limit %.2g)", rate, c_.shift));
   }
   // The statistical uncertainty of every verified mean: its means over each whole span of
-  // the lowest torsion mode's period (t_torsion_) in the window, the last `periods_` of
+  // the lowest torsion mode's period (t_torsion_) in the window, the last `periods()` of
   // them, and how far those scatter: the window's mean is uncertain by their standard
   // error (NaN with fewer than two spans).
   void span_means() {
     const auto& fields = summary_fields();
     s_.uncertainty.assign(fields.size(), std::numeric_limits<double>::quiet_NaN());
-    periods_ = bounds_.empty() ? 0 : bounds_.size() - 1;
-    s_.uncertainty_spans = periods_ >= 2 ? static_cast<long>(periods_) : 0;
-    s_.uncertainty_span = periods_ >= 2 ? t_torsion_ : 0;
-    if (periods_ < 2) return;
-    std::vector<RunSummary> span(periods_);
-    for (std::size_t p = 0; p < periods_; ++p) fill_means(ch_, bounds_[p], bounds_[p + 1], span[p]);
-    const double n = static_cast<double>(periods_);
+    s_.uncertainty_spans = periods() >= 2 ? static_cast<long>(periods()) : 0;
+    s_.uncertainty_span = periods() >= 2 ? t_torsion_ : 0;
+    if (periods() < 2) return;
+    std::vector<RunSummary> span(periods());
+    for (std::size_t p = 0; p < periods(); ++p) fill_means(ch_, bounds_[p], bounds_[p + 1], span[p]);
+    const double n = static_cast<double>(periods());
     for (std::size_t i = 0; i < fields.size(); ++i) {
       if (!fields[i].verify.verified) continue;
       const auto member = std::get<double RunSummary::*>(fields[i].member);
@@ -366,7 +367,7 @@ class Judge {
   // window of fewer than two spans judges the swing against the load instead.
   void ringing() {
     const double swing = measure_swing(ch_, a_, b_, k_).whole;
-    if (periods_ < 2) {
+    if (periods() < 2) {
       if (swing > c_.ringing * torque_scale_)
         unsteady.push_back(fmt("torsion mode still ringing: the output torque swings +-%.3g N m (%.1f %% of the "
                                "load) with the meshing ripple removed",
@@ -376,14 +377,14 @@ class Judge {
                            swing, 100 * swing / torque_scale_, 100 * c_.ringing));
       return;
     }
-    const double se = uncertainty(s_, "output_torque"), sd = se * std::sqrt(static_cast<double>(periods_));
+    const double se = uncertainty(s_, "output_torque"), sd = se * std::sqrt(static_cast<double>(periods()));
     char text[512];
     std::snprintf(text, sizeof text,
                   "the output torque's means over %zu spans of %.3g s (a torsion period in whole meshing periods) "
                   "scatter by %.3g N m: the mean is "
                   "uncertain by +-%.3g N m (%.2f %% of the load; limit %.3g %%); it swings +-%.3g N m with the "
                   "meshing ripple removed",
-                  periods_, t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
+                  periods(), t_torsion_, sd, se, 100 * se / torque_scale_, 100 * c_.torsion_uncertainty, swing);
     if (se > c_.torsion_uncertainty * torque_scale_)
       unsteady.push_back(std::string("torsion mode not settled: ") + text + swing_measured());
     else
@@ -414,7 +415,7 @@ class Judge {
   // holds the window to it, and the losses' own scatter over the spans (the standard error
   // of loss_efficiency's span means).
   void settled_efficiency() {
-    if (periods_ < 2) return;
+    if (periods() < 2) return;
     // Over the means' samples, as loss_efficiency.
     const double win = ch_.work_input[b_ - 1] - ch_.work_input[first_];
     const double wc = win > 0 ? (ch_.work_clamping[b_ - 1] - ch_.work_clamping[first_]) / win : 0.0;
@@ -424,7 +425,7 @@ class Judge {
         fmt("the power ratio %.4f against the energy balance's 1 - (dissipated - clamping work) / input work %.4f "
             "(%+.2g; limit %.2g), ",
             s_.efficiency, balance, gap, c_.efficiency_uncertainty) +
-        fmt("1 - dissipated / input work uncertain by +-%.2g over %.0f spans", se, static_cast<double>(periods_));
+        fmt("1 - dissipated / input work uncertain by +-%.2g over %.0f spans", se, static_cast<double>(periods()));
     if (!(std::abs(gap) <= c_.efficiency_uncertainty && se <= c_.efficiency_uncertainty))
       unsteady.push_back("efficiency not settled: " + text +
                          ": energy swinging in and out of the drive line across the window's ends; a later window "
@@ -452,7 +453,6 @@ class Judge {
   std::size_t k_torsion_ = 0;  // its samples (0: none)
   double t_mesh_ = 0;
   std::size_t k_ = 1;
-  std::size_t periods_ = 0;  // the whole spans in [a_, b_) (span_means)
   std::vector<std::size_t> bounds_;  // the spans run between these samples
   bool whole_periods_ = false;       // bounds_ given: whole periods of a swing
 };
@@ -516,8 +516,7 @@ void judge_window(const Model& m, const SummaryChannels& ch, RunSummary& s, cons
   s.reasons = judge.slip;
   s.reasons.insert(s.reasons.end(), judge.unsteady.begin(), judge.unsteady.end());
   s.criteria = judge.held;
-  if (bounds)
-    if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
+  if (const std::string note = judge.whole_periods(); !note.empty()) s.criteria.push_back(note);
   s.efficiency_meaningful = s.status == "steady" && s.efficiency >= 0 && s.efficiency <= 1;
 }
 
