@@ -126,7 +126,10 @@ class Run {
   // the file (sync_writes).
   void start_writes();
   void sync_writes();
-  Checkpoint checkpoint() const;
+  // The checkpoint of the state now; with_verify: with the states kept for run.verify (a
+  // run that goes on, or was cut short: its continuation verifies a window that starts
+  // before it).
+  Checkpoint checkpoint(bool with_verify) const;
   void progress(long n, WallClock::time_point now);
   bool steady_now();
   void plan_verify();
@@ -352,9 +355,14 @@ void Run::open_output() {
 // run.verify: where the states for the window's second integration are kept. A run to
 // t_end knows its window in advance (summarize's: the last window_fraction of the samples,
 // not before the ramps end); a run until steady keeps about 16 states per window and
-// drops those before the last two windows.
+// drops those before the last two windows. A continuation of the same configuration (but
+// for run.t_end and run.max_wall) takes over the states its checkpoint kept.
 void Run::plan_verify() {
   if (!verify_) return;
+  if (opt_.resume && !opt_.resume->verify_states.empty() &&
+      continuation_toml(opt_.resume->config_toml, true) == continuation_toml(c_.resolved_toml, true))
+    for (const Checkpoint& k : opt_.resume->verify_states)
+      if (k.steps < start_) verify_states_.push_back(k);
   if (until_) {
     verify_every_ = rebuild_every_ * std::max(1L, std::lround(window_ / (16 * h_ * rebuild_every_)));
   } else {
@@ -479,8 +487,9 @@ void Run::sync_writes() {
   writes_.wait();
 }
 
-Checkpoint Run::checkpoint() const {
+Checkpoint Run::checkpoint(bool with_verify) const {
   Checkpoint ck = sim_.checkpoint();
+  if (with_verify) ck.verify_states.assign(verify_states_.begin(), verify_states_.end());
   ck.run_id = run_id_;
   ck.output = std::filesystem::absolute(opt_.out_path).string();
   return ck;
@@ -541,7 +550,7 @@ void Run::steps() {
           sync_writes();
           file_->flush();
           last_flush_ = WallClock::now();
-          write_checkpoint(ckpt_path_, checkpoint());
+          write_checkpoint(ckpt_path_, checkpoint(true));
           longest_write_ = std::max(longest_write_, seconds_since(w0));
         });
       if (until_ && n % check_every_ == 0 && steady_now()) {
@@ -635,7 +644,7 @@ RunResult Run::finish() {
                                                  : "max_wall";
   output([&] {
     sync_writes();
-    Checkpoint last = checkpoint();
+    Checkpoint last = checkpoint(cut);
     last.stopped = stopped;
     write_checkpoint(ckpt_path_, last);
     file_->close();
@@ -713,7 +722,10 @@ bool Run::verify_progress(long done, long total, double t_end, WallClock::time_p
 // simulation does it: its output is complete by now.
 void Run::verify() {
   if (!verify_) return;
-  const auto skip = [&](const std::string& why) { warn("run.verify: the means are not verified: " + why); };
+  const auto skip = [&](const std::string& why) {
+    r_.unverified = why;
+    warn("run.verify: the means are not verified: " + why);
+  };
   if (r_.interrupted) return skip("the run was interrupted");
   if (adaptive_steps(c_)) return skip("adaptive steps (integrator.tolerance) are not verified by a halved step");
   const Checkpoint* ck = nullptr;
@@ -721,7 +733,7 @@ void Run::verify() {
     if (c.t <= r_.window_start) ck = &c;
   if (!ck)
     return skip("no state was kept at or before the window's start (t = " + std::to_string(r_.window_start) +
-                " s; a continuation keeps none before its own start)");
+                " s; a continuation of another configuration, or from a checkpoint of an ended run, has none before its own start)");
   const int k = std::max(1, opt_.verify_refine);
   const double hv = h_ / k, from = r_.window_start - 0.5 * h_;
   const int halvings = sim_.step_halvings();  // the window's (it starts after the last halving)

@@ -98,6 +98,7 @@ struct RunSummary {
   // summary_fields() entry (NaN for those that are not a verified mean; empty when not
   // verified). numerical_error() reads it by name.
   double verify_step = 0, verify_wall_s = 0;
+  std::string unverified;  // why run.verify verified nothing (empty: verified, or not asked)
   std::vector<double> numerical_error;
   // Each verified mean's statistical uncertainty: the standard error of the means over the
   // window's whole torsion spans (uncertainty_spans of them, each uncertainty_span long),

@@ -13,8 +13,6 @@ namespace cvt {
 
 namespace {
 
-std::vector<double> to_doubles(const std::vector<std::uint8_t>& v) { return {v.begin(), v.end()}; }
-
 struct Closer {
   hid_t id;
   herr_t (*close)(hid_t);
@@ -54,6 +52,63 @@ std::string read_string(hid_t file, const std::string& path, const std::string& 
   return s;
 }
 
+// A list of states under one group, each dataset the states' values one after another:
+// /checkpoint holds the run's own state, /checkpoint/verify those run.verify kept.
+void write_states(H5File& f, const std::string& group, const std::vector<const Checkpoint*>& list) {
+  std::vector<double> y, rocker, pulley, clock, energy0, control;
+  for (const Checkpoint* c : list) {
+    y.insert(y.end(), c->state.data(), c->state.data() + c->state.size());
+    for (std::uint8_t v : c->rocker) rocker.push_back(v);
+    for (std::uint8_t v : c->pulley) pulley.push_back(v);
+    clock.insert(clock.end(), {c->t, c->t0, static_cast<double>(c->steps), static_cast<double>(c->steps0)});
+    energy0.push_back(c->energy0);
+    control.insert(control.end(), {static_cast<double>(c->halvings), c->halved_at, c->leak,
+                                   static_cast<double>(c->leak_from), c->leak_residual, c->leak_work});
+  }
+  f.write_vector(group + "/state", y);
+  f.write_vector(group + "/rocker_status", rocker);
+  f.write_vector(group + "/pulley_status", pulley);
+  f.write_vector(group + "/clock", clock);
+  f.write_vector(group + "/energy0", energy0);
+  f.write_vector(group + "/step_control", control);
+}
+
+// The n states under a group (n from its clock); without step_control (checkpoints that
+// predate it) they continue from no halving.
+std::vector<Checkpoint> read_states(hid_t f, const std::string& path, const std::string& group) {
+  const std::vector<double> clock = read_vector(f, path, group + "/clock");
+  const std::size_t n = clock.size() / 4;
+  if (n == 0 || clock.size() != 4 * n) throw std::runtime_error("checkpoint " + path + ": " + group + "/clock must hold 4 numbers per state");
+  const auto split = [&](const std::string& name, std::size_t per) {
+    std::vector<double> v = read_vector(f, path, group + "/" + name);
+    if (v.size() % n != 0 || (per && v.size() != per * n))
+      throw std::runtime_error("checkpoint " + path + ": " + group + "/" + name + " does not hold " +
+                               std::to_string(n) + " equal parts");
+    return v;
+  };
+  const std::vector<double> y = split("state", 0), rocker = split("rocker_status", 0), pulley = split("pulley_status", 0),
+                            e0 = split("energy0", 1);
+  const bool control = H5Lexists(f, (group + "/step_control").c_str(), H5P_DEFAULT) > 0;
+  const std::vector<double> sc = control ? split("step_control", 6) : std::vector<double>{};
+  std::vector<Checkpoint> out(n);
+  const std::size_t ny = y.size() / n, nr = rocker.size() / n, np = pulley.size() / n;
+  for (std::size_t i = 0; i < n; ++i) {
+    Checkpoint& c = out[i];
+    c.state = Eigen::Map<const Eigen::VectorXd>(y.data() + i * ny, static_cast<Eigen::Index>(ny));
+    c.rocker.assign(rocker.begin() + static_cast<long>(i * nr), rocker.begin() + static_cast<long>((i + 1) * nr));
+    c.pulley.assign(pulley.begin() + static_cast<long>(i * np), pulley.begin() + static_cast<long>((i + 1) * np));
+    c.t = clock[4 * i], c.t0 = clock[4 * i + 1];
+    c.steps = static_cast<long>(clock[4 * i + 2]), c.steps0 = static_cast<long>(clock[4 * i + 3]);
+    c.energy0 = e0[i];
+    if (control) {
+      const double* s = sc.data() + 6 * i;
+      c.halvings = static_cast<int>(s[0]), c.halved_at = s[1], c.leak = s[2];
+      c.leak_from = static_cast<long>(s[3]), c.leak_residual = s[4], c.leak_work = s[5];
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 void write_checkpoint(const std::string& path, const Checkpoint& c) {
@@ -63,13 +118,12 @@ void write_checkpoint(const std::string& path, const Checkpoint& c) {
   {
     H5File f = H5File::create_in_memory(path);
     f.write_string("/parameters/config", c.config_toml);
-    f.write_vector("/checkpoint/state", std::vector<double>(c.state.data(), c.state.data() + c.state.size()));
-    f.write_vector("/checkpoint/rocker_status", to_doubles(c.rocker));
-    f.write_vector("/checkpoint/pulley_status", to_doubles(c.pulley));
-    f.write_vector("/checkpoint/clock", {c.t, c.t0, static_cast<double>(c.steps), static_cast<double>(c.steps0)});
-    f.write_vector("/checkpoint/energy0", {c.energy0});
-    f.write_vector("/checkpoint/step_control", {static_cast<double>(c.halvings), c.halved_at, c.leak,
-                                                static_cast<double>(c.leak_from), c.leak_residual, c.leak_work});
+    write_states(f, "/checkpoint", {&c});
+    if (!c.verify_states.empty()) {
+      std::vector<const Checkpoint*> kept;
+      for (const Checkpoint& k : c.verify_states) kept.push_back(&k);
+      write_states(f, "/checkpoint/verify", kept);
+    }
     if (!c.run_id.empty()) f.write_string("/checkpoint/run_id", c.run_id);
     if (!c.output.empty()) f.write_string("/checkpoint/output", c.output);
     if (!c.stopped.empty()) f.write_string("/checkpoint/stopped", c.stopped);
@@ -84,24 +138,14 @@ Checkpoint read_checkpoint(const std::string& path) {
   const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) throw std::runtime_error("cannot open checkpoint " + path);
   Closer cf{f, H5Fclose};
-  Checkpoint c;
+  std::vector<Checkpoint> own = read_states(f, path, "/checkpoint");
+  if (own.size() != 1) throw std::runtime_error("checkpoint " + path + ": /checkpoint/clock must hold 4 numbers");
+  Checkpoint c = std::move(own[0]);
   c.config_toml = read_string(f, path, "/parameters/config");
-  const std::vector<double> y = read_vector(f, path, "/checkpoint/state");
-  c.state = Eigen::Map<const Eigen::VectorXd>(y.data(), static_cast<Eigen::Index>(y.size()));
-  for (double v : read_vector(f, path, "/checkpoint/rocker_status")) c.rocker.push_back(static_cast<std::uint8_t>(v));
-  for (double v : read_vector(f, path, "/checkpoint/pulley_status")) c.pulley.push_back(static_cast<std::uint8_t>(v));
-  const std::vector<double> clock = read_vector(f, path, "/checkpoint/clock");
-  if (clock.size() != 4) throw std::runtime_error("checkpoint " + path + ": clock must hold 4 numbers");
-  c.t = clock[0], c.t0 = clock[1], c.steps = static_cast<long>(clock[2]), c.steps0 = static_cast<long>(clock[3]);
-  const std::vector<double> e0 = read_vector(f, path, "/checkpoint/energy0");
-  if (e0.size() != 1) throw std::runtime_error("checkpoint " + path + ": energy0 must hold 1 number");
-  c.energy0 = e0[0];
-  if (H5Lexists(f, "/checkpoint/step_control", H5P_DEFAULT) > 0) {
-    const std::vector<double> sc = read_vector(f, path, "/checkpoint/step_control");
-    if (sc.size() != 6) throw std::runtime_error("checkpoint " + path + ": step_control must hold 6 numbers");
-    c.halvings = static_cast<int>(sc[0]), c.halved_at = sc[1], c.leak = sc[2];
-    c.leak_from = static_cast<long>(sc[3]), c.leak_residual = sc[4], c.leak_work = sc[5];
-  }
+  if (H5Lexists(f, "/checkpoint/verify", H5P_DEFAULT) > 0) c.verify_states = read_states(f, path, "/checkpoint/verify");
+  for (const Checkpoint& k : c.verify_states)
+    if (k.state.size() != c.state.size() || k.rocker.size() != c.rocker.size() || k.pulley.size() != c.pulley.size())
+      throw std::runtime_error("checkpoint " + path + ": a state of /checkpoint/verify is not the run's size");
   for (auto [name, to] : {std::pair{"/checkpoint/run_id", &c.run_id}, std::pair{"/checkpoint/output", &c.output},
                           std::pair{"/checkpoint/stopped", &c.stopped}})
     if (H5Lexists(f, name, H5P_DEFAULT) > 0) *to = read_string(f, path, name);

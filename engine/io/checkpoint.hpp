@@ -34,6 +34,12 @@ struct Checkpoint {
   // What ended the run that wrote it, as RunSummary::stopped (t_end, steady, slip, signal,
   // callback, max_wall); empty in a periodic checkpoint, taken while the run went on.
   std::string stopped;
+  // run.verify: the states kept for the summary's window's second integration (their own
+  // state, statuses, clock, energy reference and step control; not their configuration,
+  // which is this one's), so that a continuation of the same configuration can verify a
+  // window that starts before it (docs/output.md, "Numerical error"). Empty where the run
+  // did not verify, or ended.
+  std::vector<Checkpoint> verify_states;
 };
 
 void write_checkpoint(const std::string& path, const Checkpoint& c);

@@ -519,6 +519,7 @@ SweepRow run_sweep_point(const SweepOptions& o, const SweepPlan& plan, long i) {
                              s.stopped == "max_wall");
     r.status = s.status;
     for (const auto& x : s.reasons) r.reason += (r.reason.empty() ? "" : "; ") + x;
+    if (!s.unverified.empty()) r.reason += (r.reason.empty() ? "" : "; ") + ("not verified: " + s.unverified);
     r.speed_ratio = s.speed_ratio, r.geometric_ratio = s.geometric_ratio, r.slip = s.slip;
     r.input_torque = s.input_torque, r.output_torque = s.output_torque, r.efficiency = s.efficiency;
     r.loss_efficiency = s.loss_efficiency;

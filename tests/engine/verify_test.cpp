@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "engine/io/checkpoint.hpp"
 #include "engine/io/h5_writer.hpp"
 #include "engine/io/json.hpp"
 #include "engine/run.hpp"
@@ -214,6 +215,92 @@ TEST_F(VerifyTest, VerificationReportsItsProgressAndStopsWhenAsked) {
   EXPECT_TRUE(std::any_of(stopped.r.warnings.begin(), stopped.r.warnings.end(), [](const std::string& w) {
     return w.find("run.verify: the means are not verified: stopped by the progress callback") != std::string::npos;
   }));
+}
+
+// A run cut short inside its window (the callback stops it at 4.5 ms; the window starts at
+// about 4 ms) keeps the window's state in its checkpoint: continued in place, it verifies
+// with the same errors as the uninterrupted run. A continuation under another configuration
+// takes none of those states, and says why its means are not verified.
+TEST_F(VerifyTest, ContinuationVerifiesAWindowThatStartsBeforeIt) {
+  const Model m = build_model(load_config(test::config_path("mini"), {"run.t_end=5e-3", "run.verify=true"}));
+  RunOptions o = test::quiet_run_options("verify_cut");
+  o.progress_seconds = 0;
+  o.on_progress = [](const RunProgress& p) { return p.t < 4.5e-3; };
+  const RunResult cut = run_simulation(m, o);
+  ASSERT_TRUE(cut.interrupted);
+  const Checkpoint ck = read_checkpoint(o.out_path + ".ckpt");
+  ASSERT_FALSE(ck.verify_states.empty());
+  EXPECT_LT(ck.verify_states.front().t, halved_->r.window_start);
+  for (const Checkpoint& k : ck.verify_states) {
+    EXPECT_LT(k.t, ck.t);
+    EXPECT_EQ(k.state.size(), ck.state.size());
+  }
+
+  RunOptions on = test::quiet_run_options("verify_cut");
+  on.resume = &ck, on.append = true;
+  const RunResult r = run_simulation(m, on);
+  EXPECT_TRUE(r.unverified.empty()) << r.unverified;
+  ASSERT_EQ(r.numerical_error.size(), summary_fields().size());
+  EXPECT_EQ(r.window_start, halved_->r.window_start);
+  for (const auto& [name, x] : means(r)) EXPECT_EQ(numerical_error(r, name), numerical_error(halved_->r, name)) << name;
+  test::remove_run_files(on.out_path);
+
+  // The same continuation from a checkpoint without the states (an ended run's), and from
+  // one that another configuration wrote: nothing verified, and the reason said.
+  const std::string other = build_model(load_config(test::config_path("mini"), {"run.t_end=5e-3", "run.verify=true",
+                                                                               "load.torque=8"})).cfg.resolved_toml;
+  for (bool another_config : {false, true}) {
+    ASSERT_TRUE(run_simulation(m, o).interrupted);
+    Checkpoint c = read_checkpoint(o.out_path + ".ckpt");
+    if (another_config)
+      c.config_toml = other;
+    else
+      c.verify_states.clear();
+    RunOptions again = test::quiet_run_options("verify_cut");
+    again.resume = &c, again.append = true;
+    const RunResult u = run_simulation(m, again);
+    EXPECT_TRUE(u.numerical_error.empty());
+    EXPECT_NE(u.unverified.find("no state was kept at or before the window's start"), std::string::npos) << u.unverified;
+    EXPECT_EQ(u.efficiency, r.efficiency);
+    test::remove_run_files(again.out_path);
+  }
+  test::remove_run_files(o.out_path);
+}
+
+// A checkpoint carries the kept states through its file: the same numbers read back.
+TEST(VerifyStatesTest, CheckpointFileKeepsTheVerificationStates) {
+  Checkpoint c;
+  c.config_toml = "x = 1\n";
+  c.state = Eigen::VectorXd::LinSpaced(7, 0.5, 3.5);
+  c.rocker = {1, 0, 2}, c.pulley = {0, 1};
+  c.t = 2e-3, c.steps = 800;
+  for (int i = 0; i < 3; ++i) {
+    Checkpoint k;
+    k.state = Eigen::VectorXd::Constant(7, 0.25 * i);
+    k.rocker = {std::uint8_t(i), 1, 0}, k.pulley = {1, std::uint8_t(i)};
+    k.t = 1e-3 * (0.25 * i), k.t0 = 0, k.steps = 100 * i, k.energy0 = 1.5 + i;
+    k.halvings = i, k.halved_at = i ? 1e-4 : -1, k.leak = 0.01 * i, k.leak_from = 40 * i;
+    c.verify_states.push_back(k);
+  }
+  const std::string path = (std::filesystem::temp_directory_path() / "verify_states_test.ckpt").string();
+  write_checkpoint(path, c);
+  const Checkpoint b = read_checkpoint(path);
+  std::filesystem::remove(path);
+  EXPECT_EQ(b.state, c.state);
+  ASSERT_EQ(b.verify_states.size(), 3u);
+  for (std::size_t i = 0; i < 3; ++i) {
+    const Checkpoint &x = b.verify_states[i], &y = c.verify_states[i];
+    EXPECT_EQ(x.state, y.state);
+    EXPECT_EQ(x.rocker, y.rocker);
+    EXPECT_EQ(x.pulley, y.pulley);
+    EXPECT_EQ(x.t, y.t);
+    EXPECT_EQ(x.steps, y.steps);
+    EXPECT_EQ(x.energy0, y.energy0);
+    EXPECT_EQ(x.halvings, y.halvings);
+    EXPECT_EQ(x.halved_at, y.halved_at);
+    EXPECT_EQ(x.leak, y.leak);
+    EXPECT_EQ(x.leak_from, y.leak_from);
+  }
 }
 
 // A mean whose error passes its goal is a reason; the status stays what the verdicts say.
