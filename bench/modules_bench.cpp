@@ -113,7 +113,7 @@ void BM_ChainStiffness(benchmark::State& st) {
 }
 
 // The vector work of one ROS34PW2 step on the reference model's state (the stage sums, the
-// new state and the error estimate: ros34pw2_stages with its evaluations and solves left
+// new state and the error estimate: w4_stages (ROS34PW2) with its evaluations and solves left
 // out), against one fork and join over the joints on the flow graph's threads (arg: the
 // threads) with nothing inside: what moving those sums onto the threads would have to beat
 // (docs/performance.md 3.2).
@@ -129,9 +129,9 @@ void BM_Ros34pw2StageSums(benchmark::State& st) {
   const bool with_eval = st.range(0) == 1;
   for (auto _ : st) {
     if (with_eval)
-      ros34pw2_stages(3e-4, 2.5e-6, y, f0, nullptr, w, true, eval, solve);
+      w4_stages(kRos34pw2, 3e-4, 2.5e-6, y, f0, nullptr, w, true, eval, solve);
     else
-      ros34pw2_stages(3e-4, 2.5e-6, y, f0, nullptr, w, true, none, solve);
+      w4_stages(kRos34pw2, 3e-4, 2.5e-6, y, f0, nullptr, w, true, none, solve);
     benchmark::DoNotOptimize(w.y_new.data());
   }
   st.SetLabel(with_eval ? "with a vector copy per evaluation" : "the sums alone");

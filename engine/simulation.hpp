@@ -165,7 +165,7 @@ class Simulation {
   std::unique_ptr<Schedule> schedule_;  // runs every RHS of the integrator
   std::unique_ptr<Profiler> prof_;
   Rk4 rk_;
-  std::unique_ptr<WStep> w_main_;  // a W-method (integrator.method ros2, ros34pw2), made at the first step
+  std::unique_ptr<WStep> w_main_;  // integrator.method ros2, ros34pw2 or ros34prw, made at the first step
   double w_main_h_ = 0;
   std::unique_ptr<WStep> w_startup_;  // its ROS2 sub-steps before integrator.startup_time
   double w_startup_h_ = 0;

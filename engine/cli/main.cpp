@@ -202,7 +202,7 @@ int cmd_graph(const std::string& config_path, const std::vector<std::string>& ov
   const auto schedule = make_schedule(model, ws, sa.options());
   if (w_step) {  // the W-method's step around the stage graph (docs/performance.md)
     if (model.cfg.integrator.method == IntegratorMethod::rk4)
-      throw ConfigError("integrator.method", "rk4", "--w-step draws a W-method's step (ros2, ros34pw2)");
+      throw ConfigError("integrator.method", "rk4", "--w-step draws a W-method's step (ros2, ros34pw2, ros34prw)");
     std::printf("// %s\n%s", schedule->describe().c_str(), w_step_graphviz(model.cfg, schedule->threads()).c_str());
     return kExitOk;
   }
@@ -575,7 +575,8 @@ Command add_run_command(CLI::App& app) {
                 "after the run, integrate the summary's window again with the step halved and print each mean's "
                 "numerical error beside it (run.verify; docs/output.md, \"Numerical error\")");
   run->add_option("--step", step, "integration step [s] (integrator.step)");
-  run->add_option("--method", run_args.method, "rk4 | ros2 | ros34pw2 (integrator.method; docs/integrators.md 12, 14)");
+  run->add_option("--method", run_args.method,
+                  "rk4 | ros2 | ros34pw2 | ros34prw (integrator.method; docs/integrators.md 12, 14)");
   run->add_option("-o,--out", run_args.out, "output HDF5 file (default results.h5; with --resume: a new file "
                   "for the continuation only)")->check(kPath);
   run->add_option("--set", overrides, "override a key: section.key=value (repeatable)");
@@ -728,19 +729,20 @@ Command add_study_command(CLI::App& app) {
   study_int->add_option("--sample-dt", si.sample_dt, "spacing of the curve samples [s]")->capture_default_str();
   study_int->add_option("--ref-step", si.ref_step, "RK4 step of the reference curve [s]")->capture_default_str();
   study_int->add_option("--methods", si.methods,
-                        "rk4,dopri5,rkc,dumka3,trapezoid,trbdf2,esdirk3,ros2,ros34pw2; SUNDIALS' cvode (BDF) and arkode "
-                        "(ESDIRK) with their own error control at --tols, the chain's W solver their linear solver")
+                        "rk4,dopri5,rkc,dumka3,trapezoid,trbdf2,esdirk3,ros2,ros34pw2,ros34prw; SUNDIALS' cvode (BDF) "
+                        "and arkode (ESDIRK) with their own error control at --tols, the chain's W solver their "
+                        "linear solver")
       ->delimiter(',')
       ->check(CLI::IsMember({"rk4", "dopri5", "rkc", "dumka3", "trapezoid", "trbdf2", "esdirk3", "ros2", "ros34pw2",
-                             "cvode", "arkode"}))
+                             "ros34prw", "cvode", "arkode"}))
       ->capture_default_str();
   study_int->add_option("--one-step-h", si.one_step_h, "steps of part (a) [s]")->delimiter(',')->capture_default_str();
   study_int->add_option("--rk4-steps", si.rk4_steps, "RK4 steps tried in (b), largest first [s]")->delimiter(',')
       ->capture_default_str();
   study_int->add_option("--w-steps,--ros2-steps", si_w_steps,
-                        "W-methods' (ros2, ros34pw2) fixed steps tried in (b), largest first [s]; H:W:K also sets "
-                        "the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before it "
-                        "keeps it to one method, tol=T an adaptive candidate (default: the configuration's step)")
+                        "W-methods' (ros2, ros34pw2, ros34prw) fixed steps tried in (b), largest first [s]; H:W:K also "
+                        "sets the matrix intervals (integrator.w_every, w_k_every) of that candidate, METHOD@ before "
+                        "it keeps it to one method, tol=T an adaptive candidate (default: the configuration's step)")
       ->delimiter(',');
   study_int->add_flag("--all", si.all, "(b): run every candidate (the default)");
   study_int->add_flag("--first-accurate", si_first_accurate, "(b): stop at each method's first accurate candidate");

@@ -38,6 +38,7 @@ const char* to_string(IntegratorMethod method) {
     case IntegratorMethod::rk4: return "rk4";
     case IntegratorMethod::ros2: return "ros2";
     case IntegratorMethod::ros34pw2: return "ros34pw2";
+    case IntegratorMethod::ros34prw: return "ros34prw";
   }
   return "?";
 }
@@ -224,7 +225,7 @@ const std::vector<std::string>& law_names() {
   return names;
 }
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"rk4", "ros2", "ros34pw2"};
+  static const std::vector<std::string> names = {"rk4", "ros2", "ros34pw2", "ros34prw"};
   return names;
 }
 
@@ -330,8 +331,9 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
 
 }  // namespace
 
-// The candidate the word begins (when only one does: "ros34" -> "ros34pw2"), else the
-// closest candidate within edit distance 2, if any.
+// The candidate the word begins (when only one does: "ros34pw" -> "ros34pw2"; none when
+// several do: "ros34" begins ros34pw2 and ros34prw), else the closest candidate within edit
+// distance 2, if any.
 std::optional<std::string> closest_name(std::string_view word, const std::vector<std::string>& candidates) {
   if (word.size() >= 3) {
     std::optional<std::string> prefix;
@@ -339,6 +341,7 @@ std::optional<std::string> closest_name(std::string_view word, const std::vector
     for (const auto& c : candidates)
       if (c.size() > word.size() && c.compare(0, word.size(), word) == 0) prefix = c, ++count;
     if (count == 1) return prefix;
+    if (count > 1) return std::nullopt;
   }
   std::optional<std::string> best;
   std::size_t best_d = 3;
@@ -537,7 +540,10 @@ class Validator {
         const std::string v = s->get();
         check_name(qkey, n, v, method_names(), "integrator method");
         auto& method = *static_cast<IntegratorMethod*>(d.ref(cfg));
-        method = v == "rk4" ? IntegratorMethod::rk4 : v == "ros2" ? IntegratorMethod::ros2 : IntegratorMethod::ros34pw2;
+        method = v == "rk4"        ? IntegratorMethod::rk4
+                 : v == "ros2"     ? IntegratorMethod::ros2
+                 : v == "ros34prw" ? IntegratorMethod::ros34prw
+                                   : IntegratorMethod::ros34pw2;
         break;
       }
       case Kind::law: {

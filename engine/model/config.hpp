@@ -52,9 +52,10 @@ class ConfigError : public std::runtime_error {
 };
 
 enum class FrictionLaw { nonsmooth, smooth, none };
-// integrator.method (docs/integrators.md): the W-methods ROS34PW2 (advised) and ROS2, and
-// RK4, the reference.
-enum class IntegratorMethod { rk4, ros2, ros34pw2 };
+// integrator.method (docs/integrators.md): the W-methods ROS34PW2 (advised) and ROS2, the
+// linearly implicit ROS34PRW (order 3 on stiff components tracking a slow state), and RK4,
+// the reference.
+enum class IntegratorMethod { rk4, ros2, ros34pw2, ros34prw };
 
 struct Config {
   struct Geometry {

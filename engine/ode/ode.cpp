@@ -33,6 +33,7 @@ const char* to_string(OdeMethod method) {
     case OdeMethod::Esdirk3: return "esdirk3";
     case OdeMethod::Ros2: return "ros2";
     case OdeMethod::Ros34pw2: return "ros34pw2";
+    case OdeMethod::Ros34prw: return "ros34prw";
     case OdeMethod::Dumka3: return "dumka3";
     case OdeMethod::Cvode: return "cvode";
     case OdeMethod::Arkode: return "arkode";
@@ -42,11 +43,12 @@ const char* to_string(OdeMethod method) {
 
 OdeMethod parse_ode_method(const std::string& name) {
   for (OdeMethod m : {OdeMethod::Rk4, OdeMethod::Dopri5, OdeMethod::Rkc, OdeMethod::Dumka3, OdeMethod::Trapezoid,
-                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2, OdeMethod::Cvode,
-                      OdeMethod::Arkode})
+                      OdeMethod::TrBdf2, OdeMethod::Esdirk3, OdeMethod::Ros2, OdeMethod::Ros34pw2, OdeMethod::Ros34prw,
+                      OdeMethod::Cvode, OdeMethod::Arkode})
     if (name == to_string(m)) return m;
   throw std::invalid_argument("unknown method '" + name +
-                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2, cvode, arkode)");
+                              "' (rk4, dopri5, rkc, dumka3, trapezoid, trbdf2, esdirk3, ros2, ros34pw2, ros34prw, "
+                              "cvode, arkode)");
 }
 
 static std::string ode_error_text(double t, double h, const std::string& reason) {
@@ -232,6 +234,7 @@ OdeSolverImpl::OdeSolverImpl(const OdeSystem& sys, OdeMethod method, const OdeOp
       break;
     case OdeMethod::Ros2:
     case OdeMethod::Ros34pw2:
+    case OdeMethod::Ros34prw:
       if (static_cast<bool>(sys.w_factor) != static_cast<bool>(sys.w_solve))
         throw std::invalid_argument("OdeSystem: w_factor and w_solve go together");
       if (!sys.w_factor) {
@@ -255,7 +258,8 @@ int OdeSolverImpl::order() const {
     case OdeMethod::Rk4: return 4;  // adaptive: the estimate is that of the two half steps
     case OdeMethod::Dopri5: return 4;  // the error estimate is that of the 4th-order embedded solution
     case OdeMethod::Ros2: return 1;  // the estimate is that of the embedded first-order solution
-    case OdeMethod::Ros34pw2: return 2;  // and here of the embedded second-order one
+    case OdeMethod::Ros34pw2:
+    case OdeMethod::Ros34prw: return 2;  // and here of the embedded second-order one
     case OdeMethod::Dumka3: return 2;  // third order, but its estimate goes like h^3 (dumka3.f's exponent 1/3)
     default: return 2;  // RKC, trapezoid, TR-BDF2; ESDIRK3's estimate is its 2nd-order embedding
   }
@@ -310,7 +314,8 @@ OdeSolverImpl::Attempt OdeSolverImpl::attempt(double t, double& h, const Eigen::
     case OdeMethod::TrBdf2: return step_trbdf2(t, h, y, err);
     case OdeMethod::Esdirk3: return step_esdirk3(t, h, y, err);
     case OdeMethod::Ros2: step_ros2(t, h, y, err); return Attempt::Ok;
-    case OdeMethod::Ros34pw2: step_ros34pw2(t, h, y, err); return Attempt::Ok;
+    case OdeMethod::Ros34pw2:
+    case OdeMethod::Ros34prw: step_w4(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Rk4: step_rk4_doubling(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Dumka3: step_dumka3(t, h, y, err); return Attempt::Ok;
     case OdeMethod::Cvode:

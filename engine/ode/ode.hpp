@@ -57,7 +57,7 @@ struct OdeSystem {
 
   bool is_sparse() const { return sparsity.nonZeros() > 0; }
 
-  // W-methods (is_w_method: Ros2, Ros34pw2) with a system-supplied approximate Jacobian J~ (optional;
+  // W-methods (is_w_method: Ros2, Ros34pw2, Ros34prw) with a system-supplied approximate Jacobian J~ (optional;
   // without them a W-method takes the Jacobian above and an LU, fresh at every step):
   // w_factor(t, y, gh) prepares W = I - gh J~ at (t, y), and is always called right after
   // rhs(t, y), so a system may take J~ from what that evaluation recorded; w_solve(x)
@@ -104,6 +104,10 @@ enum class OdeMethod {
   Esdirk3,    // Kvaerno's ESDIRK 3(2), 4 stages, L-stable, stiffly accurate, order 3
   Ros2,       // Verwer et al.'s ROS2 W-method, 2 stages, order 2 for any J~, L-stable for J~ = J
   Ros34pw2,   // Rang & Angermann's ROS34PW2 W-method, 4 stages, order 3 for any J~, stiffly accurate
+  // Rang's ROS34PRW: 4 stages, stiffly accurate, the same gamma as ROS34PW2; order 3 with the
+  // exact Jacobian and on the Prothero-Robinson problem for any h lambda (where ROS34PW2 is of
+  // order 2), second order with a matrix kept over several steps (not a W-method).
+  Ros34prw,
   // Medovikov's DUMKA3 (BIT 38 (1998) 372-390, dumka3.f): 3rd order, stabilized explicit, one of
   // 15 optimal stability polynomials of degree 3 ... 576 (the stages of a step) chosen from the
   // spectral radius; real stability interval 2.5 ... 142602 (about 0.3-0.5 s^2). A fixed
@@ -121,11 +125,14 @@ enum class OdeMethod {
 bool sundials_available();
 inline bool is_sundials_method(OdeMethod m) { return m == OdeMethod::Cvode || m == OdeMethod::Arkode; }
 
-// The linearly implicit W-methods (Ros2, Ros34pw2): one matrix W = I - gamma h J~ per step,
-// no Newton iteration; both take a system's w_factor / w_solve.
-inline bool is_w_method(OdeMethod m) { return m == OdeMethod::Ros2 || m == OdeMethod::Ros34pw2; }
+// The linearly implicit methods (Ros2, Ros34pw2, Ros34prw; "W-methods" for short, though
+// ROS34PRW keeps its order only with a current Jacobian): one matrix W = I - gamma h J~ per
+// step, no Newton iteration; all take a system's w_factor / w_solve.
+inline bool is_w_method(OdeMethod m) {
+  return m == OdeMethod::Ros2 || m == OdeMethod::Ros34pw2 || m == OdeMethod::Ros34prw;
+}
 // gamma of a W-method's matrix W = I - gamma h J~ (1 + 1/sqrt 2 for ROS2, 0.4358665215 for
-// ROS34PW2); throws std::invalid_argument for the other methods.
+// ROS34PW2 and ROS34PRW); throws std::invalid_argument for the other methods.
 double w_method_gamma(OdeMethod m);
 // The implicit methods with Newton (trapezoid, TR-BDF2, ESDIRK3).
 inline bool is_implicit_method(OdeMethod m) {
@@ -134,7 +141,7 @@ inline bool is_implicit_method(OdeMethod m) {
 
 const char* to_string(OdeMethod method);
 // The inverse of to_string: "rk4" | "dopri5" | "rkc" | "dumka3" | "trapezoid" | "trbdf2" |
-// "esdirk3" | "ros2" | "ros34pw2" | "cvode" | "arkode"; throws std::invalid_argument otherwise
+// "esdirk3" | "ros2" | "ros34pw2" | "ros34prw" | "cvode" | "arkode"; throws std::invalid_argument otherwise
 // (SUNDIALS' names too are parsed in a build without it: the solver then says what is missing).
 OdeMethod parse_ode_method(const std::string& name);
 

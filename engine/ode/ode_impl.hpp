@@ -101,7 +101,7 @@ class OdeSolverImpl {
   Attempt step_esdirk3(double t, double h, const Eigen::VectorXd& y, double* err);
   // rosenbrock.cpp
   void step_ros2(double t, double h, const Eigen::VectorXd& y, double* err);
-  void step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err);
+  void step_w4(double t, double h, const Eigen::VectorXd& y, double* err);  // ROS34PW2, ROS34PRW
   void prepare_w(double t, double h, const Eigen::VectorXd& y, double gh);  // W = I - gh J~ (after f0_ = f(t, y))
   void solve_w(Eigen::VectorXd& x);                                 // x <- W^-1 x
   // Adaptive W-step from (t, y) to y_new_ with f0_ = f(t, y): the norm of W^-1 h (f(t, y_new)

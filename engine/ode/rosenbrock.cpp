@@ -1,4 +1,5 @@
-// The W-methods of the generic integrators (docs/integrators.md 12): ROS2 and ROS34PW2.
+// The W-methods of the generic integrators (docs/integrators.md 12): ROS2, ROS34PW2 and
+// ROS34PRW.
 //
 // Verwer, Spee, Blom & Hundsdorfer, "A second-order Rosenbrock method applied to
 // photochemical dispersion problems", SIAM J. Sci. Comput. 20 (1999) 1456-1480:
@@ -86,10 +87,10 @@ void OdeSolverImpl::step_ros2(double t, double h, const Eigen::VectorXd& y, doub
   w_stages(OdeMethod::Ros2, t, h, y, err);
 }
 
-void OdeSolverImpl::step_ros34pw2(double t, double h, const Eigen::VectorXd& y, double* err) {
+void OdeSolverImpl::step_w4(double t, double h, const Eigen::VectorXd& y, double* err) {
   eval(t, y, f0_);
-  prepare_w(t, h, y, kRos34pw2.gamma * h);
-  w_stages(OdeMethod::Ros34pw2, t, h, y, err);
+  prepare_w(t, h, y, w_method_gamma(method_) * h);
+  w_stages(method_, t, h, y, err);
 }
 
 // The stages (engine/ode/w_stages.hpp) into y_new_, and outside fixed steps the error.
@@ -101,7 +102,8 @@ void OdeSolverImpl::w_stages(OdeMethod m, double t, double h, const Eigen::Vecto
   if (m == OdeMethod::Ros2)
     ros2_stages(t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
   else
-    ros34pw2_stages(t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
+    w4_stages(m == OdeMethod::Ros34prw ? kRos34prw : kRos34pw2, t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f,
+              solve);
   y_new_.swap(wv_.y_new);
   if (fixed_) {  // no error estimate needed
     *err = 0.0;
@@ -112,22 +114,15 @@ void OdeSolverImpl::w_stages(OdeMethod m, double t, double h, const Eigen::Vecto
   *err = std::max(*err, linearization_error(t, h, y));  // after: it overwrites err_vec_
 }
 
-Ros34pw2Tableau::Ros34pw2Tableau() {
-  double alpha[s][s] = {};
-  alpha[1][0] = 8.7173304301691801e-01;
-  alpha[2][0] = 8.4457060015369423e-01, alpha[2][1] = -1.1299064236397981e-01;
-  alpha[3][2] = 1.0;
+W4Tableau::W4Tableau(const double (&alpha)[s][s], const double (&gamma_ij)[s][s], double gamma_ii, const double (&b)[s],
+                     const double (&bh)[s])
+    : gamma(gamma_ii) {
   double g[s][s] = {};
-  g[1][0] = -8.7173304301691801e-01;
-  g[2][0] = -9.0338057013044082e-01, g[2][1] = 5.4180672388095326e-02;
-  g[3][0] = 2.4212380706095346e-01, g[3][1] = -1.2232505839045147e+00, g[3][2] = 5.4526025533510214e-01;
+  for (int i = 0; i < s; ++i)
+    for (int j = 0; j < i; ++j) g[i][j] = gamma_ij[i][j];
   for (int i = 0; i < s; ++i) g[i][i] = gamma;
   for (int i = 0; i < s; ++i)
     for (int j = 0; j <= i; ++j) gsum[i] += g[i][j];
-  const double b[s] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
-                       4.3586652150845900e-01};
-  const double bh[s] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
-                        2.1793326075422950e-01};
   // Gamma^-1 by forward substitution (lower triangular).
   double gi[s][s] = {};
   for (int j = 0; j < s; ++j) {
@@ -147,11 +142,44 @@ Ros34pw2Tableau::Ros34pw2Tableau() {
     for (int k = i; k < s; ++k) m[i] += b[k] * gi[k][i], e[i] += (b[k] - bh[k]) * gi[k][i];
   }
 }
-const Ros34pw2Tableau kRos34pw2;
+
+namespace {
+// Rang & Angermann's Table (ROS34PW2).
+W4Tableau make_ros34pw2() {
+  const double alpha[4][4] = {{0, 0, 0, 0},
+                              {8.7173304301691801e-01, 0, 0, 0},
+                              {8.4457060015369423e-01, -1.1299064236397981e-01, 0, 0},
+                              {0, 0, 1.0, 0}};
+  const double g[4][4] = {{0, 0, 0, 0},
+                          {-8.7173304301691801e-01, 0, 0, 0},
+                          {-9.0338057013044082e-01, 5.4180672388095326e-02, 0, 0},
+                          {2.4212380706095346e-01, -1.2232505839045147e+00, 5.4526025533510214e-01, 0}};
+  const double b[4] = {2.4212380706095346e-01, -1.2232505839045147e+00, 1.5452602553351023e+00,
+                       4.3586652150845900e-01};
+  const double bh[4] = {3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01,
+                        2.1793326075422950e-01};
+  return W4Tableau(alpha, g, 4.3586652150845900e-01, b, bh);
+}
+// Rang's Table 3 (ROS34PRw). alpha_21 = 3 gamma; the last stage's alpha row equals the third's
+// and b_i = alpha_4i + gamma_4i (stiffly accurate).
+W4Tableau make_ros34prw() {
+  const double alpha[4][4] = {{0, 0, 0, 0}, {1.3075995645253771, 0, 0, 0}, {0.5, 0.5, 0, 0}, {0.5, 0.5, 0, 0}};
+  const double g[4][4] = {{0, 0, 0, 0},
+                          {-1.3075995645253771, 0, 0, 0},
+                          {-0.7098857586097217, -0.55996735960277766, 0, 0},
+                          {-0.15550856807552085, -0.95388516575112225, 0.67352721231818413, 0}};
+  const double b[4] = {0.34449143192447917, -0.45388516575112231, 0.67352721231818413, 0.435866521508459};
+  const double bh[4] = {0.5, -0.25738812086522078, 0.43542008724775044, 0.32196803361747034};
+  return W4Tableau(alpha, g, 0.435866521508459, b, bh);
+}
+}  // namespace
+const W4Tableau kRos34pw2 = make_ros34pw2();
+const W4Tableau kRos34prw = make_ros34prw();
 
 double w_method_gamma(OdeMethod m) {
   if (m == OdeMethod::Ros2) return kRos2Gamma;
   if (m == OdeMethod::Ros34pw2) return kRos34pw2.gamma;
+  if (m == OdeMethod::Ros34prw) return kRos34prw.gamma;
   throw std::invalid_argument(std::string("w_method_gamma: ") + to_string(m) + " is not a W-method");
 }
 

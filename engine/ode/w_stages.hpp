@@ -1,6 +1,6 @@
-// The stages of the W-methods ROS2 and ROS34PW2 (docs/integrators.md 12), after the step's
-// first evaluation f0 = f(t, y) and with W = I - gamma h J~ set up: shared by OdeSolver and
-// the model's production step (engine/wmethod/w_step.hpp), so that both run the same
+// The stages of the linearly implicit methods ROS2, ROS34PW2 and ROS34PRW (docs/integrators.md
+// 12), after the step's first evaluation f0 = f(t, y) and with W = I - gamma h J~ set up:
+// shared by OdeSolver and the model's production step (engine/wmethod/w_step.hpp), so that both run the same
 // arithmetic. eval(t, y, dy) evaluates f, solve(x) overwrites x with W^-1 x.
 #pragma once
 
@@ -26,29 +26,36 @@ inline namespace CVT_ODE_ABI {
 // first-order solution y + h k1, i.e. (h/2)(k1 + k2).
 inline const double kRos2Gamma = 1.0 + 1.0 / std::sqrt(2.0);
 
-// ROS34PW2 (Rang & Angermann) in the form that needs no products with J~ (Hairer & Wanner
-// II, IV.7, (7.25)): with u_i = sum_j gamma_ij k_j,
+// The four-stage methods ROS34PW2 and ROS34PRW, after Hairer & Wanner II, IV.7 (7.25), in the
+// form that needs no products with J~: with u_i = sum_j gamma_ij k_j,
 //   W u_i = gamma h f(t + alpha_i h, y + sum_{j<i} a_ij u_j) + gamma sum_{j<i} c_ij u_j,
 //   y_1 = y + sum_i m_i u_i,
 // where a = alpha Gamma^-1, C = diag(1/gamma) - Gamma^-1 and m = b Gamma^-1 are computed once
-// from the published tableau (alpha, Gamma, b, b^). The t-column of J~ is zero, as a
-// W-method allows, unless the system supplies df/dt: then t is a state with the exact
-// column, u_i's t-component is h gamma_i (gamma_i = sum_j gamma_ij) and stage i gains
-// gamma gamma_i h^2 df/dt (Hairer & Wanner II, IV.7 (7.4)).
-struct Ros34pw2Tableau {
+// from the published tableau (alpha, Gamma, b, b^). The t-column of J~ is zero unless the
+// system supplies df/dt: then t is a state with the exact column, u_i's t-component is
+// h gamma_i (gamma_i = sum_j gamma_ij) and stage i gains gamma gamma_i h^2 df/dt (Hairer &
+// Wanner II, IV.7 (7.4)).
+//   ROS34PW2 (Rang & Angermann, BIT 45 (2005) 761-787): a W-method, order 3 for ANY J~,
+//   stiffly accurate; second order on the Prothero-Robinson problem y' = lambda (y - g) + g'.
+//   ROS34PRW (Rang, J. Comput. Appl. Math. 286 (2015) 128-144, "ROS34PRw"): order 3 with the
+//   exact Jacobian and on Prothero-Robinson for any h lambda, stiffly accurate, the same
+//   gamma; not a W-method: with J~ = J + O(h) (a matrix kept for several steps) second order.
+struct W4Tableau {
   static constexpr int s = 4;
-  double gamma = 4.3586652150845900e-01;
+  double gamma = 0;
   double alpha_c[s] = {};  // stage times
   double a[s][s] = {}, c[s][s] = {};
   double m[s] = {}, e[s] = {};  // solution weights and those of the error (m - m^)
   double gsum[s] = {};          // gamma_i = sum_j gamma_ij, the df/dt weights
-  Ros34pw2Tableau();
+  // From the published coefficients: alpha_ij and gamma_ij (j < i), gamma, b and b^.
+  W4Tableau(const double (&alpha)[s][s], const double (&gamma_ij)[s][s], double gamma_ii, const double (&b)[s],
+            const double (&bh)[s]);
 };
-extern const Ros34pw2Tableau kRos34pw2;
+extern const W4Tableau kRos34pw2, kRos34prw;
 
 // The vectors of a W-step, sized once.
 struct WStageVectors {
-  Eigen::VectorXd u[4];  // ROS34PW2's u_i; ROS2's k1, k2 in u[0], u[1]
+  Eigen::VectorXd u[4];  // the four-stage methods' u_i; ROS2's k1, k2 in u[0], u[1]
   Eigen::VectorXd y_new, err;
   void resize(int n) {
     for (auto& v : u) v.setZero(n);
@@ -73,11 +80,11 @@ void ros2_stages(double t, double h, const Eigen::VectorXd& y, const Eigen::Vect
   if (estimate) w.err = (0.5 * h) * (k1 + k2);
 }
 
-// ROS34PW2's stages from (t, y) with f0: y_new, and with `estimate` the embedded error in err.
+// A four-stage method's stages from (t, y) with f0: y_new, and with `estimate` the embedded
+// error in err.
 template <class Eval, class Solve>
-void ros34pw2_stages(double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& f0,
-                     const Eigen::VectorXd* dfdt, WStageVectors& w, bool estimate, Eval&& eval, Solve&& solve) {
-  const Ros34pw2Tableau& tb = kRos34pw2;
+void w4_stages(const W4Tableau& tb, double t, double h, const Eigen::VectorXd& y, const Eigen::VectorXd& f0,
+               const Eigen::VectorXd* dfdt, WStageVectors& w, bool estimate, Eval&& eval, Solve&& solve) {
   const double gh = tb.gamma * h, g = tb.gamma;
   // Each stage's sums in one pass over the vectors (the same operations in the same order as
   // one pass per term, so the same bits).

@@ -195,7 +195,8 @@ std::vector<IntegratorStudyOptions::WCandidate> parse_w_candidates(const std::ve
       } catch (const std::invalid_argument&) {
       }
       if (!w)
-        throw std::invalid_argument("--w-steps: '" + entry + "' names no W-method (ros2, ros34pw2) before '@'");
+        throw std::invalid_argument("--w-steps: '" + entry +
+                                    "' names no W-method (ros2, ros34pw2, ros34prw) before '@'");
     }
     char tail = 0;
     const bool tol = item.rfind("tol=", 0) == 0;

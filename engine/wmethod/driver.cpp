@@ -9,7 +9,9 @@ namespace cvt {
 OdeRunOptions w_run_options(const Config& c, double h, bool startup) {
   const Config::Integrator& in = c.integrator;
   OdeRunOptions ro;
-  ro.method = startup || in.method == IntegratorMethod::ros2 ? OdeMethod::Ros2 : OdeMethod::Ros34pw2;
+  ro.method = startup || in.method == IntegratorMethod::ros2 ? OdeMethod::Ros2
+              : in.method == IntegratorMethod::ros34prw      ? OdeMethod::Ros34prw
+                                                             : OdeMethod::Ros34pw2;
   ro.ode.fixed_step = true;
   ro.ode.h0 = h;
   ro.jac.scaled = false;

@@ -34,7 +34,7 @@ void WStep::finish(double t, double h, Eigen::VectorXd& y) {
   if (method_ == OdeMethod::Ros2)
     ros2_stages(t, h, y, f0_, nullptr, v_, true, f, solve);
   else
-    ros34pw2_stages(t, h, y, f0_, nullptr, v_, true, f, solve);
+    w4_stages(method_ == OdeMethod::Ros34prw ? kRos34prw : kRos34pw2, t, h, y, f0_, nullptr, v_, true, f, solve);
   err_ = sys.error_norm(v_.err.data(), y.data(), v_.y_new.data());
   y = v_.y_new;
 }

@@ -17,7 +17,7 @@ namespace cvt {
 
 class WStep {
  public:
-  // method: OdeMethod::Ros2 or Ros34pw2. Model, workspace and schedule must outlive it.
+  // method: OdeMethod::Ros2, Ros34pw2 or Ros34prw. Model, workspace and schedule must outlive it.
   WStep(const Model& m, Workspace& ws, Schedule& schedule, OdeMethod method, const ModelOdeOptions& opt);
   // The first evaluation of the run's step `index` from (t, y): f(t, y), the workspace left
   // as it leaves it (a sample of the state reads it).

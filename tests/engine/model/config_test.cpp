@@ -230,8 +230,16 @@ TEST(ConfigTest, ShortcutOptionsAreNamedInMessages) {
 }
 
 TEST(ConfigTest, SuggestsTheNameAPrefixBegins) {
-  auto e = expect_override_error("integrator.method=ros34", "integrator.method", "ros34");
+  auto e = expect_override_error("integrator.method=ros34pw", "integrator.method", "ros34pw");
   EXPECT_TRUE(contains(e.reason(), "did you mean 'ros34pw2'")) << e.reason();
+}
+
+// A prefix of two names (ros34pw2, ros34prw) suggests neither, nor a name nearer by edits
+// (ros2): the accepted names are listed.
+TEST(ConfigTest, SuggestsNothingForAPrefixOfTwoNames) {
+  auto e = expect_override_error("integrator.method=ros34", "integrator.method", "ros34");
+  EXPECT_FALSE(contains(e.reason(), "did you mean")) << e.reason();
+  EXPECT_TRUE(contains(e.reason(), "\"ros34pw2\", \"ros34prw\"")) << e.reason();
 }
 
 TEST(ConfigTest, MissingFileSaysItCannotBeRead) {

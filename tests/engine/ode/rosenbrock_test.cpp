@@ -1,6 +1,6 @@
-// The ROS2 W-method (engine/ode/rosenbrock.cpp, docs/integrators.md 12): second order with
-// the exact Jacobian and with any other matrix J~, L-stable with the exact one, and a
-// stiff component that an explicit step could not take.
+// The W-methods ROS2 and ROS34PW2 and the Rosenbrock method ROS34PRW (engine/ode/rosenbrock.cpp,
+// docs/integrators.md 12): their orders with the exact Jacobian and with other matrices J~,
+// L-stability, stiff components that an explicit step could not take, and Prothero-Robinson.
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -175,6 +175,44 @@ TEST(OdeRos34pw2, ThirdOrderForAnyMatrix) {
   }
 }
 
+// ROS34PRW: third order with the exact Jacobian (the classical Rosenbrock conditions; the
+// smooth system is driven by t, so with its exact t-column, df/dt) but not a W-method: with
+// a wrong constant matrix its order falls (to about 1.4 here), and with the Jacobian kept
+// for 5 steps (J~ = J + O(h)) to 2, where ROS34PW2 keeps 3.
+OdeSystem smooth_system_with_dfdt() {
+  OdeSystem sys = smooth_system();
+  sys.time_derivative = [](double, const double* y, double* ft) { ft[0] = 0, ft[1] = 0, ft[2] = -y[2] * y[2]; };
+  return sys;
+}
+
+TEST(OdeRos34prw, ThirdOrderOnlyWithTheCurrentJacobian) {
+  EXPECT_NEAR(smooth_order(smooth_system_with_dfdt(), OdeMethod::Ros34prw, 40, "ros34prw (J~ = J by differences)"), 3.0,
+              0.15);
+  OdeSystem sys = smooth_system_with_dfdt();
+  ConstantW w;
+  w.jt = Eigen::MatrixXd::Zero(3, 3);
+  w.jt << -3.0, 0.5, 0.0, 0.2, -1.0, 0.7, 0.0, -0.4, -2.0;
+  w.install(sys);
+  EXPECT_LT(smooth_order(sys, OdeMethod::Ros34prw, 40, "ros34prw (J~ wrong)"), 2.0);
+  auto stale_order = [](OdeMethod m) {
+    double e[2];
+    for (int k = 0; k < 2; ++k) {
+      Eigen::VectorXd y = smooth_exact(0);
+      OdeOptions opt;
+      opt.fixed_step = true;
+      opt.h0 = 2.0 / (160 << k);
+      opt.w_reuse_steps = 5;
+      integrate(smooth_system_with_dfdt(), m, 0, 2, y, opt);
+      e[k] = (y - smooth_exact(2)).lpNorm<Eigen::Infinity>();
+    }
+    std::printf("[ode] %s, Jacobian kept 5 steps, n = 160 320: errors %.3e %.3e  order %.2f\n", to_string(m), e[0],
+                e[1], std::log2(e[0] / e[1]));
+    return std::log2(e[0] / e[1]);
+  };
+  EXPECT_NEAR(stale_order(OdeMethod::Ros34prw), 2.0, 0.25);
+  EXPECT_NEAR(stale_order(OdeMethod::Ros34pw2), 3.0, 0.25);
+}
+
 // Stiffly accurate and L-stable: on the stiff pair of OdeRos2.StiffComponentNeedsTheMatrixOnlyRoughly
 // the stiff component sits on its slow manifold after each step, to third order in h.
 TEST(OdeRos34pw2, StiffComponentOnItsSlowManifold) {
@@ -271,6 +309,16 @@ TEST(OdeTimeDerivative, Ros34pw2IsSecondOrderOnProtheroRobinsonEitherWay) {
   EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros34pw2, false, &e_without), 2.0, 0.15);
   EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros34pw2, true, &e_with), 2.0, 0.15);
   EXPECT_NEAR(e_with, e_without, 1e-3 * e_without);
+}
+
+// ROS34PRW (Rang 2015) satisfies the Prothero-Robinson conditions ROS34PW2 lacks: third order
+// on the stiff problem, with df/dt (its stage times enter through the exact t-column), and
+// at n = 10 far closer than ROS34PW2.
+TEST(OdeTimeDerivative, Ros34prwIsThirdOrderOnProtheroRobinson) {
+  double e_pw2 = 0, e_prw = 0;
+  prothero_robinson_order(OdeMethod::Ros34pw2, true, &e_pw2);
+  EXPECT_NEAR(prothero_robinson_order(OdeMethod::Ros34prw, true, &e_prw), 3.0, 0.2);
+  EXPECT_LT(e_prw, e_pw2 / 10);
 }
 
 // With df/dt a W-step is the step of the autonomous system (y, t)' = (f, 1) whose Jacobian
