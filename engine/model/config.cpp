@@ -224,8 +224,14 @@ const std::vector<std::string>& law_names() {
   static const std::vector<std::string> names = {"nonsmooth", "smooth", "none"};
   return names;
 }
+constexpr IntegratorMethod kMethods[] = {IntegratorMethod::rk4, IntegratorMethod::ros2, IntegratorMethod::ros34pw2,
+                                         IntegratorMethod::ros34prw};
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"rk4", "ros2", "ros34pw2", "ros34prw"};
+  static const std::vector<std::string> names = [] {
+    std::vector<std::string> out;
+    for (IntegratorMethod m : kMethods) out.emplace_back(to_string(m));
+    return out;
+  }();
   return names;
 }
 
@@ -540,10 +546,8 @@ class Validator {
         const std::string v = s->get();
         check_name(qkey, n, v, method_names(), "integrator method");
         auto& method = *static_cast<IntegratorMethod*>(d.ref(cfg));
-        method = v == "rk4"        ? IntegratorMethod::rk4
-                 : v == "ros2"     ? IntegratorMethod::ros2
-                 : v == "ros34prw" ? IntegratorMethod::ros34prw
-                                   : IntegratorMethod::ros34pw2;
+        for (IntegratorMethod m : kMethods)
+          if (v == to_string(m)) method = m;
         break;
       }
       case Kind::law: {

@@ -102,8 +102,7 @@ void OdeSolverImpl::w_stages(OdeMethod m, double t, double h, const Eigen::Vecto
   if (m == OdeMethod::Ros2)
     ros2_stages(t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
   else
-    w4_stages(m == OdeMethod::Ros34prw ? kRos34prw : kRos34pw2, t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f,
-              solve);
+    w4_stages(w4_tableau(m), t, h, y, f0_, dfdt ? &dfdt_ : nullptr, wv_, !fixed_, f, solve);
   y_new_.swap(wv_.y_new);
   if (fixed_) {  // no error estimate needed
     *err = 0.0;
@@ -176,11 +175,17 @@ W4Tableau make_ros34prw() {
 const W4Tableau kRos34pw2 = make_ros34pw2();
 const W4Tableau kRos34prw = make_ros34prw();
 
+const W4Tableau& w4_tableau(OdeMethod m) {
+  if (m == OdeMethod::Ros34pw2) return kRos34pw2;
+  if (m == OdeMethod::Ros34prw) return kRos34prw;
+  throw std::invalid_argument(std::string("w4_tableau: ") + to_string(m) + " is not a four-stage W-method");
+}
+
 double w_method_gamma(OdeMethod m) {
   if (m == OdeMethod::Ros2) return kRos2Gamma;
-  if (m == OdeMethod::Ros34pw2) return kRos34pw2.gamma;
-  if (m == OdeMethod::Ros34prw) return kRos34prw.gamma;
-  throw std::invalid_argument(std::string("w_method_gamma: ") + to_string(m) + " is not a W-method");
+  if (!is_w_method(m))
+    throw std::invalid_argument(std::string("w_method_gamma: ") + to_string(m) + " is not a W-method");
+  return w4_tableau(m).gamma;
 }
 
 }  // namespace CVT_ODE_ABI

@@ -1,7 +1,7 @@
 // The stages of the linearly implicit methods ROS2, ROS34PW2 and ROS34PRW (docs/integrators.md
 // 12), after the step's first evaluation f0 = f(t, y) and with W = I - gamma h J~ set up:
-// shared by OdeSolver and the model's production step (engine/wmethod/w_step.hpp), so that both run the same
-// arithmetic. eval(t, y, dy) evaluates f, solve(x) overwrites x with W^-1 x.
+// shared by OdeSolver and the model's production step (engine/wmethod/w_step.hpp), so that
+// both run the same arithmetic. eval(t, y, dy) evaluates f, solve(x) overwrites x with W^-1 x.
 #pragma once
 
 #include <algorithm>
@@ -52,6 +52,8 @@ struct W4Tableau {
             const double (&bh)[s]);
 };
 extern const W4Tableau kRos34pw2, kRos34prw;
+// The tableau of OdeMethod::Ros34pw2 or Ros34prw; throws std::invalid_argument otherwise.
+const W4Tableau& w4_tableau(OdeMethod m);
 
 // The vectors of a W-step, sized once.
 struct WStageVectors {

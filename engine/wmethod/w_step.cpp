@@ -14,7 +14,10 @@ ModelOdeOptions without_sparsity(ModelOdeOptions opt) {
 }  // namespace
 
 WStep::WStep(const Model& m, Workspace& ws, Schedule& schedule, OdeMethod method, const ModelOdeOptions& opt)
-    : ode_(m, ws, schedule, without_sparsity(opt)), method_(method), gamma_(w_method_gamma(method)) {
+    : ode_(m, ws, schedule, without_sparsity(opt)),
+      method_(method),
+      w4_(method == OdeMethod::Ros2 ? nullptr : &w4_tableau(method)),
+      gamma_(w_method_gamma(method)) {
   if (!opt.w_blocks) throw std::invalid_argument("WStep: the production step needs the chain's W (w_blocks)");
   f0_.resize(m.nstate);
   v_.resize(m.nstate);
@@ -31,10 +34,10 @@ void WStep::finish(double t, double h, Eigen::VectorXd& y) {
   const OdeSystem& sys = ode_.system();
   const auto f = [&sys](double tt, const Eigen::VectorXd& yy, Eigen::VectorXd& dy) { sys.rhs(tt, yy.data(), dy.data()); };
   const auto solve = [&w](Eigen::VectorXd& x) { w.solve(x.data()); };
-  if (method_ == OdeMethod::Ros2)
+  if (!w4_)
     ros2_stages(t, h, y, f0_, nullptr, v_, true, f, solve);
   else
-    w4_stages(method_ == OdeMethod::Ros34prw ? kRos34prw : kRos34pw2, t, h, y, f0_, nullptr, v_, true, f, solve);
+    w4_stages(*w4_, t, h, y, f0_, nullptr, v_, true, f, solve);
   err_ = sys.error_norm(v_.err.data(), y.data(), v_.y_new.data());
   y = v_.y_new;
 }

@@ -38,6 +38,7 @@ class WStep {
  private:
   ModelOde ode_;
   OdeMethod method_;
+  const W4Tableau* w4_;  // the four-stage method's tableau; null for ROS2
   double gamma_;
   double err_ = 0;
   Eigen::VectorXd f0_;
